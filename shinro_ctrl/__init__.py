@@ -1,0 +1,28 @@
+"""shinro_ctrl: a model-based control design workbench.
+
+Plants write their dynamics once (numpy and CasADi from one definition);
+exact linearizations feed LQR, linear MPC (OSQP) and IK-QP controllers, which
+are validated in closed loop against the plant's own integration and against
+a matched MuJoCo model.
+"""
+
+from shinro_ctrl.errors import (
+    ConfigError,
+    MPCInfeasible,
+    NonFiniteError,
+    NotStabilizable,
+    ShinroError,
+    SimulationDiverged,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ConfigError",
+    "MPCInfeasible",
+    "NonFiniteError",
+    "NotStabilizable",
+    "ShinroError",
+    "SimulationDiverged",
+    "__version__",
+]

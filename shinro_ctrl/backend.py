@@ -1,0 +1,157 @@
+"""Array backends: the small vocabulary each plant writes its dynamics in.
+
+A plant writes its continuous dynamics ``f(x, u)`` once, as a function of a
+backend ``bk``. Three backends evaluate that one definition:
+
+* :class:`NumpyBackend` computes numbers and broadcasts over a leading batch
+  axis: ``x`` of shape ``(N, n)``, ``u`` of ``(N, m)`` and parameters of shape
+  ``(N,)`` give ``xdot`` of shape ``(N, n)``.
+* :class:`ScalarBackend` computes one instance with Python floats and the
+  ``math`` module; it is what a single ``plant.step`` uses, because numpy's
+  per-call overhead on scalars costs more than the arithmetic.
+* :class:`CasadiBackend` builds a ``casadi.SX`` expression, from which exact
+  Jacobians are taken.
+
+The operations are deliberately few: elementwise ``sin``/``cos``/``tan``/
+``sqrt``, ``unpack`` (a vector into its components), ``stack`` (components
+into a vector), and matrix helpers for code that is not per-component
+(``array``, ``zeros``, ``eye``, ``solve``, ``clip``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import casadi as cs
+import numpy as np
+
+__all__ = ["ArrayBackend", "CasadiBackend", "NumpyBackend", "ScalarBackend"]
+
+
+class ArrayBackend:
+    """Interface shared by the backends (documentation and ``isinstance``)."""
+
+    name = "abstract"
+
+    def unpack(self, v: Any, n: int) -> tuple:
+        """Split the last axis of ``v`` into ``n`` components."""
+        raise NotImplementedError
+
+    def stack(self, items: Sequence[Any]) -> Any:
+        """Join components into a vector along the last axis."""
+        raise NotImplementedError
+
+
+class NumpyBackend(ArrayBackend):
+    """Numeric, batch-aware backend on numpy arrays.
+
+    Components are views ``v[..., i]``, so every expression broadcasts over
+    any leading batch axes; :meth:`stack` broadcasts scalars (such as a
+    constant zero row) up to the batch shape.
+    """
+
+    name = "numpy"
+    sin = staticmethod(np.sin)
+    cos = staticmethod(np.cos)
+    tan = staticmethod(np.tan)
+    sqrt = staticmethod(np.sqrt)
+    arccos = staticmethod(np.arccos)
+    arctan2 = staticmethod(np.arctan2)
+
+    def unpack(self, v: Any, n: int) -> tuple:
+        v = np.asarray(v, dtype=float)
+        return tuple(v[..., i] for i in range(n))
+
+    def stack(self, items: Sequence[Any]) -> np.ndarray:
+        return np.stack(np.broadcast_arrays(*[np.asarray(i, dtype=float) for i in items]), axis=-1)
+
+    # Matrix helpers (single instance).
+    @staticmethod
+    def array(v: Any) -> np.ndarray:
+        return np.asarray(v, dtype=float)
+
+    @staticmethod
+    def zeros(n: int | tuple[int, ...]) -> np.ndarray:
+        return np.zeros(n)
+
+    @staticmethod
+    def eye(n: int) -> np.ndarray:
+        return np.eye(n)
+
+    @staticmethod
+    def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.linalg.solve(A, b)
+
+    @staticmethod
+    def clip(v: Any, lo: Any, hi: Any) -> np.ndarray:
+        return np.clip(v, lo, hi)
+
+    @staticmethod
+    def to_numpy(v: Any) -> np.ndarray:
+        return np.asarray(v, dtype=float)
+
+    @staticmethod
+    def from_numpy(v: Any) -> np.ndarray:
+        return np.asarray(v, dtype=float)
+
+
+class ScalarBackend(NumpyBackend):
+    """Single-instance fast path: components are Python floats, math is ``math``.
+
+    Produces the same numbers as :class:`NumpyBackend` for one instance (the
+    tests check it) at a fraction of the per-call cost.
+    """
+
+    name = "scalar"
+    sin = staticmethod(math.sin)
+    cos = staticmethod(math.cos)
+    tan = staticmethod(math.tan)
+    sqrt = staticmethod(math.sqrt)
+    arccos = staticmethod(math.acos)
+    arctan2 = staticmethod(math.atan2)
+
+    def unpack(self, v: Any, n: int) -> tuple:
+        return tuple(v.tolist()) if isinstance(v, np.ndarray) else tuple(float(c) for c in v)
+
+    def stack(self, items: Sequence[Any]) -> np.ndarray:
+        return np.array(items, dtype=float)
+
+
+class CasadiBackend(ArrayBackend):
+    """Symbolic backend on ``casadi.SX`` column vectors."""
+
+    name = "casadi"
+    sin = staticmethod(cs.sin)
+    cos = staticmethod(cs.cos)
+    tan = staticmethod(cs.tan)
+    sqrt = staticmethod(cs.sqrt)
+    arccos = staticmethod(cs.acos)
+    arctan2 = staticmethod(cs.atan2)
+
+    def unpack(self, v: Any, n: int) -> tuple:
+        return tuple(v[i] for i in range(n))
+
+    def stack(self, items: Sequence[Any]) -> cs.SX:
+        return cs.vertcat(*items)
+
+    @staticmethod
+    def array(v: Any) -> cs.SX:
+        return cs.SX(np.asarray(v, dtype=float)) if not isinstance(v, cs.SX) else v
+
+    @staticmethod
+    def zeros(n: int | tuple[int, ...]) -> cs.SX:
+        return cs.SX.zeros(*((n, 1) if isinstance(n, int) else n))
+
+    @staticmethod
+    def eye(n: int) -> cs.SX:
+        return cs.SX.eye(n)
+
+    @staticmethod
+    def solve(A: Any, b: Any) -> cs.SX:
+        return cs.solve(A, b)
+
+    @staticmethod
+    def clip(v: Any, lo: Any, hi: Any) -> cs.SX:
+        return cs.fmin(cs.fmax(v, lo), hi)

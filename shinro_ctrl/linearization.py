@@ -1,0 +1,228 @@
+"""Exact and finite-difference linearization, and discretization.
+
+For continuous dynamics ``xdot = f(x, u)`` the linearization at an operating
+point ``(x0, u0)`` is
+
+    A_c = ∂f/∂x (x0, u0)    (n, n)
+    B_c = ∂f/∂u (x0, u0)    (n, m)
+
+*Exact* Jacobians come from ``casadi.jacobian`` of the plant's symbolic
+expression. They are compiled once per plant into a ``casadi.Function`` and
+evaluated through its buffer interface, which writes straight into
+preallocated numpy arrays (about 0.5 µs, against 50–90 µs for an ordinary
+CasADi call). *Finite differences* (central, step ``eps``) of the numeric
+dynamics are the independent cross-check.
+
+Discretizations at step ``dt``:
+
+* ``euler``: ``A = I + dt A_c``, ``B = dt B_c``.
+* ``zoh``:   ``expm([[A_c, B_c], [0, 0]] dt) = [[A, B], [0, I]]`` (exact for LTI).
+* ``rk4``:   one classical RK4 step of the linear system,
+  ``A = Σ_{k=0..4} (dt A_c)^k / k!``, ``B = Σ_{k=1..4} dt^k A_c^{k-1} / k! · B_c``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+import scipy.linalg
+
+__all__ = [
+    "DISCRETIZATIONS",
+    "ExactJacobian",
+    "LinearModel",
+    "LinearizationComparison",
+    "compare",
+    "discretize",
+    "fd_jacobians",
+]
+
+DISCRETIZATIONS = ("euler", "zoh", "rk4")
+
+
+@dataclass(frozen=True)
+class LinearModel:
+    """A discrete linear model with the context it came from.
+
+    ``x[k+1] - x0 ≈ A (x[k] - x0) + B (u[k] - u0)``.
+
+    Attributes:
+        A: State matrix ``(n, n)`` (discrete).
+        B: Input matrix ``(n, m)`` (discrete).
+        dt: Sampling time [s].
+        x0: Operating-point state ``(n,)``.
+        u0: Operating-point input ``(m,)``.
+        A_c: Continuous state matrix ``(n, n)``.
+        B_c: Continuous input matrix ``(n, m)``.
+        method: ``"exact"`` or ``"fd"``.
+        discretization: ``"euler"``, ``"zoh"`` or ``"rk4"``.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    dt: float
+    x0: np.ndarray
+    u0: np.ndarray
+    A_c: np.ndarray
+    B_c: np.ndarray
+    method: str
+    discretization: str
+
+
+def discretize(
+    A_c: np.ndarray, B_c: np.ndarray, dt: float, method: str = "euler"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Discretize ``(A_c, B_c)`` at step ``dt`` with ``euler``, ``zoh`` or ``rk4``.
+
+    Args:
+        A_c: Continuous state matrix ``(n, n)``.
+        B_c: Continuous input matrix ``(n, m)``.
+        dt: Sampling time [s], positive.
+        method: One of :data:`DISCRETIZATIONS`.
+
+    Returns:
+        ``(A, B)``, discrete matrices of shapes ``(n, n)`` and ``(n, m)``.
+    """
+    n, m = B_c.shape
+    if method == "euler":
+        return np.eye(n) + dt * A_c, dt * B_c
+    if method == "zoh":
+        aug = np.zeros((n + m, n + m))
+        aug[:n, :n] = A_c
+        aug[:n, n:] = B_c
+        E = scipy.linalg.expm(aug * dt)
+        return E[:n, :n].copy(), E[:n, n:].copy()
+    if method == "rk4":
+        A = np.eye(n)
+        Bsum = np.zeros((n, n))
+        term = np.eye(n)  # (dt A_c)^k / k!
+        for k in range(1, 5):
+            Bsum += term * (dt / k)  # dt^k A_c^{k-1} / k!
+            term = term @ (dt * A_c) / k
+            A = A + term
+        return A, Bsum @ B_c
+    raise ValueError(f"unknown discretization {method!r}; valid: {', '.join(DISCRETIZATIONS)}")
+
+
+def fd_jacobians(
+    f: Callable[[np.ndarray, np.ndarray], np.ndarray], x0: np.ndarray, u0: np.ndarray, eps: float = 1e-6
+) -> tuple[np.ndarray, np.ndarray]:
+    """Central finite-difference Jacobians of a batch-aware ``f(x, u)``.
+
+    All ``2 (n + m)`` perturbed points are evaluated in one batched call, so
+    the cost is one numpy evaluation over ``2 (n + m)`` instances.
+
+    Args:
+        f: Dynamics accepting ``x`` of shape ``(N, n)`` and ``u`` of ``(N, m)``.
+        x0: State ``(n,)``.
+        u0: Input ``(m,)``.
+        eps: Perturbation step (absolute).
+
+    Returns:
+        ``(A_c, B_c)`` of shapes ``(n, n)`` and ``(n, m)``; error O(eps²) plus
+        rounding O(1e-16 / eps).
+    """
+    n, m = x0.shape[0], u0.shape[0]
+    k = n + m
+    z0 = np.concatenate([x0, u0])
+    Z = np.repeat(z0[None, :], 2 * k, axis=0)
+    idx = np.arange(k)
+    Z[idx, idx] += eps
+    Z[k + idx, idx] -= eps
+    F = f(Z[:, :n], Z[:, n:])
+    J = ((F[:k] - F[k:]) / (2.0 * eps)).T
+    return J[:, :n].copy(), J[:, n:].copy()
+
+
+class ExactJacobian:
+    """Exact Jacobians of a symbolic ``f(x, u, p)``, compiled once, evaluated fast.
+
+    Args:
+        f: ``casadi.Function`` with inputs ``(x, u, p)`` and output ``xdot``.
+
+    Calling the instance with ``(x0, u0, p)`` returns fresh ``(A_c, B_c)``
+    arrays. The CasADi buffer is bound to arrays this object owns, so the
+    evaluation itself allocates nothing.
+    """
+
+    def __init__(self, f: cs.Function):
+        x = cs.SX.sym("x", f.size1_in(0))
+        u = cs.SX.sym("u", f.size1_in(1))
+        p = cs.SX.sym("p", f.size1_in(2))
+        xdot = f(x, u, p)
+        jac = cs.Function(
+            "jac_f",
+            [x, u, p],
+            [cs.densify(cs.jacobian(xdot, x)), cs.densify(cs.jacobian(xdot, u))],
+            ["x", "u", "p"],
+            ["A", "B"],
+        )
+        self.function = jac
+        self.n, self.m = x.shape[0], u.shape[0]
+        self._x = np.zeros(self.n)
+        self._u = np.zeros(self.m)
+        self._p = np.zeros(p.shape[0])
+        # Column-major nonzeros: fill flat buffers, read them back transposed.
+        self._A = np.zeros(self.n * self.n)
+        self._B = np.zeros(self.n * self.m)
+        self._buf, self._eval = jac.buffer()
+        self._buf.set_arg(0, memoryview(self._x))
+        self._buf.set_arg(1, memoryview(self._u))
+        self._buf.set_arg(2, memoryview(self._p))
+        self._buf.set_res(0, memoryview(self._A))
+        self._buf.set_res(1, memoryview(self._B))
+
+    def __call__(self, x0: np.ndarray, u0: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._x[:] = x0
+        self._u[:] = u0
+        self._p[:] = p
+        self._eval()
+        return (
+            self._A.reshape(self.n, self.n, order="F").copy(),
+            self._B.reshape(self.n, self.m, order="F").copy(),
+        )
+
+
+@dataclass(frozen=True)
+class LinearizationComparison:
+    """Exact and finite-difference linearizations side by side.
+
+    Attributes:
+        A_exact, B_exact: Exact continuous Jacobians.
+        A_fd, B_fd: Central finite-difference Jacobians.
+        max_abs_error: ``max |exact − fd|`` over A and B.
+        max_rel_error: ``max |exact − fd| / max(1, |exact|)`` over A and B.
+    """
+
+    A_exact: np.ndarray
+    B_exact: np.ndarray
+    A_fd: np.ndarray
+    B_fd: np.ndarray
+    max_abs_error: float
+    max_rel_error: float
+
+
+def compare(plant, x0=None, u0=None, *, eps: float = 1e-6) -> LinearizationComparison:
+    """Linearize ``plant`` exactly and by finite differences and compare.
+
+    Args:
+        plant: Any :class:`~shinro_ctrl.plants.base.Plant`.
+        x0: Operating-point state ``(n,)``; default the plant's equilibrium.
+        u0: Operating-point input ``(m,)``; default the plant's equilibrium input.
+        eps: Finite-difference step.
+    """
+    Ae, Be = plant.linearize(x0, u0, method="exact")
+    Af, Bf = plant.linearize(x0, u0, method="fd", eps=eps)
+    exact = np.hstack([Ae, Be])
+    diff = np.abs(exact - np.hstack([Af, Bf]))
+    return LinearizationComparison(
+        Ae,
+        Be,
+        Af,
+        Bf,
+        float(diff.max(initial=0.0)),
+        float((diff / np.maximum(1.0, np.abs(exact))).max(initial=0.0)),
+    )

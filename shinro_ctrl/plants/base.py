@@ -1,0 +1,375 @@
+"""The :class:`Plant` base: everything a plant needs except its equations.
+
+A subclass declares its names (``state_names``, ``input_names``,
+``param_names``), stores its physical parameters with :meth:`Plant._init`,
+and writes its continuous dynamics once in :meth:`Plant._f` against a backend
+``bk``. This base turns that one definition into
+
+* ``dynamics(x, u)``: numbers, single instance or a batch ``(N, n)``;
+* ``symbolic()``: the CasADi ``Function`` ``f(x, u)`` (or ``f(x, u, p)``);
+* ``linearize()``: exact Jacobians (CasADi, compiled once) or central FD;
+* ``get_model()`` / ``linear_model()``: discrete ``(A, B)`` at ``dt``;
+* ``step(u)``: semi-implicit Euler standalone, or one physics-engine step.
+
+Engine mode is duck-typed: a plant never imports the engine. It tells the
+engine how to match the MJCF model to its parameters (:meth:`mjcf_patch`) and
+how to read and write its state and inputs (``_engine_read``,
+``_engine_write``, ``_engine_apply``).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, is_dataclass
+from typing import Any, ClassVar
+
+import casadi as cs
+import numpy as np
+
+from shinro_ctrl.backend import CasadiBackend, NumpyBackend, ScalarBackend
+from shinro_ctrl.errors import ConfigError, SimulationDiverged
+from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd_jacobians
+from shinro_ctrl.validation import as_vector, check_positive, did_you_mean, unknown_keys
+
+__all__ = ["MjcfPatch", "Plant"]
+
+_NUMPY = NumpyBackend()
+_SCALAR = ScalarBackend()
+_CASADI = CasadiBackend()
+
+
+@dataclass(frozen=True)
+class MjcfPatch:
+    """Edits that make a plant's MJCF asset match the plant's parameters.
+
+    The engine applies them through ``MjSpec`` before compiling, so the
+    analytic and the simulated model describe the same physics for any
+    parameter values, not only the defaults.
+
+    Attributes:
+        asset: File name of the MJCF asset (see ``resources.asset_path``).
+        timestep: Plant step ``dt`` [s]; the engine divides it by its substeps.
+        gravity: World gravity vector [m/s²], shape ``(3,)``.
+        inertials: Body name → ``(mass [kg], ipos (3,) [m])``: a point mass at
+            ``ipos`` in the body frame (the engine adds a tiny inertia).
+        body_pos: Body name → position ``(3,)`` in its parent's frame [m].
+        body_inertia: Body name → diagonal inertia ``(3,)`` [kg m²] (for rigid
+            bodies that are not point masses, such as the quadrotor).
+        joint_damping: Joint name → damping [N m s/rad or N s/m].
+        geom_fromto: Visual geom name → ``fromto`` ``(6,)`` [m].
+        geom_size: Visual geom name → ``size`` (1 to 3 values) [m].
+    """
+
+    asset: str
+    timestep: float
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    inertials: dict[str, tuple[float, tuple[float, float, float]]] = field(default_factory=dict)
+    body_pos: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    body_inertia: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    joint_damping: dict[str, float] = field(default_factory=dict)
+    geom_fromto: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    geom_size: dict[str, tuple[float, ...]] = field(default_factory=dict)
+
+
+class Plant:
+    """Base class of every plant model.
+
+    Subclasses set the class attributes below, call :meth:`_init` from their
+    constructor and implement :meth:`_f`. Mechanical plants whose position
+    derivatives equal their velocities list the two index groups in
+    ``position_indices`` / ``velocity_indices`` and inherit semi-implicit
+    Euler; others override :meth:`_integrate`.
+
+    Attributes:
+        state_names: Names of the state components, length ``n``.
+        input_names: Names of the inputs, length ``m``.
+        param_names: Names of the physical parameters (constructor names).
+        asset: MJCF asset file of the matched MuJoCo model, or None.
+        dt: Step [s].
+        state: Current standalone state ``(n,)``.
+    """
+
+    state_names: ClassVar[tuple[str, ...]] = ()
+    input_names: ClassVar[tuple[str, ...]] = ()
+    param_names: ClassVar[tuple[str, ...]] = ()
+    asset: ClassVar[str | None] = None
+    position_indices: ClassVar[tuple[int, ...]] = ()
+    velocity_indices: ClassVar[tuple[int, ...]] = ()
+
+    # ------------------------------------------------------------------ set-up
+    def _init(self, *, dt: float, params: Mapping[str, float], backend: Any = None) -> None:
+        """Store validated parameters and allocate per-instance caches."""
+        self.dt = check_positive("dt", dt)
+        missing = [k for k in self.param_names if k not in params]
+        if missing:  # a bug in a subclass, not a user error
+            raise TypeError(f"{type(self).__name__} did not store parameters {missing}")
+        self._params: dict[str, float] = {k: float(params[k]) for k in self.param_names}
+        self._pvec = np.array([self._params[k] for k in self.param_names], dtype=float)
+        self.bk = backend if backend is not None else _NUMPY
+        self.state = np.zeros(self.state_dim)
+        self._engine: Any = None
+        self._symbolic: dict[bool, cs.Function] = {}
+        self._exact: ExactJacobian | None = None
+
+    @property
+    def state_dim(self) -> int:
+        """Number of states ``n``."""
+        return len(self.state_names)
+
+    @property
+    def input_dim(self) -> int:
+        """Number of inputs ``m``."""
+        return len(self.input_names)
+
+    def params(self) -> dict[str, float]:
+        """The physical parameters by constructor name (a copy)."""
+        return dict(self._params)
+
+    def equilibrium(self) -> tuple[np.ndarray, np.ndarray]:
+        """The documented default operating point ``(x0 (n,), u0 (m,))``."""
+        return np.zeros(self.state_dim), np.zeros(self.input_dim)
+
+    # -------------------------------------------------------------- dynamics
+    def _f(self, bk: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
+        """Continuous dynamics ``xdot = f(x, u; p)``, written once against ``bk``."""
+        raise NotImplementedError
+
+    def dynamics(self, x: Any, u: Any, params: Mapping[str, Any] | None = None) -> np.ndarray:
+        """Evaluate the continuous dynamics numerically.
+
+        Args:
+            x: State ``(n,)`` or a batch ``(N, n)``.
+            u: Input ``(m,)`` or ``(N, m)``; a scalar or ``(N,)`` when ``m == 1``.
+            params: Optional per-instance overrides, name → scalar or ``(N,)``.
+
+        Returns:
+            ``xdot`` with the broadcast shape of ``x``: ``(n,)`` or ``(N, n)``.
+        """
+        n, m = self.state_dim, self.input_dim
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if m == 1 and (u.ndim == 0 or (u.ndim == 1 and x.ndim == 2 and u.shape[0] != 1)):
+            u = u[..., None]
+        if x.shape[-1:] != (n,) or u.shape[-1:] != (m,):
+            raise ValueError(
+                f"{type(self).__name__}.dynamics: expected x (..., {n}) and u (..., {m}) "
+                f"but found {x.shape} and {u.shape}"
+            )
+        if x.ndim == 1 and u.ndim == 1 and not params:
+            return self._f(_SCALAR, x, u, self._params)
+        p: dict[str, Any] = dict(self._params)
+        if params:
+            bad = unknown_keys(params, self.param_names)
+            if bad:
+                raise ValueError(f"unknown parameter {bad[0]!r}{did_you_mean(bad[0], self.param_names)}")
+            p.update({k: np.asarray(v, dtype=float) for k, v in params.items()})
+        return self._f(_NUMPY, x, u, p)
+
+    def symbolic(self, params: bool = False) -> cs.Function:
+        """The dynamics as a CasADi ``Function`` named ``"f"``.
+
+        Args:
+            params: If True the physical parameters are a third input ``p``
+                (ordered as ``param_names``); otherwise they are constants.
+
+        Returns:
+            ``f(x, u) -> xdot`` or ``f(x, u, p) -> xdot`` on ``SX``.
+        """
+        if params not in self._symbolic:
+            x = cs.SX.sym("x", self.state_dim)
+            u = cs.SX.sym("u", self.input_dim)
+            if params:
+                p = cs.SX.sym("p", len(self.param_names))
+                pmap = {k: p[i] for i, k in enumerate(self.param_names)}
+                self._symbolic[True] = cs.Function(
+                    "f", [x, u, p], [self._f(_CASADI, x, u, pmap)], ["x", "u", "p"], ["xdot"]
+                )
+            else:
+                self._symbolic[False] = cs.Function(
+                    "f", [x, u], [self._f(_CASADI, x, u, self._params)], ["x", "u"], ["xdot"]
+                )
+        return self._symbolic[params]
+
+    def _operating_point(self, x0: Any, u0: Any) -> tuple[np.ndarray, np.ndarray]:
+        xe, ue = self.equilibrium()
+        x0 = xe if x0 is None else as_vector("x0", x0, self.state_dim)
+        u0 = ue if u0 is None else as_vector("u0", u0, self.input_dim)
+        return x0, u0
+
+    def linearize(
+        self, x0: Any = None, u0: Any = None, method: str = "exact", eps: float = 1e-6
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous-time Jacobians ``(A_c (n, n), B_c (n, m))`` at ``(x0, u0)``.
+
+        Args:
+            x0: Operating state ``(n,)``; default :meth:`equilibrium`.
+            u0: Operating input ``(m,)``; default :meth:`equilibrium`.
+            method: ``"exact"`` (CasADi, compiled once per plant) or ``"fd"``
+                (central finite differences of :meth:`dynamics`).
+            eps: Finite-difference step (``"fd"`` only).
+        """
+        x0, u0 = self._operating_point(x0, u0)
+        if method == "exact":
+            if self._exact is None:
+                self._exact = ExactJacobian(self.symbolic(params=True))
+            return self._exact(x0, u0, self._pvec)
+        if method == "fd":
+            eps = check_positive("eps", eps)
+            return fd_jacobians(lambda X, U: self._f(_NUMPY, X, U, self._params), x0, u0, eps)
+        raise ValueError(f"unknown linearization method {method!r}; valid: exact, fd")
+
+    def linear_model(
+        self,
+        x0: Any = None,
+        u0: Any = None,
+        method: str = "exact",
+        discretization: str = "euler",
+        eps: float = 1e-6,
+    ) -> LinearModel:
+        """The discrete model at ``dt`` with its context (see :class:`LinearModel`)."""
+        x0, u0 = self._operating_point(x0, u0)
+        A_c, B_c = self.linearize(x0, u0, method=method, eps=eps)
+        A, B = discretize(A_c, B_c, self.dt, discretization)
+        return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization)
+
+    def get_model(
+        self, x0: Any = None, u0: Any = None, method: str = "exact", discretization: str = "euler"
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Discrete ``(A (n, n), B (n, m))`` at ``dt`` around ``(x0, u0)``."""
+        lm = self.linear_model(x0, u0, method=method, discretization=discretization)
+        return lm.A, lm.B
+
+    # ------------------------------------------------------------------ step
+    def _input(self, u: Any) -> np.ndarray:
+        return as_vector(f"{type(self).__name__} input u", u, self.input_dim)
+
+    def _integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """One semi-implicit Euler step: velocities first, then positions with them."""
+        dt = self.dt
+        xd = self._f(_SCALAR, x, u, self._params).tolist()
+        new = x.tolist()
+        for q, v in zip(self.position_indices, self.velocity_indices, strict=True):
+            new[v] += dt * xd[v]
+            new[q] += dt * new[v]
+        return self._clip_state(np.array(new))
+
+    def _clip_state(self, x: np.ndarray) -> np.ndarray:
+        """Hook for documented state clipping (state bounds, track limits)."""
+        return x
+
+    def step(self, u: Any) -> np.ndarray:
+        """Advance one step of ``dt`` with input ``u`` held.
+
+        Standalone: semi-implicit Euler on :meth:`dynamics`. With an engine
+        attached: write the actuators, step the engine, read the state back.
+
+        Args:
+            u: Input ``(m,)`` (a scalar when ``m == 1``).
+
+        Returns:
+            The new state ``(n,)``.
+
+        Raises:
+            ValueError: ``u`` has the wrong shape.
+            NonFiniteError: ``u`` holds NaN or inf.
+            SimulationDiverged: the state became non-finite.
+        """
+        u = self._input(u)
+        if self._engine is not None:
+            self._engine_apply(self._engine, u)
+            self._engine.step()
+            self.state = self._engine_read(self._engine)
+        else:
+            x = self._integrate(self.state, u)
+            if not np.all(np.isfinite(x)):
+                raise SimulationDiverged(
+                    f"{type(self).__name__} state became non-finite after a step from "
+                    f"{np.array2string(self.state, precision=4)} with u = {np.array2string(u, precision=4)}"
+                )
+            self.state = x
+        return self.state.copy()
+
+    def get_state(self) -> np.ndarray:
+        """The current state ``(n,)`` (read from the engine when one is attached)."""
+        if self._engine is not None:
+            self.state = self._engine_read(self._engine)
+        return self.state.copy()
+
+    def set_state(self, x: Any) -> None:
+        """Set the state ``(n,)`` (and the engine's, when one is attached)."""
+        x = as_vector(f"{type(self).__name__} state", x, self.state_dim)
+        self.state = x.copy()
+        if self._engine is not None:
+            self._engine_write(self._engine, x)
+
+    # ---------------------------------------------------------------- engine
+    @property
+    def engine(self) -> Any:
+        """The attached physics engine, or None (standalone)."""
+        return self._engine
+
+    def physics_engine(self, engine: Any) -> None:
+        """Attach a physics engine (or detach with None).
+
+        On attach the plant's state is read from the engine; on detach the
+        plant keeps the last state it had.
+        """
+        if engine is not None and self.asset is None:
+            raise ValueError(f"{type(self).__name__} has no MuJoCo model to attach an engine to")
+        self._engine = engine
+        if engine is not None:
+            self.state = self._engine_read(engine)
+
+    def mjcf_patch(self) -> MjcfPatch:
+        """How the plant's MJCF asset must be edited to match its parameters."""
+        raise NotImplementedError(f"{type(self).__name__} has no matched MuJoCo model")
+
+    def _engine_read(self, engine: Any) -> np.ndarray:
+        raise NotImplementedError
+
+    def _engine_write(self, engine: Any, x: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _engine_apply(self, engine: Any, u: np.ndarray) -> None:
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- config
+    @classmethod
+    def config_keys(cls) -> tuple[str, ...]:
+        """The keys a ``[plant]`` table may hold: the constructor's arguments."""
+        sig = inspect.signature(cls.__init__)
+        return tuple(k for k in sig.parameters if k not in ("self", "backend"))
+
+    @classmethod
+    def from_config(cls, config: Any, *, engine: Any = None) -> Plant:
+        """Build the plant from a mapping or dataclass of constructor arguments.
+
+        Args:
+            config: Constructor keyword arguments (a ``type`` key is ignored).
+            engine: Optional engine to attach.
+
+        Raises:
+            ConfigError: an unknown key (with the closest valid one) or an
+                invalid value (naming the key).
+        """
+        if is_dataclass(config) and not isinstance(config, type):
+            config = asdict(config)
+        kwargs = {k: v for k, v in dict(config).items() if k != "type"}
+        allowed = cls.config_keys()
+        bad = unknown_keys(kwargs, allowed)
+        if bad:
+            raise ConfigError(
+                f"[plant] {cls.__name__}: unknown key '{bad[0]}'{did_you_mean(bad[0], allowed)}"
+            )
+        try:
+            plant = cls(**kwargs)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"[plant] {cls.__name__}: {exc}") from exc
+        if engine is not None:
+            plant.physics_engine(engine)
+        return plant
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v:g}" for k, v in self._params.items())
+        return f"{type(self).__name__}({args}, dt={self.dt:g})"

@@ -1,0 +1,117 @@
+"""Boundary checks shared by plants, controllers and the config layer.
+
+Each check raises one of our errors with a message that names the argument
+and says what was expected and what was found. They run at construction and
+at public entry points, never inside hot loops.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from shinro_ctrl.errors import NonFiniteError
+
+__all__ = [
+    "as_matrix",
+    "as_vector",
+    "check_finite",
+    "check_nonnegative",
+    "check_positive",
+    "closest",
+    "did_you_mean",
+    "unknown_keys",
+]
+
+
+def closest(word: str, choices: Iterable[str]) -> str | None:
+    """The closest of ``choices`` to ``word`` (difflib ratio >= 0.6), or None."""
+    found = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return found[0] if found else None
+
+
+def did_you_mean(word: str, choices: Iterable[str]) -> str:
+    """A ``"; did you mean 'x'?"`` suffix, or the list of valid choices."""
+    choices = sorted(choices)
+    near = closest(word, choices)
+    if near is not None:
+        return f"; did you mean '{near}'?"
+    return f"; valid: {', '.join(choices)}" if choices else ""
+
+
+def unknown_keys(mapping: Mapping[str, Any], allowed: Iterable[str]) -> list[str]:
+    """Keys of ``mapping`` not in ``allowed``, in their original order."""
+    allowed = set(allowed)
+    return [k for k in mapping if k not in allowed]
+
+
+def check_positive(name: str, value: Any) -> float:
+    """Return ``value`` as a float; raise ``ValueError`` naming it unless finite and > 0."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a positive number, got {value!r}") from None
+    if not math.isfinite(v) or v <= 0.0:
+        raise ValueError(f"{name} must be positive and finite, got {v!r}")
+    return v
+
+
+def check_nonnegative(name: str, value: Any) -> float:
+    """Return ``value`` as a float; raise ``ValueError`` naming it unless finite and >= 0."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a non-negative number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0.0:
+        raise ValueError(f"{name} must be >= 0 and finite, got {v!r}")
+    return v
+
+
+def check_finite(name: str, value: Any) -> Any:
+    """Raise :class:`NonFiniteError` naming ``name`` if ``value`` holds NaN or inf."""
+    arr = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise NonFiniteError(f"{name} must be finite, got {np.array2string(arr, precision=4)}")
+    return value
+
+
+def as_vector(name: str, value: Any, n: int, *, finite: bool = True) -> np.ndarray:
+    """``value`` as a float array of shape ``(n,)``; a scalar is accepted when n == 1.
+
+    Raises:
+        ValueError: wrong shape or not numeric (the message names ``name``).
+        NonFiniteError: NaN or inf, when ``finite``.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be numeric with shape ({n},), got {value!r}") from None
+    if arr.ndim == 0 and n == 1:
+        arr = arr.reshape(1)
+    if arr.shape != (n,):
+        raise ValueError(f"{name}: expected shape ({n},) but found {arr.shape}")
+    if finite and not np.all(np.isfinite(arr)):
+        raise NonFiniteError(f"{name} must be finite, got {np.array2string(arr, precision=4)}")
+    return arr
+
+
+def as_matrix(name: str, value: Any, shape: tuple[int, int], *, finite: bool = True) -> np.ndarray:
+    """``value`` as a float array of exactly ``shape``.
+
+    Raises:
+        ValueError: wrong shape or not numeric.
+        NonFiniteError: NaN or inf, when ``finite``.
+    """
+    try:
+        arr = np.atleast_2d(np.asarray(value, dtype=float))
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric {shape} matrix, got {value!r}") from None
+    if arr.shape != shape:
+        raise ValueError(f"{name}: expected shape {shape} but found {arr.shape}")
+    if finite and not np.all(np.isfinite(arr)):
+        raise NonFiniteError(f"{name} must be finite")
+    return arr
