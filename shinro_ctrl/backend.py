@@ -27,7 +27,7 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
-__all__ = ["ArrayBackend", "CasadiBackend", "NumpyBackend", "ScalarBackend"]
+__all__ = ["ArrayBackend", "CasadiBackend", "ListBackend", "NumpyBackend", "ScalarBackend"]
 
 
 class ArrayBackend:
@@ -117,6 +117,19 @@ class ScalarBackend(NumpyBackend):
 
     def stack(self, items: Sequence[Any]) -> np.ndarray:
         return np.array(items, dtype=float)
+
+
+class ListBackend(ScalarBackend):
+    """:class:`ScalarBackend` whose :meth:`stack` returns a plain list.
+
+    Used inside integrators, which work on Python floats and would otherwise
+    convert a fresh array straight back to a list.
+    """
+
+    name = "list"
+
+    def stack(self, items: Sequence[Any]) -> list:
+        return list(items)
 
 
 class CasadiBackend(ArrayBackend):

@@ -72,9 +72,7 @@ class LinearModel:
     discretization: str
 
 
-def discretize(
-    A_c: np.ndarray, B_c: np.ndarray, dt: float, method: str = "euler"
-) -> tuple[np.ndarray, np.ndarray]:
+def discretize(A_c: np.ndarray, B_c: np.ndarray, dt: float, method: str = "euler") -> tuple[np.ndarray, np.ndarray]:
     """Discretize ``(A_c, B_c)`` at step ``dt`` with ``euler``, ``zoh`` or ``rk4``.
 
     Args:
@@ -142,48 +140,51 @@ class ExactJacobian:
 
     Args:
         f: ``casadi.Function`` with inputs ``(x, u, p)`` and output ``xdot``.
+        p: Parameter values ``(n_p,)`` bound at construction (see :meth:`set_params`).
 
-    Calling the instance with ``(x0, u0, p)`` returns fresh ``(A_c, B_c)``
-    arrays. The CasADi buffer is bound to arrays this object owns, so the
-    evaluation itself allocates nothing.
+    Calling the instance with ``(x0, u0)`` returns fresh ``(A_c, B_c)`` arrays.
+    The CasADi buffer is bound to arrays this object owns, so the evaluation
+    itself allocates nothing. CasADi writes column-major nonzeros; the
+    function returns the *transposed* Jacobians, whose column-major layout is
+    the row-major layout of ``A_c`` and ``B_c``, so reading back is a plain copy.
     """
 
-    def __init__(self, f: cs.Function):
+    def __init__(self, f: cs.Function, p: np.ndarray):
         x = cs.SX.sym("x", f.size1_in(0))
         u = cs.SX.sym("u", f.size1_in(1))
-        p = cs.SX.sym("p", f.size1_in(2))
-        xdot = f(x, u, p)
+        ps = cs.SX.sym("p", f.size1_in(2))
+        xdot = f(x, u, ps)
         jac = cs.Function(
             "jac_f",
-            [x, u, p],
-            [cs.densify(cs.jacobian(xdot, x)), cs.densify(cs.jacobian(xdot, u))],
+            [x, u, ps],
+            [cs.densify(cs.jacobian(xdot, x)).T, cs.densify(cs.jacobian(xdot, u)).T],
             ["x", "u", "p"],
-            ["A", "B"],
+            ["A_T", "B_T"],
         )
         self.function = jac
         self.n, self.m = x.shape[0], u.shape[0]
         self._x = np.zeros(self.n)
         self._u = np.zeros(self.m)
-        self._p = np.zeros(p.shape[0])
-        # Column-major nonzeros: fill flat buffers, read them back transposed.
-        self._A = np.zeros(self.n * self.n)
-        self._B = np.zeros(self.n * self.m)
+        self._p = np.zeros(ps.shape[0])
+        self._A = np.zeros((self.n, self.n))
+        self._B = np.zeros((self.n, self.m))
         self._buf, self._eval = jac.buffer()
         self._buf.set_arg(0, memoryview(self._x))
         self._buf.set_arg(1, memoryview(self._u))
         self._buf.set_arg(2, memoryview(self._p))
-        self._buf.set_res(0, memoryview(self._A))
-        self._buf.set_res(1, memoryview(self._B))
+        self._buf.set_res(0, memoryview(self._A.reshape(-1)))
+        self._buf.set_res(1, memoryview(self._B.reshape(-1)))
+        self.set_params(p)
 
-    def __call__(self, x0: np.ndarray, u0: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def set_params(self, p: np.ndarray) -> None:
+        """Bind new parameter values ``(n_p,)``."""
+        self._p[:] = p
+
+    def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         self._x[:] = x0
         self._u[:] = u0
-        self._p[:] = p
         self._eval()
-        return (
-            self._A.reshape(self.n, self.n, order="F").copy(),
-            self._B.reshape(self.n, self.m, order="F").copy(),
-        )
+        return self._A.copy(), self._B.copy()
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ __all__ = [
     "closest",
     "did_you_mean",
     "unknown_keys",
+    "weight_matrix",
 ]
 
 
@@ -86,10 +87,15 @@ def as_vector(name: str, value: Any, n: int, *, finite: bool = True) -> np.ndarr
         ValueError: wrong shape or not numeric (the message names ``name``).
         NonFiniteError: NaN or inf, when ``finite``.
     """
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be numeric with shape ({n},), got {value!r}") from None
+    if type(value) is np.ndarray and value.shape == (n,) and value.dtype == np.float64:
+        if math.isfinite(sum(value.tolist())):  # fast path (a finite sum may overflow: slow path decides)
+            return value
+        arr = value
+    else:
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be numeric with shape ({n},), got {value!r}") from None
     if arr.ndim == 0 and n == 1:
         arr = arr.reshape(1)
     if arr.shape != (n,):
@@ -115,3 +121,31 @@ def as_matrix(name: str, value: Any, shape: tuple[int, int], *, finite: bool = T
     if finite and not np.all(np.isfinite(arr)):
         raise NonFiniteError(f"{name} must be finite")
     return arr
+
+
+def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False) -> np.ndarray:
+    """A cost weight as a symmetric ``(n, n)`` matrix.
+
+    Accepts a full matrix, or a vector of length ``n`` (or a scalar when
+    ``n == 1``) meaning the diagonal. The matrix must be symmetric within a
+    relative tolerance and positive semidefinite (positive definite when
+    ``definite``), since LQR and MPC costs are otherwise meaningless.
+
+    Raises:
+        ValueError: wrong shape, asymmetric, or not (semi)definite.
+        NonFiniteError: NaN or inf.
+    """
+    arr = np.asarray(value, dtype=float) if not isinstance(value, np.ndarray) else value.astype(float)
+    if arr.ndim <= 1:
+        arr = np.diag(as_vector(name, arr, n))
+    W = as_matrix(name, arr, (n, n))
+    scale = max(1.0, float(np.abs(W).max()))
+    if np.abs(W - W.T).max() > 1e-9 * scale:
+        raise ValueError(f"{name} must be symmetric (max |{name} - {name}ᵀ| = {np.abs(W - W.T).max():.3g})")
+    W = 0.5 * (W + W.T)
+    lam_min = float(np.linalg.eigvalsh(W).min())
+    if definite and lam_min <= 1e-12 * scale:
+        raise ValueError(f"{name} must be positive definite (smallest eigenvalue {lam_min:.3g})")
+    if lam_min < -1e-9 * scale:
+        raise ValueError(f"{name} must be positive semidefinite (smallest eigenvalue {lam_min:.3g})")
+    return W

@@ -29,9 +29,7 @@ def state_bounds(value: Any, n: int, default_lo: list[float], default_hi: list[f
     lo = np.asarray(lo, dtype=float)
     hi = np.asarray(hi, dtype=float)
     if lo.shape != (n,) or hi.shape != (n,):
-        raise ValueError(
-            f"state_bounds: expected min and max of shape ({n},) but found {lo.shape} and {hi.shape}"
-        )
+        raise ValueError(f"state_bounds: expected min and max of shape ({n},) but found {lo.shape} and {hi.shape}")
     if np.any(np.isnan(lo)) or np.any(np.isnan(hi)) or np.any(lo > hi):
         raise ValueError("state_bounds: every min must be <= its max")
     return lo, hi

@@ -20,6 +20,7 @@ how to read and write its state and inputs (``_engine_read``,
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, is_dataclass
 from typing import Any, ClassVar
@@ -27,7 +28,7 @@ from typing import Any, ClassVar
 import casadi as cs
 import numpy as np
 
-from shinro_ctrl.backend import CasadiBackend, NumpyBackend, ScalarBackend
+from shinro_ctrl.backend import CasadiBackend, ListBackend, NumpyBackend, ScalarBackend
 from shinro_ctrl.errors import ConfigError, SimulationDiverged
 from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd_jacobians
 from shinro_ctrl.validation import as_vector, check_positive, did_you_mean, unknown_keys
@@ -37,6 +38,7 @@ __all__ = ["MjcfPatch", "Plant"]
 _NUMPY = NumpyBackend()
 _SCALAR = ScalarBackend()
 _CASADI = CasadiBackend()
+_LIST = ListBackend()
 
 
 @dataclass(frozen=True)
@@ -192,10 +194,11 @@ class Plant:
         return self._symbolic[params]
 
     def _operating_point(self, x0: Any, u0: Any) -> tuple[np.ndarray, np.ndarray]:
-        xe, ue = self.equilibrium()
-        x0 = xe if x0 is None else as_vector("x0", x0, self.state_dim)
-        u0 = ue if u0 is None else as_vector("u0", u0, self.input_dim)
-        return x0, u0
+        if x0 is None or u0 is None:
+            xe, ue = self.equilibrium()
+            x0 = xe if x0 is None else x0
+            u0 = ue if u0 is None else u0
+        return as_vector("x0", x0, self.state_dim), as_vector("u0", u0, self.input_dim)
 
     def linearize(
         self, x0: Any = None, u0: Any = None, method: str = "exact", eps: float = 1e-6
@@ -212,8 +215,8 @@ class Plant:
         x0, u0 = self._operating_point(x0, u0)
         if method == "exact":
             if self._exact is None:
-                self._exact = ExactJacobian(self.symbolic(params=True))
-            return self._exact(x0, u0, self._pvec)
+                self._exact = ExactJacobian(self.symbolic(params=True), self._pvec)
+            return self._exact(x0, u0)
         if method == "fd":
             eps = check_positive("eps", eps)
             return fd_jacobians(lambda X, U: self._f(_NUMPY, X, U, self._params), x0, u0, eps)
@@ -242,12 +245,13 @@ class Plant:
 
     # ------------------------------------------------------------------ step
     def _input(self, u: Any) -> np.ndarray:
+        """``u`` validated as a finite ``(m,)`` array."""
         return as_vector(f"{type(self).__name__} input u", u, self.input_dim)
 
     def _integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """One semi-implicit Euler step: velocities first, then positions with them."""
         dt = self.dt
-        xd = self._f(_SCALAR, x, u, self._params).tolist()
+        xd = self._f(_LIST, x, u, self._params)
         new = x.tolist()
         for q, v in zip(self.position_indices, self.velocity_indices, strict=True):
             new[v] += dt * xd[v]
@@ -282,7 +286,7 @@ class Plant:
             self.state = self._engine_read(self._engine)
         else:
             x = self._integrate(self.state, u)
-            if not np.all(np.isfinite(x)):
+            if not math.isfinite(x.sum()) and not np.all(np.isfinite(x)):
                 raise SimulationDiverged(
                     f"{type(self).__name__} state became non-finite after a step from "
                     f"{np.array2string(self.state, precision=4)} with u = {np.array2string(u, precision=4)}"
@@ -359,9 +363,7 @@ class Plant:
         allowed = cls.config_keys()
         bad = unknown_keys(kwargs, allowed)
         if bad:
-            raise ConfigError(
-                f"[plant] {cls.__name__}: unknown key '{bad[0]}'{did_you_mean(bad[0], allowed)}"
-            )
+            raise ConfigError(f"[plant] {cls.__name__}: unknown key '{bad[0]}'{did_you_mean(bad[0], allowed)}")
         try:
             plant = cls(**kwargs)
         except (TypeError, ValueError) as exc:

@@ -69,9 +69,7 @@ class DoublePendulum(Plant):
         self.l1 = check_positive("length_top", length_top)
         self.l2 = check_positive("length_bottom", length_bottom)
         self.g = check_nonnegative("g", g)
-        self.state_bounds = _parse_bounds(
-            state_bounds, 4, [-3.14, -3.14, -10.0, -10.0], [3.14, 3.14, 10.0, 10.0]
-        )
+        self.state_bounds = _parse_bounds(state_bounds, 4, [-3.14, -3.14, -10.0, -10.0], [3.14, 3.14, 10.0, 10.0])
         self._init(
             dt=dt,
             params={

@@ -1,0 +1,149 @@
+"""The ``shinro-ctrl`` command.
+
+Each subcommand is a function ``cmd_<name>(args) -> int`` registered in
+:func:`build_parser`. User errors (our :class:`ShinroError` family, a missing
+file, a bad value) print one line on stderr and exit with status 2; anything
+else is a bug and shows its traceback. ``--debug`` shows tracebacks always.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import sys
+from collections.abc import Sequence
+
+import numpy as np
+
+from shinro_ctrl.errors import ShinroError
+
+__all__ = ["main"]
+
+EXIT_USER_ERROR = 2
+_USER_ERRORS = (ShinroError, OSError, ValueError, KeyError)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors and our exit status."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise _UsageError(f"{self.prog}: {message}")
+
+
+class _UsageError(Exception):
+    pass
+
+
+_PI_TERM = re.compile(r"^([+-]?)(\d*\.?\d*)\*?pi(?:/(\d+\.?\d*))?$")
+
+
+def parse_number(text: str) -> float:
+    """A float, also accepting ``pi``, ``-pi``, ``2pi``, ``pi/2``, ``0.5*pi``."""
+    text = text.strip().lower()
+    try:
+        return float(text)
+    except ValueError:
+        pass
+    m = _PI_TERM.match(text)
+    if not m:
+        raise ValueError(f"not a number: '{text}'")
+    sign = -1.0 if m.group(1) == "-" else 1.0
+    factor = float(m.group(2)) if m.group(2) not in ("", ".") else 1.0
+    div = float(m.group(3)) if m.group(3) else 1.0
+    return sign * factor * math.pi / div
+
+
+def parse_vector(text: str) -> np.ndarray:
+    """A comma- or space-separated list of numbers (see :func:`parse_number`)."""
+    parts = [p for p in re.split(r"[,\s]+", text.strip().strip("[]")) if p]
+    if not parts:
+        raise ValueError("empty vector")
+    return np.array([parse_number(p) for p in parts])
+
+
+def _matrix_lines(M: np.ndarray, width: int = 11) -> list[str]:
+    return [" ".join(f"{v + 0.0:{width}.5g}" for v in row) for row in np.atleast_2d(M)]
+
+
+def side_by_side(blocks: Sequence[tuple[str, np.ndarray]], gap: str = "   ") -> str:
+    """Render matrices next to each other under their titles."""
+    cols = []
+    for title, M in blocks:
+        lines = _matrix_lines(M)
+        w = max([len(title), *(len(s) for s in lines)])
+        cols.append([title.ljust(w)] + [s.ljust(w) for s in lines])
+    height = max(len(c) for c in cols)
+    for c in cols:
+        c.extend([" " * len(c[0])] * (height - len(c)))
+    return "\n".join(gap.join(c[i] for c in cols).rstrip() for i in range(height))
+
+
+# ------------------------------------------------------------------ linearize
+def cmd_linearize(args: argparse.Namespace) -> int:
+    from shinro_ctrl.linearization import compare
+    from shinro_ctrl.plants import plant_class
+
+    plant = plant_class(args.plant)()
+    x0 = None if args.x0 is None else parse_vector(args.x0)
+    u0 = None if args.u0 is None else parse_vector(args.u0)
+    cmp = compare(plant, x0, u0, eps=args.eps)
+    xe, ue = plant._operating_point(x0, u0)
+    print(f"{type(plant).__name__}: continuous-time Jacobians at")
+    print(f"  x0 = {dict(zip(plant.state_names, np.round(xe, 6).tolist(), strict=True))}")
+    print(f"  u0 = {dict(zip(plant.input_names, np.round(ue, 6).tolist(), strict=True))}")
+    print()
+    print(side_by_side([("A exact (CasADi)", cmp.A_exact), (f"A finite diff (eps={args.eps:g})", cmp.A_fd)]))
+    print()
+    print(side_by_side([("B exact (CasADi)", cmp.B_exact), ("B finite diff", cmp.B_fd)]))
+    print()
+    print(f"max |exact - fd| = {cmp.max_abs_error:.3e}   max relative = {cmp.max_rel_error:.3e}")
+    return 0
+
+
+# --------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    from shinro_ctrl.plants import PLANT_ALIASES
+
+    parser = _Parser(prog="shinro-ctrl", description="Model-based control design workbench.")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks for every error")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    p = sub.add_parser("linearize", help="exact (CasADi) and finite-difference Jacobians side by side")
+    p.add_argument("plant", metavar="PLANT", help=f"one of: {', '.join(PLANT_ALIASES)}")
+    p.add_argument("--x0", help="operating state, e.g. '0,0,0.1,0' (pi allowed: 'pi,pi,0,0')")
+    p.add_argument("--u0", help="operating input, e.g. '0'")
+    p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
+    p.set_defaults(func=cmd_linearize)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``shinro-ctrl``; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if not getattr(args, "command", None):
+            parser.print_help()
+            return 0
+        return int(args.func(args) or 0)
+    except _UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except _USER_ERRORS as exc:
+        if debug:
+            raise
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if isinstance(exc, KeyError) and msg.startswith(("'", '"')):
+            msg = msg[1:-1]
+        print(f"error: {msg}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

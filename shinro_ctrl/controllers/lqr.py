@@ -1,0 +1,197 @@
+"""Linear-quadratic regulator on a linearized plant (python-control)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import control
+import numpy as np
+
+from shinro_ctrl.controllers.base import Controller
+from shinro_ctrl.errors import NotStabilizable
+from shinro_ctrl.validation import as_matrix, as_vector, weight_matrix
+
+__all__ = ["LQR", "check_stabilizable"]
+
+
+def check_stabilizable(A: np.ndarray, B: np.ndarray, *, discrete: bool, names: Any = None) -> None:
+    """Raise :class:`NotStabilizable` if an unstable mode of ``A`` is unreachable from ``B``.
+
+    PBH test: ``(A, B)`` is stabilizable iff ``rank [A − λI, B] = n`` for every
+    eigenvalue ``λ`` with ``|λ| ≥ 1`` (discrete) or ``Re λ ≥ 0`` (continuous).
+    The rank is judged by the smallest singular value relative to ``‖[A, B]‖``.
+
+    Args:
+        A: ``(n, n)``.
+        B: ``(n, m)``.
+        discrete: Stability region of the unit circle (True) or left half-plane.
+        names: Optional state names, used to describe the offending mode.
+    """
+    n = A.shape[0]
+    scale = max(1.0, float(np.linalg.norm(np.hstack([A, B]), 2)))
+    eigvals, eigvecs = np.linalg.eig(A)
+    for k, lam in enumerate(eigvals):
+        unstable = abs(lam) >= 1.0 - 1e-12 if discrete else lam.real >= -1e-12
+        if not unstable:
+            continue
+        pbh = np.hstack([A - lam * np.eye(n), B.astype(complex)])
+        smin = np.linalg.svd(pbh, compute_uv=False)[-1]
+        if smin <= 1e-9 * scale:
+            v = eigvecs[:, k]
+            i = int(np.argmax(np.abs(v)))
+            where = f" (mostly state '{names[i]}')" if names is not None else f" (mostly state {i})"
+            region = "|λ| ≥ 1" if discrete else "Re λ ≥ 0"
+            raise NotStabilizable(
+                f"(A, B) is not stabilizable: the mode λ = {lam:.6g}{where} has {region} "
+                f"and the input cannot reach it (PBH rank test, σ_min = {smin:.2e})"
+            )
+
+
+class LQR(Controller):
+    r"""Infinite-horizon LQR ``u = u0 − K (x − x_ref)``.
+
+    Discrete (default): minimizes ``½ Σ_k x̃_kᵀ Q x̃_k + ũ_kᵀ R ũ_k`` subject to
+    ``x̃_{k+1} = A x̃_k + B ũ_k``, with ``S`` the DARE solution; the optimal
+    cost from ``x̃`` is ``½ x̃ᵀ S x̃``. Continuous (``discrete=False``): the
+    same with an integral and the CARE. ``x̃ = x − x_ref`` (``x_ref = x0``
+    unless a reference is passed), ``ũ = u − u0``.
+
+    Args:
+        A: ``(n, n)`` state matrix.
+        B: ``(n, m)`` input matrix.
+        Q: ``(n, n)`` symmetric PSD weight, or its diagonal ``(n,)``.
+        R: ``(m, m)`` symmetric PD weight, or its diagonal ``(m,)``.
+        discrete: Treat ``(A, B)`` as discrete (True) or continuous.
+        x0: Operating-point state ``(n,)`` (default zeros).
+        u0: Operating-point input ``(m,)`` (default zeros).
+        u_min, u_max: Optional saturation bounds ``(m,)`` (±inf allowed).
+        state_names: Optional names used in error messages.
+
+    Attributes:
+        K: Gain ``(m, n)``.
+        S: Riccati solution ``(n, n)``.
+        poles: Closed-loop eigenvalues of ``A − B K`` ``(n,)``.
+
+    Raises:
+        ValueError: wrong shapes, asymmetric or indefinite weights.
+        NotStabilizable: an unstable mode the input cannot reach (PBH test).
+    """
+
+    def __init__(
+        self,
+        A: Any,
+        B: Any,
+        Q: Any,
+        R: Any,
+        *,
+        discrete: bool = True,
+        x0: Any = None,
+        u0: Any = None,
+        u_min: Any = None,
+        u_max: Any = None,
+        state_names: Any = None,
+    ):
+        A = np.asarray(A, dtype=float)
+        n = A.shape[0] if A.ndim == 2 else -1
+        A = as_matrix("A", A, (n, n)) if n > 0 else as_matrix("A", A, (1, 1))
+        n = A.shape[0]
+        B = np.asarray(B, dtype=float)
+        if B.ndim == 1:
+            B = B.reshape(n, 1) if B.shape == (n,) else B
+        m = B.shape[1] if B.ndim == 2 else -1
+        B = as_matrix("B", B, (n, max(m, 1)))
+        m = B.shape[1]
+        self.A, self.B = A, B
+        self.Q = weight_matrix("Q", Q, n)
+        self.R = weight_matrix("R", R, m, definite=True)
+        self.discrete = bool(discrete)
+        self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
+        self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
+        self.u_min = np.full(m, -np.inf) if u_min is None else as_vector("u_min", u_min, m, finite=False)
+        self.u_max = np.full(m, np.inf) if u_max is None else as_vector("u_max", u_max, m, finite=False)
+        if np.any(np.isnan(self.u_min)) or np.any(np.isnan(self.u_max)) or np.any(self.u_min > self.u_max):
+            raise ValueError("u_min must be <= u_max elementwise")
+        self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
+        check_stabilizable(A, B, discrete=self.discrete, names=state_names)
+        try:
+            if self.discrete:
+                K, S, E = control.dlqr(A, B, self.Q, self.R)
+            else:
+                K, S, E = control.lqr(A, B, self.Q, self.R)
+        except (ValueError, np.linalg.LinAlgError, control.ControlArgument) as exc:
+            raise NotStabilizable(
+                f"the Riccati equation has no stabilizing solution for this (A, B, Q, R): {exc}. "
+                "Check that every unstable mode is observable through Q."
+            ) from exc
+        self.K = np.asarray(K, dtype=float)
+        self.S = np.asarray(S, dtype=float)
+        self.poles = np.asarray(E)
+        self.state_dim, self.input_dim = n, m
+        self._x0_u = self.u0 + self.K @ self.x0  # u = (u0 + K x0) - K x
+
+    @classmethod
+    def from_plant(
+        cls,
+        plant: Any,
+        Q: Any,
+        R: Any,
+        *,
+        x0: Any = None,
+        u0: Any = None,
+        discrete: bool = True,
+        discretization: str = "euler",
+        method: str = "exact",
+        u_min: Any = None,
+        u_max: Any = None,
+    ) -> LQR:
+        """Design on ``plant`` linearized at ``(x0, u0)`` (default its equilibrium).
+
+        Args:
+            plant: Any plant.
+            Q, R: Weights (full matrices or diagonals).
+            x0, u0: Operating point; defaults to ``plant.equilibrium()``.
+            discrete: Use the discrete model at ``plant.dt`` (default) or the
+                continuous Jacobians.
+            discretization: ``euler`` (default, matches the plants'
+                semi-implicit step to first order), ``zoh`` or ``rk4``.
+            method: Linearization method, ``exact`` or ``fd``.
+            u_min, u_max: Optional saturation bounds.
+        """
+        lm = plant.linear_model(x0, u0, method=method, discretization=discretization)
+        A, B = (lm.A, lm.B) if discrete else (lm.A_c, lm.B_c)
+        ctrl = cls(
+            A,
+            B,
+            Q,
+            R,
+            discrete=discrete,
+            x0=lm.x0,
+            u0=lm.u0,
+            u_min=u_min,
+            u_max=u_max,
+            state_names=plant.state_names,
+        )
+        ctrl.model = lm
+        return ctrl
+
+    def __call__(self, x: Any, ref: Any = None) -> np.ndarray:
+        """``u = u0 − K (x − x_ref)``, saturated to ``[u_min, u_max]``.
+
+        Args:
+            x: State ``(n,)``.
+            ref: Optional reference state ``(n,)``; default the operating point.
+        """
+        if type(x) is not np.ndarray or x.shape != (self.state_dim,):
+            x = as_vector("x", x, self.state_dim)
+        if ref is None:
+            u = self._x0_u - self.K @ x
+        else:
+            u = self.u0 - self.K @ (x - as_vector("ref", ref, self.state_dim))
+        if self._saturate:
+            np.clip(u, self.u_min, self.u_max, out=u)
+        return u
+
+    def cost_to_go(self, x: Any) -> float:
+        """Predicted optimal cost ``½ (x − x0)ᵀ S (x − x0)`` from state ``x (n,)``."""
+        d = as_vector("x", x, self.state_dim) - self.x0
+        return 0.5 * float(d @ self.S @ d)

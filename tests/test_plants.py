@@ -1,0 +1,174 @@
+"""Properties shared by the pendulum-family plants, and their individual contracts."""
+
+from __future__ import annotations
+
+import casadi as cs
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from shinro_ctrl.errors import ConfigError, NonFiniteError
+from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum, plant_class
+
+from .conftest import PENDULUM_FAMILY, random_params
+
+
+@pytest.mark.parametrize("cls", PENDULUM_FAMILY, ids=lambda c: c.__name__)
+def test_batch_equals_per_instance(cls, rng):
+    plant = cls()
+    X = rng.normal(size=(7, plant.state_dim))
+    U = rng.normal(size=(7, plant.input_dim))
+    batch = plant.dynamics(X, U)
+    single = np.array([plant.dynamics(x, u) for x, u in zip(X, U, strict=True)])
+    np.testing.assert_allclose(batch, single, rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("cls", PENDULUM_FAMILY, ids=lambda c: c.__name__)
+def test_batch_with_per_instance_parameters(cls, rng):
+    draws = [random_params(cls, rng) for _ in range(5)]
+    X = rng.normal(size=(5, cls().state_dim))
+    U = rng.normal(size=(5, cls().input_dim))
+    params = {k: np.array([d[k] for d in draws]) for k in draws[0]}
+    batch = cls().dynamics(X, U, params=params)
+    single = np.array([cls(**d).dynamics(x, u) for d, x, u in zip(draws, X, U, strict=True)])
+    np.testing.assert_allclose(batch, single, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("cls", PENDULUM_FAMILY, ids=lambda c: c.__name__)
+def test_symbolic_matches_numeric(cls, rng):
+    plant = cls(**random_params(cls, rng))
+    f = plant.symbolic()
+    fp = plant.symbolic(params=True)
+    assert f.name() == "f" and f.name_in() == ["x", "u"] and fp.name_in() == ["x", "u", "p"]
+    p = np.array([plant.params()[k] for k in plant.param_names])
+    for _ in range(3):
+        x, u = rng.normal(size=plant.state_dim), rng.normal(size=plant.input_dim)
+        np.testing.assert_allclose(np.array(f(x, u)).ravel(), plant.dynamics(x, u), atol=1e-12)
+        np.testing.assert_allclose(np.array(fp(x, u, p)).ravel(), plant.dynamics(x, u), atol=1e-12)
+    assert isinstance(f(cs.SX.sym("x", plant.state_dim), cs.SX.sym("u", plant.input_dim)), cs.SX)
+
+
+@pytest.mark.parametrize(
+    "plant,x_eq",
+    [
+        (InvertedPendulum(), [0, 0]),
+        (CartPole(), [0.3, 0, 0, 0]),
+        (DoublePendulum(), [0, 0, 0, 0]),
+        (DoublePendulum(), [np.pi, np.pi, 0, 0]),
+    ],
+    ids=["pendulum", "cartpole", "double-hanging", "double-upright"],
+)
+def test_equilibria_are_fixed_points(plant, x_eq):
+    u_eq = np.zeros(plant.input_dim)
+    np.testing.assert_allclose(plant.dynamics(x_eq, u_eq), 0.0, atol=1e-12)
+    plant.set_state(x_eq)
+    for _ in range(100):
+        plant.step(u_eq)
+    np.testing.assert_allclose(plant.get_state(), x_eq, atol=1e-10)
+
+
+def test_double_pendulum_conserves_energy_without_input():
+    plant = DoublePendulum(mass_top=0.3, mass_bottom=0.2, length_top=0.6, length_bottom=0.4)
+    x0 = np.array([1.2, -0.7, 0.5, 2.0])
+    sol = solve_ivp(lambda t, x: plant.dynamics(x, np.zeros(2)), (0, 5), x0, rtol=1e-11, atol=1e-11)
+    energy = plant.energy(sol.y.T)
+    assert np.ptp(energy) < 1e-7 * max(1.0, abs(energy[0]))
+    assert np.ptp(sol.y[0]) > 0.5  # it really moved
+
+
+def test_double_pendulum_inputs_are_hinge_torques():
+    # tau_2 acts between the rods: generalized forces [tau1 - tau2, tau2].
+    plant = DoublePendulum()
+    x = np.array([0.3, -0.4, 0.1, 0.2])
+    a_hinge = plant.dynamics(x, [0.0, 0.7]) - plant.dynamics(x, [0.0, 0.0])
+    a_equiv = plant.dynamics(x, [0.7, 0.0]) - plant.dynamics(x, [0.0, 0.0])
+    # Q = [-0.7, 0.7] is the superposition of Q = [0.7, 0] scaled by -1 and Q = [0, 0.7].
+    m1, m2, l1, l2 = plant.m1, plant.m2, plant.l1, plant.l2
+    d = x[0] - x[1]
+    M = np.array([[(m1 + m2) * l1**2, m2 * l1 * l2 * np.cos(d)], [m2 * l1 * l2 * np.cos(d), m2 * l2**2]])
+    np.testing.assert_allclose(a_hinge[2:], np.linalg.solve(M, [-0.7, 0.7]), atol=1e-12)
+    np.testing.assert_allclose(a_equiv[2:], np.linalg.solve(M, [0.7, 0.0]), atol=1e-12)
+
+
+@pytest.mark.parametrize("cls", PENDULUM_FAMILY, ids=lambda c: c.__name__)
+def test_step_is_semi_implicit_euler(cls, rng):
+    plant = cls(dt=0.02)
+    x = rng.normal(size=plant.state_dim) * 0.3
+    u = rng.normal(size=plant.input_dim)
+    plant.set_state(x)
+    xd = plant.dynamics(x, u)
+    expected = x.copy()
+    v, q = list(plant.velocity_indices), list(plant.position_indices)
+    expected[v] = x[v] + 0.02 * xd[v]
+    expected[q] = x[q] + 0.02 * expected[v]
+    np.testing.assert_allclose(plant.step(u), expected, atol=1e-14)
+
+
+def test_scalar_input_for_single_input_plants():
+    a, b = CartPole(), CartPole()
+    np.testing.assert_array_equal(a.step(0.5), b.step(np.array([0.5])))
+    np.testing.assert_array_equal(
+        InvertedPendulum().dynamics([0.1, 0], 0.2), InvertedPendulum().dynamics([0.1, 0], [0.2])
+    )
+
+
+@pytest.mark.parametrize("cls", PENDULUM_FAMILY, ids=lambda c: c.__name__)
+def test_bad_inputs_are_clear_errors(cls):
+    plant = cls()
+    with pytest.raises(ValueError, match="expected shape"):
+        plant.step(np.zeros(plant.input_dim + 1))
+    with pytest.raises(NonFiniteError, match="finite"):
+        plant.step(np.full(plant.input_dim, np.nan))
+    with pytest.raises(NonFiniteError):
+        plant.set_state(np.full(plant.state_dim, np.inf))
+    with pytest.raises(ValueError, match="x0"):
+        plant.linearize(np.zeros(plant.state_dim + 2))
+
+
+@pytest.mark.parametrize(
+    "cls,arg",
+    [
+        (InvertedPendulum, "mass"),
+        (InvertedPendulum, "length"),
+        (CartPole, "cart_mass"),
+        (CartPole, "pole_mass"),
+        (CartPole, "pole_length"),
+        (DoublePendulum, "mass_top"),
+        (DoublePendulum, "length_bottom"),
+        (CartPole, "dt"),
+    ],
+)
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
+def test_constructor_rejects_non_positive_arguments(cls, arg, value):
+    with pytest.raises(ValueError, match=arg):
+        cls(**{arg: value})
+
+
+def test_track_limits_and_state_bounds_clip():
+    cp = CartPole(track_limits=(-0.1, 0.1))
+    cp.set_state([0.09, 5.0, 0.0, 0.0])
+    assert cp.step(0.0)[0] == pytest.approx(0.1)
+    ip = InvertedPendulum(state_bounds={"min": [-0.5, -1.0], "max": [0.5, 1.0]})
+    ip.set_state([0.4, 0.9])
+    x = ip.step(5.0)
+    assert x[1] == pytest.approx(1.0) and x[0] <= 0.5
+
+
+def test_from_config_is_strict():
+    plant = CartPole.from_config({"type": "CartPole", "pole_length": 0.8})
+    assert plant.l == 0.8 and plant.M == 0.5
+    with pytest.raises(ConfigError, match="did you mean 'pole_length'"):
+        CartPole.from_config({"pole_lenght": 0.8})
+    with pytest.raises(ConfigError, match="cart_mass"):
+        CartPole.from_config({"cart_mass": -1})
+
+
+def test_plant_class_resolves_aliases():
+    assert plant_class("cartpole") is CartPole and plant_class("DoublePendulum") is DoublePendulum
+    with pytest.raises(ConfigError, match="did you mean"):
+        plant_class("cartpol")
+
+
+def test_unknown_batch_parameter_is_named():
+    with pytest.raises(ValueError, match="pole_mass"):
+        CartPole().dynamics(np.zeros((2, 4)), np.zeros((2, 1)), params={"pole_mas": [1, 2]})
