@@ -329,6 +329,18 @@ class Plant:
         """How the plant's MJCF asset must be edited to match its parameters."""
         raise NotImplementedError(f"{type(self).__name__} has no matched MuJoCo model")
 
+    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """How the plant's state relates to MuJoCo's ``z = [qpos..., qvel...]``.
+
+        Returns:
+            ``(T (n, n), perm (n,))`` with ``x_plant = T @ z`` (``z`` in the
+            order of ``mjd_transitionFD``); ``perm[i]`` is the index in ``z``
+            of the coordinate state ``i`` is built on (same joint, same
+            derivative order), so ``T == eye(n)[perm]`` unless the plant uses
+            other coordinates. Inputs map 1:1 onto actuators (``ctrl = u``).
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no MuJoCo state map")
+
     def _engine_read(self, engine: Any) -> np.ndarray:
         raise NotImplementedError
 

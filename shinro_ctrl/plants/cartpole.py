@@ -113,6 +113,14 @@ class CartPole(Plant):
             geom_fromto={"pole_rod": (0.0, 0.0, 0.0, 0.0, 0.0, self.l)},
         )
 
+    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """``x = T @ z`` with MuJoCo's ``z = [slider, hinge, slider_dot, hinge_dot]``.
+
+        See :meth:`Plant.engine_state_map`.
+        """
+        perm = np.array([0, 2, 1, 3])  # x = [x, x_dot, theta, theta_dot]
+        return np.eye(4)[perm], perm
+
     def _engine_read(self, engine) -> np.ndarray:
         return np.array(
             [

@@ -131,6 +131,15 @@ class DoublePendulum(Plant):
             },
         )
 
+    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """``x = T @ z`` with MuJoCo's ``z = [hinge_1, hinge_2, hinge_1_dot, hinge_2_dot]``.
+
+        See :meth:`Plant.engine_state_map`.
+        """
+        # hinge_2 is relative: theta_2 = hinge_1 + hinge_2, omega_2 = hinge_1_dot + hinge_2_dot
+        T = np.array([[1.0, 0.0, 0.0, 0.0], [1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 1.0, 1.0]])
+        return T, np.arange(4)
+
     def _engine_read(self, engine) -> np.ndarray:
         q1, q2 = engine.get_joint_qpos("hinge_1"), engine.get_joint_qpos("hinge_2")
         v1, v2 = engine.get_joint_vel("hinge_1"), engine.get_joint_vel("hinge_2")

@@ -89,6 +89,14 @@ class InvertedPendulum(Plant):
             geom_fromto={"rod": (0.0, 0.0, 0.0, 0.0, 0.0, self.l)},
         )
 
+    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """``x = T @ z`` with MuJoCo's ``z = [hinge, hinge_dot]``.
+
+        See :meth:`Plant.engine_state_map`.
+        """
+        perm = np.array([0, 1])
+        return np.eye(2)[perm], perm
+
     def _engine_read(self, engine) -> np.ndarray:
         return np.array([engine.get_joint_qpos("hinge"), engine.get_joint_vel("hinge")])
 
