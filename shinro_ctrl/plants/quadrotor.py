@@ -263,23 +263,34 @@ class Quadrotor(Plant):
             geom_fromto=fromto,
         )
 
+    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """``x = T @ z`` near hover, with MuJoCo's ``z = [pos, rotation tangent, v, ω]``.
+
+        ``mjd_transitionFD`` differentiates the free joint's orientation in
+        its local tangent (a body-frame rotation vector ``δr``) and its
+        velocity as ``[world linear, body angular]``. The Euler angles relate
+        as ``δη = W(φ, θ) δr``, and ``W(0, 0) = I``: at every hover (any yaw)
+        the plant's state and MuJoCo's coincide to first order, ``T = I``.
+        """
+        return np.eye(12), np.arange(12)
+
     def _engine_read(self, engine) -> np.ndarray:
-        qpos, qvel = engine.get_free_joint(self.free_joint)
+        qpos = engine.get_joint_qpos(self.free_joint)
+        qvel = engine.get_joint_vel(self.free_joint)
         x = np.empty(12)
         x[0:3] = qpos[0:3]
         x[3:6] = quat_to_zyx_euler(qpos[3:7])
-        x[6:9] = qvel[0:3]  # world-frame linear velocity
-        x[9:12] = qvel[3:6]  # body-frame angular velocity
+        x[6:12] = qvel  # [world linear velocity, body angular velocity]
         return x
 
     def _engine_write(self, engine, x: np.ndarray) -> None:
-        qpos = np.concatenate([x[0:3], zyx_euler_to_quat(x[3], x[4], x[5])])
-        engine.set_free_joint(self.free_joint, qpos, np.asarray(x[6:12], dtype=float))
+        engine.set_joint_qpos(self.free_joint, np.concatenate([x[0:3], zyx_euler_to_quat(x[3], x[4], x[5])]))
+        engine.set_joint_vel(self.free_joint, x[6:12])
         engine.forward()
 
     def _engine_apply(self, engine, u: np.ndarray) -> None:
-        for name, value in zip(self.actuators, u, strict=True):
-            engine.set_joint_ctrl(name, float(value))
+        for name, value in zip(self.actuators, u.tolist(), strict=True):
+            engine.set_joint_ctrl(name, value)
 
 
 def _inertia(value: Any) -> tuple[float, float, float]:
