@@ -9,7 +9,9 @@ from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.plants.cartpole import CartPole
 from shinro_ctrl.plants.double_pendulum import DoublePendulum
+from shinro_ctrl.plants.holonomic import HolonomicMobileRobot
 from shinro_ctrl.plants.inverted_pendulum import InvertedPendulum
+from shinro_ctrl.plants.quadrotor import Quadrotor
 from shinro_ctrl.validation import did_you_mean
 
 __all__ = [
@@ -17,9 +19,11 @@ __all__ = [
     "PLANT_ALIASES",
     "CartPole",
     "DoublePendulum",
+    "HolonomicMobileRobot",
     "InvertedPendulum",
     "MjcfPatch",
     "Plant",
+    "Quadrotor",
     "plant_class",
 ]
 
@@ -27,12 +31,16 @@ PLANTS: dict[str, type[Plant]] = {
     "InvertedPendulum": InvertedPendulum,
     "CartPole": CartPole,
     "DoublePendulum": DoublePendulum,
+    "HolonomicMobileRobot": HolonomicMobileRobot,
+    "Quadrotor": Quadrotor,
 }
 
 PLANT_ALIASES: dict[str, str] = {
     "pendulum": "InvertedPendulum",
     "cartpole": "CartPole",
     "double_pendulum": "DoublePendulum",
+    "holonomic": "HolonomicMobileRobot",
+    "quadrotor": "Quadrotor",
 }
 
 
