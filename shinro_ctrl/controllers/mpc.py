@@ -1,0 +1,1068 @@
+r"""Linear model-predictive control with a sparse QP solved by OSQP.
+
+The controller works in deviation variables around an operating point
+``(x0, u0)`` of a discrete linear model
+
+.. math::
+
+    x_{k+1} - x_0 = A (x_k - x_0) + B (u_k - u_0) + d,
+
+where ``d`` is zero at an equilibrium. Writing ``\delta x_k = x_k - x_0``,
+``\delta u_k = u_k - u_0`` and ``\rho_k = r_k - x_0``, ``\nu = u_{ref} - u_0``,
+each call solves
+
+.. math::
+
+    \min_{\delta x, \delta u, s}\;
+      \tfrac12 \sum_{k=0}^{N-1} \big[(\delta x_k - \rho_k)^\top Q (\delta x_k - \rho_k)
+        + (\delta u_k - \nu)^\top R (\delta u_k - \nu)\big]
+      + \tfrac12 (\delta x_N - \rho_N)^\top P_f (\delta x_N - \rho_N)
+      + \sum_{k=1}^{N} \big(w_1 \mathbf 1^\top s_k + \tfrac{w_2}{2} \lVert s_k \rVert^2\big)
+
+subject to
+
+.. math::
+
+    \delta x_0 &= x - x_0                                   &&\text{(initial state)}\\
+    \delta x_{k+1} &= A \delta x_k + B \delta u_k + d,\; k = 0..N-1  &&\text{(dynamics)}\\
+    u_{min} - u_0 &\le \delta u_k \le u_{max} - u_0,\; k = 0..N-1    &&\text{(input bounds)}\\
+    -\Delta &\le \delta u_k - \delta u_{k-1} \le \Delta,\; \delta u_{-1} = u_{prev} - u_0
+                                                            &&\text{(rate bounds)}\\
+    x_{min} - x_0 - s_k &\le \delta x_k \le x_{max} - x_0 + s_k,\; k = 1..N  &&\text{(state bounds)}\\
+    s_k &\ge 0                                              &&\text{(slack bounds)}
+
+The slacks ``s_k`` exist only with ``soft=True`` (otherwise they are fixed at
+zero and the state bounds are hard). The decision vector is
+``z = [δx_0 … δx_N, δu_0 … δu_{N-1}, s_1 … s_N]``; the equality and
+inequality rows form one matrix ``A_con`` with ``l ≤ A_con z ≤ u`` (OSQP's
+form ``min ½ zᵀ P z + qᵀ z``).
+
+``P`` and ``A_con`` are built once as CSC matrices and handed to one OSQP
+object. A call writes the measured state into the initial-state rows of
+``l``/``u`` (and the previous input into the first rate rows), rewrites ``q``
+only when the reference changes, warm-starts primal and dual variables from
+the previous solution shifted by one stage, and solves.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+import osqp
+import scipy.linalg
+import scipy.sparse as sp
+
+from shinro_ctrl.errors import MPCInfeasible, NonFiniteError, NotStabilizable
+from shinro_ctrl.linearization import discretize
+from shinro_ctrl.validation import as_vector, check_positive, closest, did_you_mean, unknown_keys
+
+__all__ = ["QP", "LinearMPC", "MPCSolution", "RowGroup"]
+
+_INF = 1e30  # OSQP_INFTY: what OSQP treats as an absent bound
+
+#: Defaults tuned for closed-loop control of the cart-pole benchmark (see
+#: API-NOTES and benchmarks/mpc.py). eps <= 1e-4 keeps the first move within
+#: ~1 % of the exact optimum; check_termination 5 avoids paying for 25
+#: iterations when 5-10 suffice warm; under-relaxation alpha = 1.3 (OSQP's
+#: default 1.6) halved the warm-started iteration count (median 20 -> 10 at
+#: N = 50); the duality-gap test (check_dualgap) made active-bound solves
+#: crawl into the iteration limit; max_iter 10000 leaves room for cold solves
+#: with active soft bounds (up to ~3000 iterations measured). Every key can be
+#: overridden with ``osqp_settings``.
+DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
+    "eps_abs": 1e-4,
+    "eps_rel": 1e-4,
+    "warm_starting": True,
+    "polishing": False,
+    "check_termination": 5,
+    "check_dualgap": False,
+    "alpha": 1.3,
+    "adaptive_rho": True,
+    "scaling": 10,
+    "max_iter": 10000,
+    "verbose": False,
+}
+
+_SOLVED = "solved"
+
+
+class QP(NamedTuple):
+    """The QP ``min ½ zᵀ P z + qᵀ z  s.t.  l ≤ A z ≤ u`` in OSQP's form.
+
+    Attributes:
+        P: Upper-triangular cost Hessian, CSC ``(n_var, n_var)``.
+        q: Linear cost ``(n_var,)``.
+        A: Constraint matrix, CSC ``(n_con, n_var)``.
+        l: Lower bounds ``(n_con,)`` (±1e30 stands for ±inf).
+        u: Upper bounds ``(n_con,)``.
+    """
+
+    P: sp.csc_matrix
+    q: np.ndarray
+    A: sp.csc_matrix
+    l: np.ndarray
+    u: np.ndarray
+
+
+@dataclass(frozen=True)
+class RowGroup:
+    """A block of constraint rows with the same meaning at consecutive stages.
+
+    Rows ``start + (k - first_stage) * width + j`` hold component ``labels[j]``
+    of the group at stage ``k``.
+
+    Attributes:
+        name: ``"initial state"``, ``"dynamics"``, ``"input bounds"``,
+            ``"rate bounds"``, ``"state bounds"`` or ``"slack bounds"``.
+        start: First row.
+        width: Rows per stage.
+        first_stage: Stage of the first block.
+        stages: Number of stages.
+        labels: Description of each row within a stage (length ``width``).
+    """
+
+    name: str
+    start: int
+    width: int
+    first_stage: int
+    stages: int
+    labels: tuple[str, ...]
+
+    @property
+    def stop(self) -> int:
+        """One past the last row."""
+        return self.start + self.width * self.stages
+
+    def locate(self, row: int) -> tuple[int, str]:
+        """The ``(stage, label)`` of a row inside this group."""
+        k, j = divmod(row - self.start, self.width)
+        return self.first_stage + k, self.labels[j]
+
+
+@dataclass(frozen=True)
+class MPCSolution:
+    """The outcome of one :class:`LinearMPC` call.
+
+    Attributes:
+        status: OSQP's status string (``"solved"``, ``"primal infeasible"``, …).
+        iterations: ADMM iterations.
+        solve_time_s: Wall time of the whole call [s], Python work included.
+        osqp_solve_time_s: OSQP's own solve time [s].
+        objective: Value of the MPC cost (constant reference terms included);
+            NaN when the solve failed.
+        states: Predicted states ``(N + 1, n)`` in absolute units.
+        inputs: Planned inputs ``(N, m)`` in absolute units (before clipping).
+        u: The input returned by the call ``(m,)`` (clipped to its hard bounds).
+        fallback_used: True when the solve failed and the shifted previous plan
+            was applied instead (``fallback="shift"``).
+        message: Why the solve failed (empty when solved).
+        max_slack: Largest slack of the soft state bounds over the horizon,
+            i.e. the planned bound violation (0 for hard bounds).
+    """
+
+    status: str
+    iterations: int
+    solve_time_s: float
+    osqp_solve_time_s: float
+    objective: float
+    states: np.ndarray
+    inputs: np.ndarray
+    u: np.ndarray
+    fallback_used: bool = False
+    message: str = ""
+    max_slack: float = 0.0
+
+
+def _valid_osqp_settings() -> tuple[str, ...]:
+    ext = osqp.OSQP().ext
+    names = {k for k in ext.OSQPSettings.__dict__ if not k.startswith("_")}
+    names -= {"linsys_solver", "cg_precond"}  # set through the two aliases below
+    return tuple(sorted(names | {"solver_type", "cg_preconditioner"}))
+
+
+def _square(name: str, value: Any, size: int) -> np.ndarray:
+    """A ``(size, size)`` float matrix; a 1-D array of length ``size`` is a diagonal."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric ({size}, {size}) matrix, got {value!r}") from None
+    if arr.ndim == 0 and size == 1:
+        arr = arr.reshape(1, 1)
+    elif arr.ndim == 1 and arr.shape == (size,):
+        arr = np.diag(arr)
+    if arr.shape != (size, size):
+        raise ValueError(f"{name}: expected ({size}, {size}) but found {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise NonFiniteError(f"{name} must be finite")
+    return arr
+
+
+def _symmetric(name: str, M: np.ndarray, *, definite: bool, rtol: float = 1e-9) -> np.ndarray:
+    """Check symmetry and semi-/definiteness with tolerances relative to ``M``'s scale."""
+    scale = float(np.max(np.abs(M), initial=0.0))
+    asym = float(np.max(np.abs(M - M.T), initial=0.0))
+    if asym > rtol * max(scale, np.finfo(float).tiny):
+        raise ValueError(f"{name} must be symmetric; max |{name} - {name}ᵀ| = {asym:.3g} (scale {scale:.3g})")
+    M = 0.5 * (M + M.T)
+    eig = np.linalg.eigvalsh(M) if M.size else np.zeros(0)
+    lo = float(eig.min()) if eig.size else 0.0
+    if definite:
+        if not eig.size or lo <= rtol * max(scale, np.finfo(float).tiny):
+            raise ValueError(f"{name} must be positive definite; smallest eigenvalue {lo:.3g}")
+    elif lo < -rtol * max(scale, np.finfo(float).tiny):
+        raise ValueError(f"{name} must be positive semidefinite; smallest eigenvalue {lo:.3g}")
+    return M
+
+
+def _bound(name: str, value: Any, size: int, default: float) -> np.ndarray:
+    """A bound vector ``(size,)``: a scalar broadcasts; ±inf allowed, NaN not."""
+    if value is None:
+        return np.full(size, default)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be numeric with shape ({size},), got {value!r}") from None
+    if arr.ndim == 0:
+        arr = np.full(size, float(arr))
+    if arr.shape != (size,):
+        raise ValueError(f"{name}: expected ({size},) but found {arr.shape}")
+    if np.any(np.isnan(arr)):
+        raise NonFiniteError(f"{name} must not contain NaN, got {np.array2string(arr, precision=4)}")
+    return arr
+
+
+def _fmt(v: np.ndarray) -> str:
+    return np.array2string(np.asarray(v), precision=4, suppress_small=True)
+
+
+class LinearMPC:
+    r"""Linear MPC on a sparse QP, solved by one warm-started OSQP object.
+
+    The QP is written out in the module docstring. ``P`` and ``A_con`` are
+    built once; a call only updates the initial-state rows, the first
+    rate-bound rows, and (when the reference changes) the linear cost.
+
+    Args:
+        A: Discrete state matrix ``(n, n)``.
+        B: Discrete input matrix ``(n, m)``.
+        Q: Stage state weight ``(n, n)``, symmetric PSD (a length-``n`` vector
+            means a diagonal).
+        R: Stage input weight ``(m, m)``, symmetric positive definite.
+        horizon: Prediction horizon ``N`` >= 1 (steps).
+        x0: Operating-point state ``(n,)`` [absolute units]; default zeros.
+        u0: Operating-point input ``(m,)``; default zeros.
+        dt: Sampling time [s] (informational; used by :meth:`describe`).
+        u_min: Lower input bounds ``(m,)`` (a scalar broadcasts; -inf = none).
+        u_max: Upper input bounds ``(m,)``.
+        x_min: Lower state bounds ``(n,)`` on ``x_1 … x_N`` (never on the
+            measured ``x_0``).
+        x_max: Upper state bounds ``(n,)``.
+        du_max: Input-rate bounds ``(m,)``, ``|u_k − u_{k−1}| <= du_max`` per
+            step, ``u_{−1}`` the previously applied input (the first call
+            after construction or :meth:`reset` has no previous input unless
+            ``reset(u_prev=...)`` provides one).
+        soft: Make the state bounds soft with slack variables.
+        soft_weight_l1: Linear slack weight ``w_1`` (an exact penalty when it
+            exceeds the bound's multiplier; keep it moderate, OSQP converges
+            slowly with huge weights).
+        soft_weight_quad: Quadratic slack weight ``w_2`` (> 0 keeps the
+            slack problem strongly convex).
+        terminal_cost: ``"dare"`` (default; ``P_f`` from the discrete
+            algebraic Riccati equation, so with no active constraint the
+            first move equals the LQR input), ``"Q"``, or a matrix ``(n, n)``.
+        u_ref: Default input reference ``(m,)`` in absolute units (default
+            ``u0``).
+        offset: Affine term ``d`` ``(n,)`` of the model; zero at an
+            equilibrium.
+        fallback: None (raise on failure) or ``"shift"`` (apply the previous
+            plan shifted by one step and flag it).
+        osqp_settings: Overrides of :data:`DEFAULT_OSQP_SETTINGS`; unknown
+            keys raise ``ValueError`` listing the valid ones.
+        state_names: Names of the states for messages (default ``x[i]``).
+        input_names: Names of the inputs for messages (default ``u[i]``).
+
+    Attributes:
+        K: LQR gain ``(m, n)`` of the DARE (None for another terminal cost).
+        P_f: Terminal cost matrix ``(n, n)``.
+        last: :class:`MPCSolution` of the latest call (None before the first).
+        groups: The :class:`RowGroup` blocks of ``A_con``, by name.
+
+    Raises:
+        ValueError: wrong shapes (``expected (n, m) but found (p, q)``),
+            asymmetric or indefinite weights, ``horizon < 1``, crossed bounds,
+            unknown OSQP settings.
+        NonFiniteError: NaN or inf where a finite number is needed.
+        NotStabilizable: ``terminal_cost="dare"`` but the DARE has no
+            stabilizing solution.
+
+    Example:
+        >>> from shinro_ctrl.plants import CartPole
+        >>> mpc = LinearMPC.from_plant(CartPole(dt=0.02), [10, 1, 100, 1], [0.1], horizon=50,
+        ...                            u_min=-3, u_max=3, x_min=[-0.6, -np.inf, -np.inf, -np.inf],
+        ...                            x_max=[0.6, np.inf, np.inf, np.inf])
+        >>> u = mpc([0.0, 0.0, 0.3, 0.0])
+    """
+
+    def __init__(
+        self,
+        A: Any,
+        B: Any,
+        Q: Any,
+        R: Any,
+        horizon: int,
+        *,
+        x0: Any = None,
+        u0: Any = None,
+        dt: float | None = None,
+        u_min: Any = None,
+        u_max: Any = None,
+        x_min: Any = None,
+        x_max: Any = None,
+        du_max: Any = None,
+        soft: bool = False,
+        soft_weight_l1: float = 1e2,
+        soft_weight_quad: float = 1e2,
+        terminal_cost: str | Any = "dare",
+        u_ref: Any = None,
+        offset: Any = None,
+        fallback: str | None = None,
+        osqp_settings: Mapping[str, Any] | None = None,
+        state_names: Any = None,
+        input_names: Any = None,
+    ):
+        # ------------------------------------------------------- validation
+        try:
+            A_ = np.atleast_2d(np.asarray(A, dtype=float))
+            B_ = np.asarray(B, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError("A and B must be numeric matrices") from None
+        if A_.ndim != 2 or A_.shape[0] != A_.shape[1]:
+            raise ValueError(f"A: expected a square (n, n) matrix but found {A_.shape}")
+        n = A_.shape[0]
+        if B_.ndim == 1 and B_.shape == (n,):
+            B_ = B_.reshape(n, 1)
+        if B_.ndim != 2 or B_.shape[0] != n:
+            raise ValueError(f"B: expected ({n}, m) but found {B_.shape}")
+        m = B_.shape[1]
+        if m == 0 or n == 0:
+            raise ValueError(f"A and B must have at least one state and one input, found n={n}, m={m}")
+        for name, M in (("A", A_), ("B", B_)):
+            if not np.all(np.isfinite(M)):
+                raise NonFiniteError(f"{name} must be finite")
+        Q_ = _symmetric("Q", _square("Q", Q, n), definite=False)
+        R_ = _symmetric("R", _square("R", R, m), definite=True)
+        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)):
+            raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
+        N = int(horizon)
+        if N < 1:
+            raise ValueError(f"horizon must be >= 1, got {N}")
+        self.n, self.m, self.N = n, m, N
+        self.A, self.B, self.Q, self.R = A_, B_, Q_, R_
+        self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
+        self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
+        self.offset = np.zeros(n) if offset is None else as_vector("offset", offset, n)
+        self.dt = None if dt is None else check_positive("dt", dt)
+        self.u_min = _bound("u_min", u_min, m, -np.inf)
+        self.u_max = _bound("u_max", u_max, m, np.inf)
+        self.x_min = _bound("x_min", x_min, n, -np.inf)
+        self.x_max = _bound("x_max", x_max, n, np.inf)
+        for lo_name, hi_name, lo, hi in (
+            ("u_min", "u_max", self.u_min, self.u_max),
+            ("x_min", "x_max", self.x_min, self.x_max),
+        ):
+            bad = np.flatnonzero(~(lo <= hi) | (lo == np.inf) | (hi == -np.inf))
+            if bad.size:
+                i = int(bad[0])
+                raise ValueError(
+                    f"{lo_name} must be <= {hi_name} (and finite on its side); index {i}: {lo[i]} > {hi[i]}"
+                )
+        if du_max is None:
+            self.du_max = None
+        else:
+            self.du_max = _bound("du_max", du_max, m, np.inf)
+            if np.any(self.du_max <= 0):
+                raise ValueError(f"du_max must be > 0, got {_fmt(self.du_max)}")
+        self.soft = bool(soft)
+        self.soft_weight_l1 = float(soft_weight_l1)
+        self.soft_weight_quad = float(soft_weight_quad)
+        if not math.isfinite(self.soft_weight_l1) or self.soft_weight_l1 < 0:
+            raise ValueError(f"soft_weight_l1 must be >= 0 and finite, got {soft_weight_l1!r}")
+        if not math.isfinite(self.soft_weight_quad) or self.soft_weight_quad <= 0:
+            raise ValueError(f"soft_weight_quad must be > 0 and finite, got {soft_weight_quad!r}")
+        self.u_ref = None if u_ref is None else as_vector("u_ref", u_ref, m)
+        if fallback not in (None, "shift"):
+            raise ValueError(f"fallback must be None or 'shift', got {fallback!r}")
+        self.fallback = fallback
+        self.state_names = self._names("state_names", state_names, n, "x")
+        self.input_names = self._names("input_names", input_names, m, "u")
+
+        # ----------------------------------------------------- terminal cost
+        self.K: np.ndarray | None = None
+        if isinstance(terminal_cost, str):
+            if terminal_cost == "dare":
+                self.P_f = self._dare()
+                BtP = B_.T @ self.P_f
+                self.K = np.linalg.solve(R_ + BtP @ B_, BtP @ A_)
+            elif terminal_cost == "Q":
+                self.P_f = Q_.copy()
+            else:
+                raise ValueError(f"terminal_cost must be 'dare', 'Q' or an (n, n) matrix, got {terminal_cost!r}")
+            self.terminal_cost = terminal_cost
+        else:
+            self.P_f = _symmetric("terminal_cost", _square("terminal_cost", terminal_cost, n), definite=False)
+            self.terminal_cost = "matrix"
+
+        # ---------------------------------------------------------- settings
+        settings = dict(DEFAULT_OSQP_SETTINGS)
+        if osqp_settings:
+            valid = _valid_osqp_settings()
+            bad = unknown_keys(osqp_settings, valid)
+            if bad:
+                close = closest(bad[0], valid)
+                near = f" (did you mean '{close}'?)" if close else ""
+                raise ValueError(f"unknown OSQP setting '{bad[0]}'{near}; valid settings: {', '.join(valid)}")
+            settings.update(osqp_settings)
+        self.osqp_settings = settings
+        self._warm = bool(settings["warm_starting"])
+
+        # ------------------------------------------------------------- build
+        self._build_structure()
+        self._solver = osqp.OSQP()
+        try:
+            self._solver.setup(self._P, self._q, self._A, self._l, self._u, **settings)
+        except (ValueError, TypeError, osqp.OSQPException) as exc:
+            raise ValueError(f"OSQP rejected the MPC problem or its settings {settings}: {exc!r}") from exc
+        low = getattr(self._solver, "_solver", None)
+        needed = ("update_data_vec", "warm_start", "solve", "info", "solution")
+        self._low = low if low is not None and all(hasattr(low, a) for a in needed) else None
+        self.reset()
+
+    # ================================================================ set-up
+    @staticmethod
+    def _names(arg: str, names: Any, size: int, prefix: str) -> tuple[str, ...]:
+        if names is None:
+            return tuple(f"{prefix}[{i}]" for i in range(size))
+        names = tuple(str(s) for s in names)
+        if len(names) != size:
+            raise ValueError(f"{arg}: expected {size} names but found {len(names)}")
+        return names
+
+    def _dare(self) -> np.ndarray:
+        try:
+            P = scipy.linalg.solve_discrete_are(self.A, self.B, self.Q, self.R)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            raise NotStabilizable(
+                f"no stabilizing DARE solution for the terminal cost ({exc}); (A, B) must be stabilizable "
+                "and (A, Q) detectable, or pass terminal_cost='Q' or a matrix"
+            ) from exc
+        if not np.all(np.isfinite(P)):
+            raise NotStabilizable("the DARE solution for the terminal cost is not finite")
+        return 0.5 * (P + P.T)
+
+    @classmethod
+    def from_plant(
+        cls,
+        plant: Any,
+        Q: Any,
+        R: Any,
+        *,
+        horizon: int,
+        x0: Any = None,
+        u0: Any = None,
+        discretization: str = "euler",
+        method: str = "exact",
+        **options: Any,
+    ) -> LinearMPC:
+        """Build the controller from a plant's linearization at ``(x0, u0)``.
+
+        Args:
+            plant: Any :class:`~shinro_ctrl.plants.base.Plant`.
+            Q: Stage state weight ``(n, n)`` or its diagonal ``(n,)``.
+            R: Stage input weight ``(m, m)`` or its diagonal ``(m,)``.
+            horizon: Prediction horizon ``N`` (steps of ``plant.dt``).
+            x0: Operating state ``(n,)``; default ``plant.equilibrium()``.
+            u0: Operating input ``(m,)``; default ``plant.equilibrium()``.
+            discretization: ``"euler"``, ``"zoh"`` or ``"rk4"``.
+            method: Linearization method, ``"exact"`` or ``"fd"``.
+            **options: Any keyword option of :class:`LinearMPC` (bounds,
+                ``soft``, ``terminal_cost``, ``osqp_settings``, …).
+
+        The affine term ``d`` is the discretized drift ``f(x0, u0)`` (zero at
+        an equilibrium), discretized the same way as ``B``.
+        """
+        bad = unknown_keys(options, _CONSTRUCTOR_OPTIONS)
+        if bad:
+            raise TypeError(
+                f"LinearMPC.from_plant got an unexpected keyword '{bad[0]}'{did_you_mean(bad[0], _CONSTRUCTOR_OPTIONS)}"
+            )
+        lm = plant.linear_model(x0, u0, method=method, discretization=discretization)
+        drift = np.asarray(plant.dynamics(lm.x0, lm.u0), dtype=float)
+        offset = None
+        if np.any(drift != 0.0):
+            offset = discretize(lm.A_c, drift.reshape(-1, 1), lm.dt, discretization)[1][:, 0]
+        options.setdefault("state_names", plant.state_names)
+        options.setdefault("input_names", plant.input_names)
+        return cls(lm.A, lm.B, Q, R, horizon, x0=lm.x0, u0=lm.u0, dt=lm.dt, offset=offset, **options)
+
+    def _build_structure(self) -> None:
+        """Assemble P, A_con, q, l, u and the index maps (once)."""
+        n, m, N = self.n, self.m, self.N
+        nx, nu = (N + 1) * n, N * m
+        self._ix = slice(0, nx)
+        self._iu = slice(nx, nx + nu)
+        xb = np.isfinite(self.x_min) | np.isfinite(self.x_max)  # bounded state components
+        ub = np.isfinite(self.u_min) | np.isfinite(self.u_max)
+        self._xb_idx = np.flatnonzero(xb)
+        self._ub_idx = np.flatnonzero(ub)
+        nsb = self._xb_idx.size if self.soft else 0
+        ns = N * nsb
+        self._is = slice(nx + nu, nx + nu + ns)
+        self._has_slack = ns > 0
+        nvar = nx + nu + ns
+        self.n_var = nvar
+
+        # ---- cost
+        blocks = [sp.csc_matrix(self.Q)] * N + [sp.csc_matrix(self.P_f)] + [sp.csc_matrix(self.R)] * N
+        if ns:
+            blocks.append(sp.identity(ns, format="csc") * self.soft_weight_quad)
+        self._P = sp.triu(sp.block_diag(blocks, format="csc"), format="csc")
+        self._P.sort_indices()
+        q = np.zeros(nvar)
+        q[self._is] = self.soft_weight_l1
+        self._q_default = q.copy()
+        self._q = q
+
+        # ---- constraints, stage-major inside each group
+        rows: list[sp.spmatrix] = []
+        lo: list[np.ndarray] = []
+        hi: list[np.ndarray] = []
+        groups: list[RowGroup] = []
+        r0 = 0
+
+        def add(name: str, M: sp.spmatrix, l: np.ndarray, u: np.ndarray, width: int, first: int, labels) -> None:
+            nonlocal r0
+            stages = M.shape[0] // width if width else 0
+            rows.append(M)
+            lo.append(l)
+            hi.append(u)
+            groups.append(RowGroup(name, r0, width, first, stages, tuple(labels)))
+            r0 += M.shape[0]
+
+        Ix = sp.identity(n, format="csr")
+        # initial state: δx_0 = x - x0
+        M = sp.hstack([Ix, sp.csr_matrix((n, nvar - n))])
+        add("initial state", M, np.zeros(n), np.zeros(n), n, 0, self.state_names)
+        # dynamics: A δx_k + B δu_k - δx_{k+1} = -d
+        Mx = sp.kron(sp.eye(N, N + 1, k=0), self.A) - sp.kron(sp.eye(N, N + 1, k=1), Ix)
+        Mu = sp.kron(sp.identity(N), self.B)
+        M = sp.hstack([Mx, Mu, sp.csr_matrix((N * n, ns))])
+        d = np.tile(-self.offset, N)
+        add("dynamics", M, d, d.copy(), n, 1, self.state_names)
+        # input bounds
+        if self._ub_idx.size:
+            S = sp.identity(m, format="csr")[self._ub_idx]
+            M = sp.hstack(
+                [
+                    sp.csr_matrix((N * S.shape[0], nx)),
+                    sp.kron(sp.identity(N), S),
+                    sp.csr_matrix((N * S.shape[0], ns)),
+                ]
+            )
+            lb = np.tile(self.u_min[self._ub_idx] - self.u0[self._ub_idx], N)
+            ubv = np.tile(self.u_max[self._ub_idx] - self.u0[self._ub_idx], N)
+            labels = [f"{self.input_names[i]} in [{self.u_min[i]:g}, {self.u_max[i]:g}]" for i in self._ub_idx]
+            add("input bounds", M, lb, ubv, S.shape[0], 0, labels)
+        # rate bounds
+        self._rate_idx = np.zeros(0, dtype=int)
+        if self.du_max is not None:
+            ri = np.flatnonzero(np.isfinite(self.du_max))
+            self._rate_idx = ri
+            if ri.size:
+                S = sp.identity(m, format="csr")[ri]
+                D = sp.kron(sp.eye(N) - sp.eye(N, k=-1), S)
+                M = sp.hstack([sp.csr_matrix((N * ri.size, nx)), D, sp.csr_matrix((N * ri.size, ns))])
+                dm = np.tile(self.du_max[ri], N)
+                lb, ubv = -dm, dm.copy()
+                lb[: ri.size], ubv[: ri.size] = -_INF, _INF  # no previous input yet
+                labels = [f"|Δ{self.input_names[i]}| <= {self.du_max[i]:g}" for i in ri]
+                add("rate bounds", M, lb, ubv, ri.size, 0, labels)
+        # state bounds on x_1 … x_N
+        xi = self._xb_idx
+        if xi.size:
+            S = sp.identity(n, format="csr")[xi]
+            Sx = sp.hstack([sp.csr_matrix((N * xi.size, n)), sp.kron(sp.identity(N), S)])
+            xlo = self.x_min[xi] - self.x0[xi]
+            xhi = self.x_max[xi] - self.x0[xi]
+            lab_hi = [f"{self.state_names[i]} <= {self.x_max[i]:g}" for i in xi]
+            lab_lo = [f"{self.state_names[i]} >= {self.x_min[i]:g}" for i in xi]
+            zu = sp.csr_matrix((N * xi.size, nu))
+            if not self.soft:
+                M = sp.hstack([Sx, zu])
+                labels = [f"{self.state_names[i]} in [{self.x_min[i]:g}, {self.x_max[i]:g}]" for i in xi]
+                add("state bounds", M, np.tile(xlo, N), np.tile(xhi, N), xi.size, 1, labels)
+            else:
+                # per stage: [δx - s <= hi (upper rows), δx + s >= lo (lower rows)]
+                Is = sp.identity(ns, format="csr")
+                upper = sp.hstack([Sx, zu, -Is]).tocsr()
+                lower = sp.hstack([Sx, zu, Is]).tocsr()
+                w = xi.size
+                order = np.concatenate([np.arange(N * w).reshape(N, w), N * w + np.arange(N * w).reshape(N, w)], axis=1)
+                M = sp.vstack([upper, lower]).tocsr()[order.ravel()]
+                lb = np.concatenate([np.full((N, w), -_INF), np.tile(xlo, (N, 1))], axis=1).ravel()
+                ubv = np.concatenate([np.tile(xhi, (N, 1)), np.full((N, w), _INF)], axis=1).ravel()
+                add("state bounds", M, lb, ubv, 2 * w, 1, lab_hi + lab_lo)
+                M = sp.hstack([sp.csr_matrix((ns, nx + nu)), Is])
+                add(
+                    "slack bounds",
+                    M,
+                    np.zeros(ns),
+                    np.full(ns, _INF),
+                    w,
+                    1,
+                    [f"slack {self.state_names[i]}" for i in xi],
+                )
+        self._A = sp.vstack(rows, format="csc")
+        self._A.sort_indices()
+        self._l = np.clip(np.concatenate(lo), -_INF, _INF)
+        self._u = np.clip(np.concatenate(hi), -_INF, _INF)
+        self.n_con = self._A.shape[0]
+        self.groups: dict[str, RowGroup] = {g.name: g for g in groups}
+        self._group_list = groups
+        self._rate0 = None
+        if "rate bounds" in self.groups:
+            g = self.groups["rate bounds"]
+            self._rate0 = slice(g.start, g.start + g.width)
+
+        # ---- warm-start shift maps: stage k takes stage k+1, the last stage repeats
+        def shifted(start: int, width: int, stages: int) -> np.ndarray:
+            k = np.minimum(np.arange(stages) + 1, stages - 1)
+            return (start + width * k[:, None] + np.arange(width)[None, :]).ravel()
+
+        self._zshift = np.concatenate(
+            [
+                shifted(0, n, N + 1),
+                shifted(nx, m, N),
+                shifted(nx + nu, nsb, N) if ns else np.zeros(0, dtype=int),
+            ]
+        ).astype(np.intp)
+        yparts = []
+        for g in groups:
+            if g.name == "initial state":
+                # the initial-state multiplier takes the first dynamics block's
+                dyn = self.groups["dynamics"]
+                yparts.append(np.arange(dyn.start, dyn.start + n))
+            else:
+                yparts.append(shifted(g.start, g.width, g.stages))
+        self._yshift = np.concatenate(yparts).astype(np.intp)
+
+        # ---- reusable buffers
+        self._zws = np.zeros(nvar)
+        self._yws = np.zeros(self.n_con)
+        self._yinit = self._yws[:n]
+        # LQR continuation of the shifted plan (views into the warm-start buffer)
+        self._Acl = None if self.K is None else self.A - self.B @ self.K
+        self._mK = None if self.K is None else -self.K
+        self._zN_prev = self._zws[(N - 1) * n : N * n]  # after the shift: the old x_N
+        self._zN = self._zws[N * n : (N + 1) * n]
+        self._zuN = self._zws[nx + (N - 1) * m : nx + N * m]
+        self._dx0 = self._l[:n]  # views into the bound vectors
+        self._dx0u = self._u[:n]
+        self._iu0 = slice(nx, nx + m)  # u_0 inside z
+        self._q_dirty = False  # q differs from the default (reference terms present)
+        self._q_const = 0.0  # constant cost term of the current reference
+
+    # =============================================================== public
+    @property
+    def qp(self) -> QP:
+        """The QP as last sent to OSQP (copies; inspect without solving)."""
+        return QP(self._P.copy(), self._q.copy(), self._A.copy(), self._l.copy(), self._u.copy())
+
+    @property
+    def P(self) -> sp.csc_matrix:
+        """Upper-triangular cost Hessian ``(n_var, n_var)`` (CSC, built once)."""
+        return self._P
+
+    @property
+    def A_con(self) -> sp.csc_matrix:
+        """Constraint matrix ``(n_con, n_var)`` (CSC, built once)."""
+        return self._A
+
+    def build(self, x: Any, ref: Any = None, *, u_ref: Any = None, u_prev: Any = None) -> QP:
+        """The QP one call would solve for state ``x``, without solving it.
+
+        Args:
+            x: Measured state ``(n,)`` [absolute].
+            ref: Target state ``(n,)`` or trajectory ``(N + 1, n)``; default ``x0``.
+            u_ref: Input reference ``(m,)``; default the constructor's, else ``u0``.
+            u_prev: Previously applied input ``(m,)`` for the rate bounds;
+                default the controller's current one.
+
+        Returns:
+            A :class:`QP` with fresh arrays (the solver is not touched).
+        """
+        x = as_vector("x", x, self.n)
+        q = self._q_default.copy()
+        self._fill_q(self._check_ref(ref), self._check_uref(u_ref), q)
+        l, u = self._l.copy(), self._u.copy()
+        l[: self.n] = u[: self.n] = x - self.x0
+        up = self._u_prev if u_prev is None else as_vector("u_prev", u_prev, self.m)
+        self._fill_rate0(up, l, u)
+        return QP(self._P.copy(), q, self._A.copy(), l, u)
+
+    def reset(self, *, u_prev: Any = None) -> None:
+        """Forget the warm start, the previous plan and the previous input.
+
+        Args:
+            u_prev: Optional input ``(m,)`` to treat as previously applied (for
+                the rate bounds of the first move).
+        """
+        self._u_prev = None if u_prev is None else as_vector("u_prev", u_prev, self.m)
+        self._fill_rate0(self._u_prev, self._l, self._u)
+        self._zws[:] = 0.0
+        self._yws[:] = 0.0
+        self._plan_u: np.ndarray | None = None
+        self._plan_x: np.ndarray | None = None
+        self._plan_age = 0
+        self.last: MPCSolution | None = None
+
+    def __call__(self, x: Any, ref: Any = None, *, u_ref: Any = None) -> np.ndarray:
+        """Solve the MPC problem at state ``x`` and return the first input.
+
+        Args:
+            x: Measured state ``(n,)`` [absolute units].
+            ref: Target state ``(n,)`` or trajectory ``(N + 1, n)`` over the
+                horizon [absolute]; default the operating point ``x0``.
+            u_ref: Input reference ``(m,)`` [absolute]; default the
+                constructor's ``u_ref``, else ``u0``.
+
+        Returns:
+            The input ``u_0`` ``(m,)``, clipped to the hard input and rate bounds.
+
+        Raises:
+            ValueError: wrong shape of ``x``, ``ref`` or ``u_ref``.
+            NonFiniteError: NaN or inf in ``x``, ``ref`` or ``u_ref``.
+            MPCInfeasible: OSQP reported infeasibility or hit its iteration or
+                time limit (and no ``fallback="shift"`` plan is left).
+        """
+        t0 = time.perf_counter()
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.n,):
+            x = as_vector("x", x, self.n)  # raises with the standard message
+        elif not np.isfinite(x).all():
+            raise NonFiniteError(f"x must be finite, got {_fmt(x)}")
+        n = self.n
+        np.subtract(x, self.x0, out=self._dx0)
+        self._dx0u[:] = self._dx0
+        if ref is None and u_ref is None and self.u_ref is None:
+            q = None
+            if self._q_dirty:
+                self._q[:] = self._q_default
+                self._q_const = 0.0
+                self._q_dirty = False
+                q = self._q
+        else:
+            self._q_const = self._fill_q(self._check_ref(ref), self._check_uref(u_ref), self._q)
+            self._q_dirty = True
+            q = self._q
+        if self._warm:
+            self._zws[:n] = self._dx0
+        low = self._low
+        if low is not None:
+            # Direct calls into OSQP's compiled solver (the public wrapper costs ~40 µs per call in
+            # argument clamping and result packing). Our l/u already hold ±1e30, never ±inf.
+            if low.update_data_vec(q, self._l, self._u) != 0:  # pragma: no cover - sizes are fixed
+                raise RuntimeError("OSQP rejected the vector update")
+            if self._warm:
+                low.warm_start(self._zws, self._yws)
+            low.solve()
+            info = low.info
+            sol = low.solution
+        else:
+            solver = self._solver
+            if q is None:
+                solver.update(l=self._l, u=self._u)
+            else:
+                solver.update(q=q, l=self._l, u=self._u)
+            if self._warm:
+                solver.warm_start(x=self._zws, y=self._yws)
+            sol = solver.solve(raise_error=False)
+            info = sol.info
+        if info.status != _SOLVED:
+            return self._failed(x, info, sol, t0)
+
+        z = sol.x
+        u_out = z[self._iu0] + self.u0
+        self._clip(u_out)
+        self._u_prev = u_out
+        if self._rate0 is not None:
+            self._fill_rate0(u_out, self._l, self._u)
+        # shifted warm start for the next call
+        self._shift_warm_start(z, sol.y)
+        states = z[self._ix].reshape(self.N + 1, n)
+        states += self.x0
+        inputs = z[self._iu].reshape(self.N, self.m)
+        inputs += self.u0
+        self._plan_x, self._plan_u, self._plan_age = states, inputs, 0
+        self.last = MPCSolution(
+            info.status,
+            info.iter,
+            time.perf_counter() - t0,
+            info.solve_time,
+            info.obj_val + self._q_const,
+            states,
+            inputs,
+            u_out,
+            False,
+            "",
+            float(z[self._is].max()) if self._has_slack else 0.0,
+        )
+        return u_out
+
+    # ============================================================ internals
+    def _check_ref(self, ref: Any) -> np.ndarray | None:
+        if ref is None:
+            return None
+        r = np.asarray(ref, dtype=float)
+        if r.shape == (self.n,) or r.shape == (self.N + 1, self.n) or (self.n == 1 and r.shape == (self.N + 1,)):
+            if not np.isfinite(r).all():
+                raise NonFiniteError("ref must be finite")
+            return r.reshape(-1, self.n) if r.ndim == 1 and r.shape != (self.n,) else r
+        raise ValueError(f"ref: expected ({self.n},) or ({self.N + 1}, {self.n}) but found {r.shape}")
+
+    def _check_uref(self, u_ref: Any) -> np.ndarray | None:
+        if u_ref is None:
+            return self.u_ref
+        return as_vector("u_ref", u_ref, self.m)
+
+    def _fill_q(self, ref: np.ndarray | None, u_ref: np.ndarray | None, q: np.ndarray) -> float:
+        """Write the linear cost for ``ref``/``u_ref`` into ``q``; return the constant term."""
+        n, m, N = self.n, self.m, self.N
+        qx = q[self._ix].reshape(N + 1, n)
+        qu = q[self._iu].reshape(N, m)
+        const = 0.0
+        if ref is None:
+            qx[:] = 0.0
+        elif ref.ndim == 1:
+            rho = ref - self.x0
+            g = self.Q @ rho
+            qx[:N] = -g
+            gN = self.P_f @ rho
+            qx[N] = -gN
+            const += 0.5 * (N * float(rho @ g) + float(rho @ gN))
+        else:
+            rho = ref - self.x0
+            G = rho[:N] @ self.Q
+            qx[:N] = -G
+            gN = self.P_f @ rho[N]
+            qx[N] = -gN
+            const += 0.5 * (float(np.sum(G * rho[:N])) + float(rho[N] @ gN))
+        if u_ref is None:
+            qu[:] = 0.0
+        else:
+            nu = u_ref - self.u0
+            g = self.R @ nu
+            qu[:] = -g
+            const += 0.5 * N * float(nu @ g)
+        return const
+
+    def _fill_rate0(self, u_prev: np.ndarray | None, l: np.ndarray, u: np.ndarray) -> None:
+        """Write the first-stage rate rows for the previously applied input."""
+        if self._rate0 is None:
+            return
+        ri = self._rate_idx
+        if u_prev is None:
+            l[self._rate0] = -_INF
+            u[self._rate0] = _INF
+        else:
+            c = u_prev[ri] - self.u0[ri]
+            l[self._rate0] = c - self.du_max[ri]
+            u[self._rate0] = c + self.du_max[ri]
+
+    def _shift_warm_start(self, z: np.ndarray, y: np.ndarray) -> None:
+        """Warm start for the next call: stage k takes stage k + 1 of ``(z, y)``.
+
+        The new last stage continues with the LQR policy when the terminal cost
+        is the DARE's (``x_N ← (A − B K) x_N``, ``u_{N−1} ← −K x_N``), else it
+        repeats. Writes into preallocated buffers only.
+        """
+        zws = self._zws
+        np.take(z, self._zshift, out=zws)
+        np.take(y, self._yshift, out=self._yws)
+        np.negative(self._yinit, out=self._yinit)  # old -y(dynamics, stage 1) is the new y(initial state)
+        if self._Acl is not None:
+            np.matmul(self._Acl, self._zN_prev, out=self._zN)
+            np.matmul(self._mK, self._zN_prev, out=self._zuN)
+
+    def _clip(self, u: np.ndarray) -> None:
+        """Clip ``u`` in place to the rate bounds, then the input bounds (which win)."""
+        if self._u_prev is not None and self._rate0 is not None:
+            np.minimum(u, self._u_prev + self.du_max, out=u)
+            np.maximum(u, self._u_prev - self.du_max, out=u)
+        np.minimum(u, self.u_max, out=u)
+        np.maximum(u, self.u_min, out=u)
+
+    def _failed(self, x: np.ndarray, info: Any, sol: Any, t0: float) -> np.ndarray:
+        message = self._diagnose(x, info, sol)
+        # the next attempt starts from the shifted warm start, not the failed iterate
+        self._shift_warm_start(self._zws.copy(), self._yws.copy())
+        age = self._plan_age + 1
+        if self.fallback != "shift" or self._plan_u is None or age >= self.N:
+            if self.fallback == "shift":
+                message += (
+                    "; fallback 'shift' has no previous plan"
+                    if self._plan_u is None
+                    else f"; fallback 'shift' exhausted the previous plan ({self.N} steps)"
+                )
+            self.last = MPCSolution(
+                info.status,
+                info.iter,
+                time.perf_counter() - t0,
+                info.solve_time,
+                math.nan,
+                np.full((self.N + 1, self.n), np.nan),
+                np.full((self.N, self.m), np.nan),
+                np.full(self.m, np.nan),
+                False,
+                message,
+            )
+            raise MPCInfeasible(message)
+        self._plan_age = age
+        u_out = self._plan_u[age].copy()
+        self._clip(u_out)
+        self._u_prev = u_out
+        if self._rate0 is not None:
+            self._fill_rate0(u_out, self._l, self._u)
+        idx = np.minimum(np.arange(self.N + 1) + age, self.N)
+        self.last = MPCSolution(
+            info.status,
+            info.iter,
+            time.perf_counter() - t0,
+            info.solve_time,
+            math.nan,
+            self._plan_x[idx],
+            self._plan_u[np.minimum(idx[:-1], self.N - 1)],
+            u_out,
+            True,
+            message,
+        )
+        return u_out
+
+    def _diagnose(self, x: np.ndarray, info: Any, sol: Any) -> str:
+        """Name the constraint group and stage behind a failed solve."""
+        status = info.status
+        head = f"MPC problem infeasible (OSQP status '{status}', {info.iter} iterations) at x = {_fmt(x)}"
+        cert = np.asarray(sol.prim_inf_cert, dtype=float)
+        if "primal infeasible" in status and cert.size and np.all(np.isfinite(cert)) and np.any(cert != 0):
+            return head + ": " + self._explain_certificate(cert)
+        if "dual infeasible" in status:
+            return head + ": the cost is unbounded below (dual infeasible); check Q, R and the terminal cost"
+        z = np.asarray(sol.x, dtype=float)
+        if z.size and np.all(np.isfinite(z)):
+            Az = self._A @ z
+            viol = np.maximum(self._l - Az, 0.0) + np.maximum(Az - self._u, 0.0)
+            row = int(np.argmax(viol))
+            g = self._group_of(row)
+            k, label = g.locate(row)
+            return (
+                head + f": largest violation of the last iterate is {viol[row]:.3g} in the {g.name} at stage {k} "
+                f"({label}); the problem is likely infeasible or too hard within the iteration/time limit"
+            )
+        return head + ": OSQP returned no usable iterate"
+
+    def _group_of(self, row: int) -> RowGroup:
+        for g in self._group_list:
+            if g.start <= row < g.stop:
+                return g
+        raise IndexError(row)  # pragma: no cover - rows always belong to a group
+
+    def _explain_certificate(self, cert: np.ndarray) -> str:
+        """Turn OSQP's primal infeasibility certificate into a sentence."""
+        tol = 1e-6 * float(np.max(np.abs(cert)))
+        involved: dict[str, list[int]] = {}
+        best: dict[str, tuple[float, int]] = {}
+        for g in self._group_list:
+            seg = np.abs(cert[g.start : g.stop])
+            hits = np.flatnonzero(seg > tol)
+            if hits.size:
+                stages = sorted({g.first_stage + int(h) // g.width for h in hits})
+                involved[g.name] = stages
+                h = int(np.argmax(seg))
+                best[g.name] = (float(seg[h]), g.start + h)
+        culprit = next((name for name in ("state bounds", "rate bounds", "input bounds") if name in best), None)
+        if culprit is None:  # pragma: no cover - equalities alone are always feasible
+            return "the certificate involves only the dynamics (" + ", ".join(involved) + ")"
+        g = self.groups[culprit]
+        k, label = g.locate(best[culprit][1])
+        others = [f"{name} at stages {_stages(s)}" for name, s in involved.items() if name != culprit]
+        return f"{culprit} at stage {k} ({label}) cannot be met together with " + "; ".join(others)
+
+    # ============================================================= describe
+    def describe(self) -> str:
+        """A human-readable summary: sizes, bounds, terminal cost and OSQP settings."""
+        nnzP, nnzA = self._P.nnz, self._A.nnz
+        dt = "" if self.dt is None else f", dt = {self.dt:g} s"
+        lines = [
+            f"LinearMPC: n = {self.n} states, m = {self.m} inputs, horizon N = {self.N}{dt}",
+            f"QP: {self.n_var} variables, {self.n_con} constraints, nnz(P) = {nnzP}, nnz(A) = {nnzA}",
+            "constraint groups: "
+            + ", ".join(f"{g.name} [{g.start}:{g.stop}] ({g.width} x {g.stages} stages)" for g in self._group_list),
+            f"operating point: x0 = {_fmt(self.x0)}, u0 = {_fmt(self.u0)}",
+            f"input bounds: u_min = {_fmt(self.u_min)}, u_max = {_fmt(self.u_max)}",
+            f"state bounds ({'soft' if self.soft else 'hard'}): x_min = {_fmt(self.x_min)}, x_max = {_fmt(self.x_max)}",
+        ]
+        if self.soft:
+            lines.append(f"soft weights: l1 = {self.soft_weight_l1:g}, quad = {self.soft_weight_quad:g}")
+        if self.du_max is not None:
+            lines.append(f"rate bounds: du_max = {_fmt(self.du_max)}")
+        lines.append(f"terminal cost ({self.terminal_cost}):")
+        lines.append(np.array2string(self.P_f, precision=4, max_line_width=110))
+        if self.K is not None:
+            lines.append(f"LQR gain K = {_fmt(self.K)}")
+        lines.append(f"fallback: {self.fallback}")
+        lines.append("OSQP settings: " + ", ".join(f"{k}={v}" for k, v in sorted(self.osqp_settings.items())))
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return (
+            f"LinearMPC(n={self.n}, m={self.m}, horizon={self.N}, soft={self.soft}, "
+            f"n_var={self.n_var}, n_con={self.n_con})"
+        )
+
+
+def _stages(stages: list[int]) -> str:
+    """``[0, 1, 2, 5]`` -> ``"0-2, 5"``."""
+    out: list[str] = []
+    start = prev = stages[0]
+    for s in [*stages[1:], None]:
+        if s is not None and s == prev + 1:
+            prev = s
+            continue
+        out.append(f"{start}" if start == prev else f"{start}-{prev}")
+        if s is not None:
+            start = prev = s
+    return ", ".join(out)
+
+
+_CONSTRUCTOR_OPTIONS = (
+    "dt",
+    "u_min",
+    "u_max",
+    "x_min",
+    "x_max",
+    "du_max",
+    "soft",
+    "soft_weight_l1",
+    "soft_weight_quad",
+    "terminal_cost",
+    "u_ref",
+    "offset",
+    "fallback",
+    "osqp_settings",
+    "state_names",
+    "input_names",
+)
