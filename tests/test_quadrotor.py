@@ -95,7 +95,7 @@ def quad(rng):
 
 def ref_args(q):
     p = q.params()
-    return p["mass"], (p["Ixx"], p["Iyy"], p["Izz"]), p["gravity"]
+    return p["mass"], tuple(p["inertia"]), p["gravity"]
 
 
 # ------------------------------------------------------------ the references
@@ -136,7 +136,9 @@ def test_symbolic_exposes_parameters(quad, rng):
     fp = quad.symbolic(params=True)
     assert fp.name() == "f" and fp.name_in() == ["x", "u", "p"]
     assert quad.param_names == ("mass", "Ixx", "Iyy", "Izz", "gravity")
-    p = np.array([quad.params()[k] for k in quad.param_names])
+    m, (Ixx, Iyy, Izz), g = ref_args(quad)
+    assert quad.dynamics_params() == {"mass": m, "Ixx": Ixx, "Iyy": Iyy, "Izz": Izz, "gravity": g}
+    p = np.array([m, Ixx, Iyy, Izz, g])
     x, u = random_state(rng), quad.hover_input()
     np.testing.assert_allclose(np.array(fp(x, u, p)).ravel(), quad.dynamics(x, u), atol=1e-12)
 
@@ -284,7 +286,10 @@ def test_invalid_arguments_name_the_argument(kwargs, name):
 
 def test_from_config_and_input_checks():
     q = Quadrotor.from_config({"type": "Quadrotor", "mass": 0.7, "inertia": [4e-3, 4e-3, 6e-3]})
-    assert q.params()["mass"] == 0.7 and q.params()["Izz"] == 6e-3
+    assert q.params()["mass"] == 0.7 and q.dynamics_params()["Izz"] == 6e-3
+    # params() holds constructor arguments: a config rebuilt from it gives the same plant.
+    q2 = Quadrotor.from_config({"type": "Quadrotor", **q.params(), "dt": q.dt})
+    assert repr(q2) == repr(q) and q2.params() == q.params()
     with pytest.raises(ConfigError, match="did you mean 'mass'"):
         Quadrotor.from_config({"mas": 0.7})
     with pytest.raises(ValueError, match=r"\(4,\)"):

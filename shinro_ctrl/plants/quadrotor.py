@@ -159,6 +159,27 @@ class Quadrotor(Plant):
         self._mixer = self._build_mixer()
         self._mixer_inv = np.linalg.inv(self._mixer) if self.yaw_moment_coefficient > 0.0 else None
 
+    def params(self) -> dict[str, Any]:
+        """The physical constructor arguments (a ``[plant]`` table can hold them as they are).
+
+        ``mass``, ``inertia`` (a list ``[Ixx, Iyy, Izz]``), ``arm_length``,
+        ``gravity`` and ``yaw_moment_coefficient``. The dynamics' own
+        parameters, named as in :attr:`param_names` (``mass, Ixx, Iyy, Izz,
+        gravity``: the order of ``symbolic(params=True)``'s ``p`` and the keys
+        ``dynamics(params=...)`` accepts), are :meth:`dynamics_params`.
+        """
+        return {
+            "mass": self.m,
+            "inertia": list(self.inertia),
+            "arm_length": self.arm_length,
+            "gravity": self.g,
+            "yaw_moment_coefficient": self.yaw_moment_coefficient,
+        }
+
+    def dynamics_params(self) -> dict[str, float]:
+        """The dynamics' parameters by :attr:`param_names` (a copy)."""
+        return dict(self._params)
+
     # ------------------------------------------------------------ dynamics
     def _f(self, bk, x, u, p):
         _, _, _, phi, theta, psi, vx, vy, vz, wx, wy, wz = bk.unpack(x, 12)
