@@ -101,6 +101,86 @@ def cmd_linearize(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------ run
+DEFAULT_SCENARIO = "cartpole_lqr.toml"
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from shinro_ctrl.sim import RobotSim, format_metrics
+
+    sim = RobotSim.from_config(args.config or DEFAULT_SCENARIO, engine=args.engine)
+    label = f"{sim.scenario.name} ({sim.loop})"
+    print(f"running {label}: {type(sim.plant).__name__} + {type(sim.controller).__name__}, ", end="")
+    print(f"{args.duration if args.duration is not None else sim.scenario.sim.duration:g} s at dt = {sim.plant.dt:g} s")
+    result = sim.run(args.duration)
+    print(format_metrics(result.metrics))
+    if args.out:
+        out = result.save(args.out)
+        plot = result.plot(args.plot or out / "run.png")
+        print(f"saved result.npz, metrics.json, scenario.toml to {out}")
+    else:
+        plot = result.plot(args.plot or Path("out") / f"{sim.scenario.name}_{sim.loop}.png")
+    print(f"plot: {plot}")
+    return 0
+
+
+# --------------------------------------------------------------------- design
+def cmd_design(args: argparse.Namespace) -> int:
+    from shinro_ctrl.sim import RobotSim
+
+    sim = RobotSim.from_config(args.config, engine="standalone")
+    ctrl = sim.controller
+    kind = {"lqr": "LQR", "mpc": "LinearMPC"}[args.kind]
+    if type(ctrl).__name__ != kind:
+        raise ValueError(f"{args.config} configures a {type(ctrl).__name__} controller, not {kind}")
+    np.set_printoptions(precision=5, suppress=True, linewidth=120)
+    if args.kind == "lqr":
+        model = getattr(ctrl, "model", None)
+        if model is not None:
+            print(
+                f"model: {model.discretization} discretization of the {model.method} linearization, dt = {model.dt:g} s"
+            )
+        print("K =")
+        print(ctrl.K)
+        print("closed-loop poles:")
+        for p in ctrl.poles:
+            print(f"  {p.real:+.6f} {p.imag:+.6f}j   |p| = {abs(p):.6f}")
+        x_init = sim.initial_state
+        print(f"predicted cost ½ x0ᵀ S x0 from {np.round(x_init, 6).tolist()}: {ctrl.cost_to_go(x_init):.6g}")
+        return 0
+    print(ctrl.describe())
+    result = sim.run(min(sim.scenario.sim.duration, 2.0))
+    solve = result.solve_times
+    print(
+        f"closed loop ({len(solve)} steps standalone): median call {1e3 * np.median(solve):.3f} ms, "
+        f"p95 {1e3 * np.percentile(solve, 95):.3f} ms, max {1e3 * solve.max():.3f} ms"
+    )
+    print(f"constraint violations: {result.metrics['constraint_violations']}")
+    return 0
+
+
+# ----------------------------------------------------------------------- list
+def cmd_list(args: argparse.Namespace) -> int:
+    from shinro_ctrl.controllers import CONTROLLERS
+    from shinro_ctrl.plants import PLANT_ALIASES, PLANTS
+    from shinro_ctrl.resources import list_configs
+
+    alias = {v: k for k, v in PLANT_ALIASES.items()}
+    print("plants:")
+    for name, cls in PLANTS.items():
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        print(f"  {name:22s} {alias.get(name, ''):16s} {doc}")
+    print("controllers:")
+    for name in CONTROLLERS:
+        print(f"  {name}")
+    print("scenarios:")
+    for name in list_configs():
+        print(f"  {name}")
+    return 0
+
+
 # --------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     from shinro_ctrl.plants import PLANT_ALIASES
@@ -115,6 +195,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--u0", help="operating input, e.g. '0'")
     p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
     p.set_defaults(func=cmd_linearize)
+
+    p = sub.add_parser("run", help="run a scenario (default: the embedded cart-pole LQR demo)")
+    p.add_argument("config", nargs="?", metavar="CONFIG", help="scenario file or shipped name")
+    p.add_argument("--engine", choices=("standalone", "mujoco"), help="override the scenario's loop")
+    p.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the scenario's)")
+    p.add_argument("--plot", metavar="PNG", help="where to write the plot")
+    p.add_argument("--out", metavar="DIR", help="save result.npz, metrics.json, scenario.toml and run.png")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("design", help="design a controller from a scenario and print it")
+    p.add_argument("kind", choices=("lqr", "mpc"))
+    p.add_argument("config", metavar="CONFIG")
+    p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("list", help="plants, controllers and shipped scenarios")
+    p.set_defaults(func=cmd_list)
     return parser
 
 

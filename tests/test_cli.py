@@ -7,6 +7,8 @@ import sys
 
 import pytest
 
+from shinro_ctrl.cli import main
+
 
 def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run(
@@ -44,3 +46,78 @@ def test_user_errors_are_one_line_exit_2(args, needle):
     assert needle in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1
     assert "Traceback" not in res.stderr
+
+
+def test_run_without_config_runs_the_embedded_demo(tmp_path):
+    res = subprocess.run(
+        [sys.executable, "-m", "shinro_ctrl.cli", "run"], capture_output=True, text=True, timeout=120, cwd=tmp_path
+    )
+    assert res.returncode == 0, res.stderr
+    assert "cartpole_lqr (standalone)" in res.stdout and "rms_error" in res.stdout
+    plot = res.stdout.split("plot: ")[1].strip()
+    assert (tmp_path / plot).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_run_with_config_plot_and_out(tmp_path):
+    png = tmp_path / "p.png"
+    res = run_cli("run", "pendulum_lqr", "--duration", "1", "--plot", str(png), "--out", str(tmp_path / "o"))
+    assert res.returncode == 0, res.stderr
+    assert png.read_bytes()[:4] == b"\x89PNG" and png.stat().st_size > 10_000
+    assert {p.name for p in (tmp_path / "o").iterdir()} >= {"result.npz", "metrics.json", "scenario.toml"}
+
+
+def test_design_lqr_prints_gain_poles_and_cost():
+    res = run_cli("design", "lqr", "cartpole_lqr")
+    assert res.returncode == 0, res.stderr
+    assert "K =" in res.stdout and "closed-loop poles" in res.stdout and "predicted cost" in res.stdout
+
+
+def test_list_shows_plants_controllers_scenarios():
+    res = run_cli("list")
+    assert res.returncode == 0, res.stderr
+    for word in ("CartPole", "LQR", "LinearMPC", "cartpole_lqr.toml"):
+        assert word in res.stdout
+
+
+GOOD = '[plant]\ntype = "CartPole"\n[controller]\ntype = "LQR"\nQ = [10, 1, 100, 1]\nR = [0.1]\n'
+
+BAD_CONFIGS = {
+    "malformed": ("[plant\ntype = 1\n", "malformed TOML"),
+    "empty": ("", "empty scenario"),
+    "unknown_table": (GOOD + "[simulation]\nduration = 1\n", "unknown table 'simulation'"),
+    "typo_key": (GOOD.replace('"CartPole"', '"CartPole"\npole_lenght = 0.5'), "did you mean 'pole_length'"),
+    "wrong_type": (GOOD + "[sim]\nduration = 'long'\n", "'duration' must be a number"),
+    "negative_mass": (GOOD.replace('"CartPole"', '"CartPole"\ncart_mass = -1.0'), "cart_mass"),
+    "unknown_plant": (GOOD.replace("CartPole", "CartPol"), "unknown plant 'CartPol'"),
+    "unknown_controller": (GOOD.replace('"LQR"', '"PID"'), "unknown controller 'PID'"),
+    "q_wrong_size": (GOOD.replace("[10, 1, 100, 1]", "[10, 1, 100]"), "Q"),
+    "nan_initial_state": (GOOD + "[sim]\ninitial_state = [0, 0, nan, 0]\n", "must be finite"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CONFIGS))
+@pytest.mark.parametrize("command", [["run"], ["design", "lqr"]], ids=["run", "design"])
+def test_bad_configs_exit_2_with_one_line(case, command, tmp_path, capsys):
+    # In-process: the same main() the console script calls, without 2 s of interpreter start-up per case.
+    text, needle = BAD_CONFIGS[case]
+    path = tmp_path / f"{case}.toml"
+    path.write_text(text)
+    assert main([*command, str(path)]) == 2
+    err = capsys.readouterr().err
+    assert needle in err, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize("case", ["typo_key", "nan_initial_state"])
+def test_bad_configs_through_the_real_command(case, tmp_path):
+    text, needle = BAD_CONFIGS[case]
+    path = tmp_path / f"{case}.toml"
+    path.write_text(text)
+    res = run_cli("run", str(path))
+    assert res.returncode == 2 and needle in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+
+
+def test_missing_config_file_exits_2():
+    res = run_cli("run", "no_such_scenario.toml")
+    assert res.returncode == 2 and "no config named" in res.stderr and "cartpole_lqr.toml" in res.stderr

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import control
 import numpy as np
 
 from shinro_ctrl.controllers.base import Controller
@@ -113,6 +112,8 @@ class LQR(Controller):
             raise ValueError("u_min must be <= u_max elementwise")
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
         check_stabilizable(A, B, discrete=self.discrete, names=state_names)
+        import control  # deferred: importing python-control costs about a second
+
         try:
             if self.discrete:
                 K, S, E = control.dlqr(A, B, self.Q, self.R)

@@ -1,0 +1,366 @@
+"""Scenario files: strict TOML parsing into dataclasses.
+
+A scenario has the tables ``[plant]`` (required), ``[engine]`` (optional;
+absent means standalone), ``[controller]`` (required), ``[sim]`` (optional)
+and ``[regression]`` (only for regression scenarios). See DESIGN.md and the
+README for every key.
+
+Parsing is strict and runs table by table in that order: an unknown table or
+key raises :class:`~shinro_ctrl.errors.ConfigError` naming the file, the
+table and the key, with the closest valid key ("did you mean …?"); a wrong
+type or an out-of-range value names the key. Shapes (initial state, weights,
+bounds) are checked against the plant, whose class is resolved here, so a
+scenario that loads is one that can be built.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from shinro_ctrl.errors import ConfigError
+from shinro_ctrl.validation import did_you_mean, unknown_keys
+
+__all__ = [
+    "REFERENCE_KINDS",
+    "ControllerConfig",
+    "EngineConfig",
+    "PlantConfig",
+    "Scenario",
+    "SimConfig",
+    "load_scenario",
+    "parse_scenario",
+]
+
+TABLES = ("plant", "engine", "controller", "sim", "regression")
+ENGINE_KEYS = ("type", "model", "substeps")
+SIM_KEYS = ("duration", "initial_state", "reference", "track", "settle_tol", "measurement_noise", "seed")
+REFERENCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    # kind: (required keys, optional keys)
+    "constant": ((), ("value",)),
+    "step": (("time",), ("initial", "final")),
+    "circle": (("radius", "frequency"), ("center", "axes", "phase")),
+    "square": (("side", "speed"), ("center", "axes")),
+    "waypoints": (("points", "times"), ("interpolation",)),
+}
+METRICS = (
+    "rms_error",
+    "max_error",
+    "final_error",
+    "settling_time",
+    "max_abs_input",
+    "constraint_violations",
+    "max_violation",
+    "solve_time_median_s",
+)
+
+
+@dataclass
+class PlantConfig:
+    """``[plant]``: the class name and its constructor arguments."""
+
+    type: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class EngineConfig:
+    """``[engine]``: MuJoCo with an optional model (path or asset name) and substeps."""
+
+    type: str = "mujoco"
+    model: str | None = None
+    substeps: int = 1
+
+
+@dataclass
+class ControllerConfig:
+    """``[controller]``: the class name and the keyword arguments of its ``from_plant``."""
+
+    type: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class SimConfig:
+    """``[sim]``: run length, initial state, reference and metric settings.
+
+    Attributes:
+        duration: Simulated time [s].
+        initial_state: ``(n,)``, default the controller's operating point.
+        reference: A reference table (``kind`` plus its keys), default constant.
+        track: Names of the states the error metrics use (default: the plant's
+            ``tracked_states``).
+        settle_tol: Absolute band on the tracking-error norm for ``settling_time``.
+        measurement_noise: Standard deviations ``(n,)`` of Gaussian noise added
+            to the state the controller sees (seeded by ``seed``).
+        seed: Seed of every random draw of the run.
+    """
+
+    duration: float = 5.0
+    initial_state: list[float] | None = None
+    reference: dict[str, Any] = field(default_factory=lambda: {"kind": "constant"})
+    track: list[str] | None = None
+    settle_tol: float = 0.01
+    measurement_noise: list[float] | None = None
+    seed: int = 0
+
+
+@dataclass
+class Scenario:
+    """A parsed scenario.
+
+    Attributes:
+        name: File stem (or ``"<dict>"``).
+        path: Source file, or None for a dict.
+        plant, engine, controller, sim: The parsed tables (``engine`` None when standalone).
+        regression: Metric → ``{"rel": r, "abs": a}`` tolerances.
+        raw: The document as loaded (for saving the resolved config).
+    """
+
+    name: str
+    path: Path | None
+    plant: PlantConfig
+    engine: EngineConfig | None
+    controller: ControllerConfig
+    sim: SimConfig
+    regression: dict[str, dict[str, float]]
+    raw: dict[str, Any]
+
+
+class _Ctx:
+    """Formats errors with the file and table they come from."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def error(self, table: str, message: str) -> ConfigError:
+        where = f"[{table}] " if table else ""
+        return ConfigError(f"{self.source}: {where}{message}")
+
+    def check_keys(self, table: str, mapping: Mapping[str, Any], allowed: tuple[str, ...]) -> None:
+        bad = unknown_keys(mapping, allowed)
+        if bad:
+            raise self.error(table, f"unknown key '{bad[0]}'{did_you_mean(bad[0], allowed)}")
+
+    def number(self, table: str, key: str, value: Any, *, positive: bool = False, minimum: float | None = None):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.error(table, f"'{key}' must be a number, got {type(value).__name__} {value!r}")
+        v = float(value)
+        if not math.isfinite(v):
+            raise self.error(table, f"'{key}' must be finite, got {value!r}")
+        if positive and v <= 0:
+            raise self.error(table, f"'{key}' must be positive, got {value!r}")
+        if minimum is not None and v < minimum:
+            raise self.error(table, f"'{key}' must be >= {minimum:g}, got {value!r}")
+        return v
+
+    def vector(self, table: str, key: str, value: Any, n: int | None = None, *, finite: bool = True) -> list[float]:
+        if not isinstance(value, list) or not value:
+            raise self.error(table, f"'{key}' must be a non-empty list of numbers, got {value!r}")
+        out = []
+        for v in value:
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise self.error(table, f"'{key}' must hold numbers only, got {v!r}")
+            if finite and not math.isfinite(v):
+                raise self.error(table, f"'{key}' must be finite, got {value!r}")
+            out.append(float(v))
+        if n is not None and len(out) != n:
+            raise self.error(table, f"'{key}' must have {n} values, got {len(out)}")
+        return out
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and parse a scenario file.
+
+    Args:
+        path: A path, or a shipped scenario name (``"cartpole_lqr"``).
+
+    Raises:
+        FileNotFoundError: no such file (listing the shipped scenarios).
+        ConfigError: malformed TOML or an invalid scenario.
+    """
+    from shinro_ctrl.resources import config_path
+
+    p = config_path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not a UTF-8 text file ({exc.reason})") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: malformed TOML: {exc}") from None
+    return parse_scenario(doc, source=str(p), path=p)
+
+
+def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path | None = None) -> Scenario:
+    """Parse a scenario document (the dict a TOML file loads to).
+
+    Raises:
+        ConfigError: naming ``source``, the table and the key.
+    """
+    from shinro_ctrl.plants import plant_class
+
+    ctx = _Ctx(source)
+    if not isinstance(doc, Mapping) or not doc:
+        raise ctx.error("", "empty scenario: it needs at least a [plant] and a [controller] table")
+    for name, table in doc.items():
+        if name not in TABLES:
+            raise ctx.error("", f"unknown table '{name}'{did_you_mean(name, TABLES)}")
+        if not isinstance(table, Mapping):
+            raise ctx.error("", f"'{name}' must be a table ([{name}]), got {type(table).__name__}")
+
+    # [plant]
+    if "plant" not in doc:
+        raise ctx.error("", "missing required table [plant]")
+    pt = dict(doc["plant"])
+    if "type" not in pt:
+        raise ctx.error("plant", "missing key 'type' (a plant class name such as 'CartPole')")
+    try:
+        cls = plant_class(str(pt["type"]))
+    except ConfigError as exc:
+        raise ctx.error("plant", str(exc)) from None
+    ctx.check_keys("plant", pt, ("type", *cls.config_keys()))
+    params = {k: v for k, v in pt.items() if k != "type"}
+    try:
+        probe = cls.from_config(params)
+    except ConfigError as exc:
+        raise ctx.error("plant", str(exc).removeprefix("[plant] ")) from None
+    plant_cfg = PlantConfig(cls.__name__, params)
+    n = probe.state_dim
+
+    # [engine]
+    engine_cfg = None
+    if "engine" in doc:
+        et = dict(doc["engine"])
+        ctx.check_keys("engine", et, ENGINE_KEYS)
+        etype = et.get("type", "mujoco")
+        if etype not in ("mujoco", "standalone"):
+            raise ctx.error("engine", f"'type' must be 'mujoco' or 'standalone', got {etype!r}")
+        substeps = et.get("substeps", 1)
+        if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+            raise ctx.error("engine", f"'substeps' must be a positive integer, got {substeps!r}")
+        model = et.get("model")
+        if model is not None and not isinstance(model, str):
+            raise ctx.error("engine", f"'model' must be a path or an asset name, got {model!r}")
+        if etype == "mujoco":
+            if probe.asset is None and model is None:
+                raise ctx.error("engine", f"{cls.__name__} has no MuJoCo model; remove [engine] or give 'model'")
+            engine_cfg = EngineConfig("mujoco", model, substeps)
+
+    # [controller]
+    if "controller" not in doc:
+        raise ctx.error("", "missing required table [controller]")
+    ct = dict(doc["controller"])
+    if "type" not in ct:
+        raise ctx.error("controller", "missing key 'type' (LQR, LinearMPC or IKQP)")
+    from shinro_ctrl.controllers import controller_class, controller_keys
+
+    try:
+        ccls = controller_class(str(ct["type"]))
+    except ConfigError as exc:
+        raise ctx.error("controller", str(exc)) from None
+    ctx.check_keys("controller", ct, ("type", *controller_keys(ccls)))
+    for key in ("x0", "u0"):
+        if key in ct:
+            ctx.vector("controller", key, ct[key], n if key == "x0" else probe.input_dim)
+    controller_cfg = ControllerConfig(ccls.__name__, {k: v for k, v in ct.items() if k != "type"})
+
+    # [sim]
+    st = dict(doc.get("sim", {}))
+    ctx.check_keys("sim", st, SIM_KEYS)
+    sim = SimConfig()
+    if "duration" in st:
+        sim.duration = ctx.number("sim", "duration", st["duration"], positive=True)
+    if "initial_state" in st:
+        sim.initial_state = ctx.vector("sim", "initial_state", st["initial_state"], n)
+        bounds = getattr(probe, "state_bounds", None)
+        if bounds is not None:
+            lo, hi = bounds
+            for i, v in enumerate(sim.initial_state):
+                if not lo[i] <= v <= hi[i]:
+                    raise ctx.error("sim", f"'initial_state' component {i} = {v} is outside the plant's state_bounds")
+    if "reference" in st:
+        sim.reference = _parse_reference(ctx, st["reference"], n)
+    if "track" in st:
+        track = st["track"]
+        if not isinstance(track, list) or not track or not all(isinstance(t, str) for t in track):
+            raise ctx.error("sim", f"'track' must be a list of state names, got {track!r}")
+        for t in track:
+            if t not in probe.state_names:
+                raise ctx.error("sim", f"'track': unknown state '{t}'{did_you_mean(t, probe.state_names)}")
+        sim.track = list(track)
+    if "settle_tol" in st:
+        sim.settle_tol = ctx.number("sim", "settle_tol", st["settle_tol"], positive=True)
+    if "measurement_noise" in st:
+        sim.measurement_noise = ctx.vector("sim", "measurement_noise", st["measurement_noise"], n)
+        if any(v < 0 for v in sim.measurement_noise):
+            raise ctx.error("sim", "'measurement_noise' standard deviations must be >= 0")
+    if "seed" in st:
+        if isinstance(st["seed"], bool) or not isinstance(st["seed"], int):
+            raise ctx.error("sim", f"'seed' must be an integer, got {st['seed']!r}")
+        sim.seed = st["seed"]
+
+    # [regression]
+    regression: dict[str, dict[str, float]] = {}
+    for metric, tol in dict(doc.get("regression", {})).items():
+        if metric not in METRICS:
+            raise ctx.error("regression", f"unknown metric '{metric}'{did_you_mean(metric, METRICS)}")
+        if not isinstance(tol, Mapping):
+            raise ctx.error("regression", f"'{metric}' must be a table such as {{ rel = 0.05 }}, got {tol!r}")
+        ctx.check_keys(f"regression.{metric}", tol, ("rel", "abs"))
+        regression[metric] = {k: ctx.number("regression", f"{metric}.{k}", v, minimum=0.0) for k, v in tol.items()}
+
+    name = path.stem if path is not None else "<dict>"
+    return Scenario(name, path, plant_cfg, engine_cfg, controller_cfg, sim, regression, copy.deepcopy(dict(doc)))
+
+
+def _parse_reference(ctx: _Ctx, ref: Any, n: int) -> dict[str, Any]:
+    if not isinstance(ref, Mapping):
+        raise ctx.error("sim", f"'reference' must be a table such as {{ kind = \"constant\" }}, got {ref!r}")
+    ref = dict(ref)
+    kind = ref.get("kind", "constant")
+    if kind not in REFERENCE_KINDS:
+        raise ctx.error("sim", f"reference: unknown kind '{kind}'{did_you_mean(str(kind), REFERENCE_KINDS)}")
+    required, optional = REFERENCE_KINDS[kind]
+    ctx.check_keys("sim.reference", ref, ("kind", *required, *optional))
+    for key in required:
+        if key not in ref:
+            raise ctx.error("sim", f"reference kind '{kind}' needs '{key}'")
+    out: dict[str, Any] = {"kind": kind}
+    for key in ("value", "initial", "final", "center"):
+        if key in ref:
+            out[key] = ctx.vector("sim.reference", key, ref[key], n)
+    for key in ("time", "radius", "side", "speed", "frequency"):
+        if key in ref:
+            out[key] = ctx.number("sim.reference", key, ref[key], positive=key != "time", minimum=0.0)
+    if "phase" in ref:
+        out["phase"] = ctx.number("sim.reference", "phase", ref["phase"])
+    if "axes" in ref:
+        axes = ref["axes"]
+        if (
+            not isinstance(axes, list)
+            or len(axes) != 2
+            or not all(isinstance(a, int) and not isinstance(a, bool) and 0 <= a < n for a in axes)
+            or axes[0] == axes[1]
+        ):
+            raise ctx.error("sim.reference", f"'axes' must be two distinct state indices in [0, {n}), got {axes!r}")
+        out["axes"] = list(axes)
+    if kind == "waypoints":
+        pts = ref["points"]
+        if not isinstance(pts, list) or not pts:
+            raise ctx.error("sim.reference", "'points' must be a non-empty list of states")
+        out["points"] = [ctx.vector("sim.reference", "points", p, n) for p in pts]
+        out["times"] = ctx.vector("sim.reference", "times", ref["times"], len(pts))
+        if any(b <= a for a, b in zip(out["times"], out["times"][1:], strict=False)):
+            raise ctx.error("sim.reference", "'times' must be strictly increasing")
+        interp = ref.get("interpolation", "linear")
+        if interp not in ("linear", "hold"):
+            raise ctx.error("sim.reference", f"'interpolation' must be 'linear' or 'hold', got {interp!r}")
+        out["interpolation"] = interp
+    return out

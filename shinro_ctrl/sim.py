@@ -1,0 +1,537 @@
+"""Closed-loop simulation of a scenario: plant + (engine) + controller + reference.
+
+:class:`RobotSim` builds everything a scenario names; :meth:`RobotSim.run`
+steps the loop ``u_k = controller(x_k + noise, r(t_k))``, ``x_{k+1} =
+plant.step(u_k)`` and returns a :class:`SimResult` with the trajectories and
+the metrics that regression baselines are made of.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
+from shinro_ctrl.errors import ConfigError, ShinroError
+from shinro_ctrl.files import atomic_write, dump_json, dump_toml
+
+__all__ = ["Reference", "RobotSim", "SimResult", "compute_metrics", "format_metrics"]
+
+
+# ------------------------------------------------------------------ references
+class Reference:
+    """A state reference ``r(t) (n,)`` and its rate ``ṙ(t) (n,)``.
+
+    Kinds (keys as in the ``[sim] reference`` table; vectors are full states):
+
+    * ``constant``: ``value`` (default: the operating point).
+    * ``step``: ``initial`` until ``time``, then ``final``.
+    * ``circle``: in the plane of state ``axes`` (default ``[0, 1]``), radius
+      ``radius`` [m], ``frequency`` [Hz], around ``center``; without a centre
+      the circle starts at the default point (``phase`` 0 there).
+    * ``square``: side ``side`` [m] traversed at ``speed`` [m/s], starting at
+      ``center`` (default: the default point) as a corner, counter-clockwise.
+    * ``waypoints``: ``points`` at ``times``, ``linear`` or ``hold`` interpolation.
+    """
+
+    def __init__(self, spec: dict[str, Any], default: np.ndarray):
+        self.kind = spec.get("kind", "constant")
+        self.spec = spec
+        self.default = np.asarray(default, dtype=float)
+        n = self.default.shape[0]
+        self.axes = spec.get("axes", [0, 1] if n >= 2 else [0, 0])
+        if self.kind == "circle":
+            r = spec["radius"]
+            self.omega = 2 * math.pi * spec["frequency"]
+            self.phase = spec.get("phase", 0.0)
+            if "center" in spec:
+                self.center = np.asarray(spec["center"], dtype=float)
+            else:
+                self.center = self.default.copy()
+                self.center[self.axes[0]] -= r * math.cos(self.phase)
+                self.center[self.axes[1]] -= r * math.sin(self.phase)
+        elif self.kind == "square":
+            self.center = np.asarray(spec.get("center", self.default), dtype=float)
+        elif self.kind == "waypoints":
+            self.points = np.asarray(spec["points"], dtype=float)
+            self.times = np.asarray(spec["times"], dtype=float)
+
+    def __call__(self, t: float) -> np.ndarray:
+        k, s = self.kind, self.spec
+        if k == "constant":
+            return np.asarray(s.get("value", self.default), dtype=float).copy()
+        if k == "step":
+            key = "initial" if t < s["time"] else "final"
+            return np.asarray(s.get(key, self.default), dtype=float).copy()
+        if k == "circle":
+            r = self.center.copy()
+            a = self.omega * t + self.phase
+            r[self.axes[0]] += s["radius"] * math.cos(a)
+            r[self.axes[1]] += s["radius"] * math.sin(a)
+            return r
+        if k == "square":
+            r = self.center.copy()
+            side = s["side"]
+            d = (s["speed"] * t) % (4 * side)
+            leg, along = int(d // side), d % side
+            corner = [(0.0, 0.0), (side, 0.0), (side, side), (0.0, side)][leg]
+            direction = [(1, 0), (0, 1), (-1, 0), (0, -1)][leg]
+            r[self.axes[0]] += corner[0] + direction[0] * along
+            r[self.axes[1]] += corner[1] + direction[1] * along
+            return r
+        # waypoints
+        if t <= self.times[0]:
+            return self.points[0].copy()
+        if t >= self.times[-1]:
+            return self.points[-1].copy()
+        i = int(np.searchsorted(self.times, t, side="right")) - 1
+        if s.get("interpolation", "linear") == "hold":
+            return self.points[i].copy()
+        w = (t - self.times[i]) / (self.times[i + 1] - self.times[i])
+        return (1 - w) * self.points[i] + w * self.points[i + 1]
+
+    def rate(self, t: float) -> np.ndarray:
+        """``ṙ(t)``: analytic for circles and squares, slopes for linear waypoints, else zero."""
+        out = np.zeros_like(self.default)
+        s = self.spec
+        if self.kind == "circle":
+            a = self.omega * t + self.phase
+            out[self.axes[0]] = -s["radius"] * self.omega * math.sin(a)
+            out[self.axes[1]] = s["radius"] * self.omega * math.cos(a)
+        elif self.kind == "square":
+            leg = int(((s["speed"] * t) % (4 * s["side"])) // s["side"])
+            direction = [(1, 0), (0, 1), (-1, 0), (0, -1)][leg]
+            out[self.axes[0]] = s["speed"] * direction[0]
+            out[self.axes[1]] = s["speed"] * direction[1]
+        elif self.kind == "waypoints" and s.get("interpolation", "linear") == "linear":
+            if self.times[0] < t < self.times[-1]:
+                i = int(np.searchsorted(self.times, t, side="right")) - 1
+                out = (self.points[i + 1] - self.points[i]) / (self.times[i + 1] - self.times[i])
+        return out
+
+
+# --------------------------------------------------------------------- metrics
+def compute_metrics(
+    t: np.ndarray,
+    x: np.ndarray,
+    u: np.ndarray,
+    ref: np.ndarray,
+    *,
+    tracked: list[int],
+    settle_tol: float = 0.01,
+    u_min: np.ndarray | None = None,
+    u_max: np.ndarray | None = None,
+    x_min: np.ndarray | None = None,
+    x_max: np.ndarray | None = None,
+    plant_violation: np.ndarray | None = None,
+    solve_times: np.ndarray | None = None,
+) -> dict[str, float]:
+    """Metrics of a closed-loop run.
+
+    The tracking error is ``e_k = ‖x_k[tracked] − r_k[tracked]‖₂``.
+
+    Returns:
+        ``rms_error`` (``sqrt(mean e_k²)``), ``max_error``, ``final_error``,
+        ``settling_time`` (first time after which ``e`` stays within
+        ``settle_tol``; ``inf`` if it never does), ``max_abs_input``,
+        ``constraint_violations`` (steps at which an input or state bound, or
+        a plant limit, is exceeded by more than 1e-9 relative),
+        ``max_violation`` (the largest such excess) and
+        ``solve_time_median_s`` (median controller call).
+    """
+    e = np.linalg.norm(x[:, tracked] - ref[:, tracked], axis=1)
+    outside = np.nonzero(e > settle_tol)[0]
+    if outside.size == 0:
+        settling = 0.0
+    elif outside[-1] == len(e) - 1:
+        settling = math.inf
+    else:
+        settling = float(t[outside[-1] + 1])
+
+    def excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
+        out = np.zeros(values.shape[0])
+        for bound, sign in ((lo, -1.0), (hi, 1.0)):
+            if bound is None:
+                continue
+            b = np.asarray(bound, dtype=float)
+            finite = np.isfinite(b)
+            if not finite.any():
+                continue
+            over = sign * (values[:, finite] - b[finite]) - 1e-9 * (1.0 + np.abs(b[finite]))
+            out = np.maximum(out, np.maximum(over, 0.0).max(axis=1))
+        return out
+
+    viol = np.zeros(len(t))
+    viol[:-1] = np.maximum(viol[:-1], excess(u, u_min, u_max))
+    viol[1:] = np.maximum(viol[1:], excess(x[1:], x_min, x_max))
+    if plant_violation is not None:
+        viol = np.maximum(viol, plant_violation)
+    return {
+        "rms_error": float(np.sqrt(np.mean(e**2))),
+        "max_error": float(e.max()),
+        "final_error": float(e[-1]),
+        "settling_time": settling,
+        "max_abs_input": float(np.abs(u).max()) if u.size else 0.0,
+        "constraint_violations": int(np.count_nonzero(viol > 0)),
+        "max_violation": float(viol.max()),
+        "solve_time_median_s": float(np.median(solve_times)) if solve_times is not None and solve_times.size else 0.0,
+    }
+
+
+def format_metrics(metrics: dict[str, float]) -> str:
+    """A two-column table of metrics."""
+    units = {"settling_time": "s", "solve_time_median_s": "s"}
+    rows = []
+    for k, v in metrics.items():
+        if isinstance(v, float) and math.isinf(v):
+            val = "never"
+        elif isinstance(v, int):
+            val = str(v)
+        else:
+            val = f"{v:.6g}"
+        rows.append(f"  {k:22s} {val:>14s} {units.get(k, '')}".rstrip())
+    return "\n".join(rows)
+
+
+# ---------------------------------------------------------------------- result
+@dataclass
+class SimResult:
+    """Trajectories and metrics of one closed-loop run.
+
+    Attributes:
+        t: Times ``(T + 1,)`` [s].
+        x: States ``(T + 1, n)``.
+        u: Inputs ``(T, m)``.
+        ref: References ``(T + 1, n)``.
+        metrics: See :func:`compute_metrics`.
+        state_names, input_names: Labels.
+        tracked: Names of the states the error metrics use.
+        u_min, u_max, x_min, x_max: Bounds for plots (None where absent).
+        solve_times: Controller call times ``(T,)`` [s].
+        scenario: The scenario name; ``loop``: ``"standalone"`` or ``"mujoco"``.
+        config: The resolved scenario document.
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    ref: np.ndarray
+    metrics: dict[str, float]
+    state_names: tuple[str, ...]
+    input_names: tuple[str, ...]
+    tracked: list[str]
+    u_min: np.ndarray | None = None
+    u_max: np.ndarray | None = None
+    x_min: np.ndarray | None = None
+    x_max: np.ndarray | None = None
+    solve_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    scenario: str = "<dict>"
+    loop: str = "standalone"
+    config: dict[str, Any] = field(default_factory=dict)
+
+    def save(self, directory: str | Path) -> Path:
+        """Write ``result.npz``, ``metrics.json`` and ``scenario.toml`` into ``directory`` (atomically)."""
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        arrays = {"t": self.t, "x": self.x, "u": self.u, "ref": self.ref, "solve_times": self.solve_times}
+        atomic_write(d / "result.npz", lambda f: np.savez(f, **arrays), binary=True)
+        dump_json(d / "metrics.json", {"scenario": self.scenario, "loop": self.loop, "metrics": self.metrics})
+        atomic_write(d / "scenario.toml", lambda f: f.write(dump_toml(self.config)))
+        return d
+
+    def plot(self, path: str | Path) -> Path:
+        """Plot states (with references and bounds) and inputs (with bounds) against time to a PNG."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        n, m = self.x.shape[1], self.u.shape[1]
+        fig, axes = plt.subplots(n + m, 1, figsize=(8, 1.6 * (n + m) + 0.8), sharex=True, squeeze=False)
+        for i in range(n):
+            ax = axes[i, 0]
+            ax.plot(self.t, self.x[:, i], color="C0", lw=1.4, label="state")
+            ax.plot(self.t, self.ref[:, i], color="C1", lw=1.0, ls="--", label="reference")
+            for b in (self.x_min, self.x_max):
+                if b is not None and np.isfinite(b[i]):
+                    ax.axhline(b[i], color="C3", lw=0.8, ls=":", label="bound")
+            ax.set_ylabel(self.state_names[i], rotation=0, ha="right", va="center")
+            ax.grid(alpha=0.3)
+        tu = self.t[:-1]
+        for j in range(m):
+            ax = axes[n + j, 0]
+            ax.step(tu, self.u[:, j], where="post", color="C2", lw=1.2, label="input")
+            for b in (self.u_min, self.u_max):
+                if b is not None and np.isfinite(b[j]):
+                    ax.axhline(b[j], color="C3", lw=0.8, ls=":", label="bound")
+            ax.set_ylabel(self.input_names[j], rotation=0, ha="right", va="center")
+            ax.grid(alpha=0.3)
+        handles = {}
+        for ax in axes[:, 0]:
+            for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+                handles.setdefault(lab, h)
+        fig.legend(handles.values(), handles.keys(), loc="upper right", ncol=4, fontsize=8)
+        metrics = self.metrics
+        fig.suptitle(
+            f"{self.scenario} ({self.loop})   rms error {metrics['rms_error']:.3g}   "
+            f"settling {format_metrics({'s': metrics['settling_time']}).split()[-1]} s",
+            x=0.02,
+            ha="left",
+            fontsize=10,
+        )
+        axes[-1, 0].set_xlabel("time [s]")
+        fig.tight_layout(rect=(0, 0, 1, 0.97))
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
+        plt.close(fig)
+        return path
+
+
+# ------------------------------------------------------------------- progress
+class _Progress:
+    """A one-line progress bar on stderr, shown once a run has taken ``delay`` seconds."""
+
+    def __init__(self, total: int, label: str, enabled: bool | None, delay: float = 2.0):
+        self.total, self.label = total, label
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self.start = time.perf_counter()
+        self.delay, self.shown, self.last = delay, False, 0.0
+
+    def update(self, k: int) -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if now - self.start < self.delay or now - self.last < 0.2:
+            return
+        self.last, self.shown = now, True
+        frac = k / self.total
+        bar = "#" * int(30 * frac)
+        eta = (now - self.start) * (1 - frac) / max(frac, 1e-9)
+        sys.stderr.write(f"\r{self.label} [{bar:30s}] {100 * frac:5.1f}%  eta {eta:5.1f} s")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.shown:
+            sys.stderr.write(f"\r{self.label} [{'#' * 30}] 100.0%  {time.perf_counter() - self.start:.1f} s\n")
+            sys.stderr.flush()
+
+
+# ------------------------------------------------------------------------ sim
+class RobotSim:
+    """Plant, optional MuJoCo engine, controller and reference of one scenario.
+
+    Attributes:
+        scenario: The parsed :class:`~shinro_ctrl.config.Scenario`.
+        plant: The plant (engine attached when the loop is MuJoCo).
+        engine: The :class:`~shinro_ctrl.engine.MujocoEngine`, or None (standalone).
+        controller: The controller built by ``from_plant``.
+        reference: The :class:`Reference`.
+    """
+
+    def __init__(self, scenario: Scenario, *, engine: str | None = None):
+        from shinro_ctrl.controllers import controller_class
+        from shinro_ctrl.plants import plant_class
+
+        self.scenario = scenario
+        src = str(scenario.path) if scenario.path else scenario.name
+        self.plant = plant_class(scenario.plant.type).from_config(scenario.plant.params)
+        if engine not in (None, "standalone", "mujoco"):
+            raise ConfigError(f"engine must be 'standalone' or 'mujoco', got {engine!r}")
+        use_engine = scenario.engine is not None if engine is None else engine == "mujoco"
+        self.engine = None
+        if use_engine:
+            if self.plant.asset is None and (scenario.engine is None or scenario.engine.model is None):
+                raise ConfigError(f"{src}: {scenario.plant.type} has no MuJoCo model; run it standalone")
+            from shinro_ctrl.engine import MujocoEngine
+
+            ecfg = scenario.engine
+            self.engine = MujocoEngine.for_plant(
+                self.plant,
+                substeps=ecfg.substeps if ecfg else 1,
+                model=ecfg.model if ecfg else None,
+            )
+            self.plant.physics_engine(self.engine)
+        options = dict(scenario.controller.options)
+        ccls = controller_class(scenario.controller.type)
+        try:
+            self.controller = ccls.from_plant(self.plant, **options)
+        except ShinroError as exc:
+            raise type(exc)(f"{src}: [controller] {exc}") from exc
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{src}: [controller] {exc}") from exc
+        self.operating_point = self._operating_point()
+        sim = scenario.sim
+        self.initial_state = (
+            np.asarray(sim.initial_state, dtype=float) if sim.initial_state is not None else self.plant.get_state()
+        )
+        if sim.initial_state is None and self.engine is None:
+            self.initial_state = self.operating_point.copy()
+        self.reference = Reference(sim.reference, self.initial_state if _moves(sim.reference) else self.operating_point)
+        names = sim.track or list(getattr(self.plant, "tracked_states", None) or self._default_tracked())
+        self.tracked = [self.plant.state_names.index(s) for s in names]
+
+    @classmethod
+    def from_config(cls, config: str | Path | dict[str, Any], *, engine: str | None = None) -> RobotSim:
+        """Build from a scenario path (or shipped name) or an already-loaded document.
+
+        Args:
+            config: Path, shipped scenario name, or a dict with the TOML tables.
+            engine: Override the scenario's loop: ``"standalone"`` or ``"mujoco"``.
+        """
+        scenario = parse_scenario(config) if isinstance(config, dict) else load_scenario(config)
+        return cls(scenario, engine=engine)
+
+    @property
+    def loop(self) -> str:
+        """``"mujoco"`` or ``"standalone"``."""
+        return "mujoco" if self.engine is not None else "standalone"
+
+    def _operating_point(self) -> np.ndarray:
+        x0 = getattr(self.controller, "x0", None)
+        if x0 is not None and np.shape(x0) == (self.plant.state_dim,):
+            return np.asarray(x0, dtype=float)
+        return self.plant.equilibrium()[0]
+
+    def _default_tracked(self) -> list[str]:
+        p = self.plant
+        idx = p.position_indices or tuple(range(p.state_dim))
+        return [p.state_names[i] for i in idx]
+
+    def run(self, duration: float | None = None, *, progress: bool | None = None) -> SimResult:
+        """Run the closed loop for ``duration`` seconds (default the scenario's).
+
+        Args:
+            duration: Simulated time [s].
+            progress: Show a progress bar on stderr (None: when stderr is a
+                terminal and the run takes longer than 2 s).
+
+        Raises:
+            SimulationDiverged, MPCInfeasible, NonFiniteError: with the scenario
+                name and the time at which the loop failed.
+        """
+        sim = self.scenario.sim
+        duration = sim.duration if duration is None else float(duration)
+        if not math.isfinite(duration) or duration <= 0:
+            raise ValueError(f"duration must be positive, got {duration!r}")
+        plant, ctrl, ref = self.plant, self.controller, self.reference
+        dt = plant.dt
+        steps = max(1, int(round(duration / dt)))
+        n, m = plant.state_dim, plant.input_dim
+        t = np.arange(steps + 1) * dt
+        X = np.empty((steps + 1, n))
+        U = np.empty((steps, m))
+        R = np.empty((steps + 1, n))
+        solve = np.empty(steps)
+        pviol = np.zeros(steps + 1)
+        limit = getattr(plant, "limit_violation", None)
+        rng = np.random.default_rng(sim.seed)
+        noise = np.asarray(sim.measurement_noise, dtype=float) if sim.measurement_noise else None
+
+        if hasattr(ctrl, "reset"):
+            ctrl.reset()
+        if sim.initial_state is not None or self.engine is None:
+            plant.set_state(self.initial_state)
+        x = plant.get_state()
+        X[0] = x
+        bar = _Progress(steps, f"{self.scenario.name} ({self.loop})", progress)
+        clock = time.perf_counter
+        k = 0
+        try:
+            for k in range(steps):
+                r = ref(t[k])
+                R[k] = r
+                y = x + noise * rng.standard_normal(n) if noise is not None else x
+                t0 = clock()
+                u = ctrl(y, r)
+                solve[k] = clock() - t0
+                U[k] = u
+                plant.step(u)
+                x = plant.get_state()
+                X[k + 1] = x
+                if limit is not None:
+                    pviol[k + 1] = limit()
+                if k % 256 == 0:
+                    bar.update(k)
+        except ShinroError as exc:
+            raise type(exc)(f"{self.scenario.name} ({self.loop}) at t = {t[k]:.4g} s: {exc}") from exc
+        finally:
+            bar.close()
+        R[steps] = ref(t[steps])
+        bounds = {
+            name: _bound(getattr(ctrl, name, None), size)
+            for name, size in (("u_min", m), ("u_max", m), ("x_min", n), ("x_max", n))
+        }
+        metrics = compute_metrics(
+            t,
+            X,
+            U,
+            R,
+            tracked=self.tracked,
+            settle_tol=sim.settle_tol,
+            plant_violation=pviol if limit is not None else None,
+            solve_times=solve,
+            **bounds,
+        )
+        return SimResult(
+            t=t,
+            x=X,
+            u=U,
+            ref=R,
+            metrics=metrics,
+            state_names=tuple(plant.state_names),
+            input_names=tuple(plant.input_names),
+            tracked=[plant.state_names[i] for i in self.tracked],
+            solve_times=solve,
+            scenario=self.scenario.name,
+            loop=self.loop,
+            config=self.resolved_config(),
+            **bounds,
+        )
+
+    def resolved_config(self) -> dict[str, Any]:
+        """The scenario with defaults filled in (what was actually run)."""
+        s = self.scenario
+        plant_tbl = {"type": s.plant.type, **self.plant.params()}
+        for k, v in s.plant.params.items():
+            plant_tbl.setdefault(k, v)
+        plant_tbl["dt"] = self.plant.dt
+        doc: dict[str, Any] = {"plant": plant_tbl}
+        if self.engine is not None:
+            eng = {"type": "mujoco", "substeps": s.engine.substeps if s.engine else 1}
+            if s.engine and s.engine.model:
+                eng["model"] = s.engine.model
+            doc["engine"] = eng
+        doc["controller"] = {"type": s.controller.type, **s.controller.options}
+        sim = {
+            "duration": s.sim.duration,
+            "initial_state": self.initial_state.tolist(),
+            "reference": s.sim.reference,
+            "track": [self.plant.state_names[i] for i in self.tracked],
+            "settle_tol": s.sim.settle_tol,
+            "seed": s.sim.seed,
+        }
+        if s.sim.measurement_noise:
+            sim["measurement_noise"] = s.sim.measurement_noise
+        doc["sim"] = sim
+        if s.regression:
+            doc["regression"] = s.regression
+        return doc
+
+
+def _bound(value: Any, size: int) -> np.ndarray | None:
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=float)
+    return arr if arr.shape == (size,) else None
+
+
+def _moves(reference: dict[str, Any]) -> bool:
+    """Paths (circle, square) start where the plant starts; set-points default to the operating point."""
+    return reference.get("kind") in ("circle", "square")

@@ -1,0 +1,86 @@
+"""Strict scenario parsing: every key checked, every error naming file, table and key."""
+
+from __future__ import annotations
+
+import pytest
+
+from shinro_ctrl.config import load_scenario, parse_scenario
+from shinro_ctrl.errors import ConfigError
+from shinro_ctrl.resources import config_path, list_configs
+
+BASE = {
+    "plant": {"type": "CartPole", "pole_length": 0.5},
+    "controller": {"type": "LQR", "Q": [10, 1, 100, 1], "R": [0.1]},
+    "sim": {"duration": 1.0, "initial_state": [0, 0, 0.1, 0]},
+}
+
+
+def with_(table: str, **changes):
+    doc = {k: dict(v) for k, v in BASE.items()}
+    doc.setdefault(table, {}).update(changes)
+    return doc
+
+
+def test_valid_scenario_parses():
+    s = parse_scenario(BASE)
+    assert s.plant.type == "CartPole" and s.plant.params == {"pole_length": 0.5}
+    assert s.controller.type == "LQR" and s.engine is None
+    assert s.sim.duration == 1.0 and s.sim.reference == {"kind": "constant"}
+
+
+@pytest.mark.parametrize(
+    "doc,needle",
+    [
+        ({}, "empty scenario"),
+        ({**BASE, "contoller": {}}, "unknown table 'contoller'; did you mean 'controller'"),
+        (with_("plant", pole_lenght=0.5), "[plant] unknown key 'pole_lenght'; did you mean 'pole_length'"),
+        (with_("plant", type="CartPol"), "did you mean 'CartPole'"),
+        (with_("plant", cart_mass=-1.0), "cart_mass"),
+        (with_("plant", cart_mass="heavy"), "cart_mass"),
+        (with_("controller", type="PID"), "unknown controller 'PID'"),
+        (with_("controller", Qq=[1]), "did you mean 'Q'"),
+        (with_("controller", x0=[0, 0]), "'x0' must have 4 values"),
+        (with_("sim", duration=-1), "'duration' must be positive"),
+        (with_("sim", duration="long"), "'duration' must be a number"),
+        (with_("sim", initial_state=[0, 0, float("nan"), 0]), "'initial_state' must be finite"),
+        (with_("sim", initial_state=[0, 0]), "'initial_state' must have 4 values"),
+        (with_("sim", reference={"kind": "spiral"}), "unknown kind 'spiral'"),
+        (with_("sim", reference={"kind": "circle", "radius": 1.0}), "needs 'frequency'"),
+        (with_("sim", track=["theta", "phi"]), "unknown state 'phi'"),
+        (with_("sim", durration=1.0), "did you mean 'duration'"),
+        (with_("engine", type="bullet"), "'type' must be 'mujoco' or 'standalone'"),
+        (with_("regression", rms_eror={"rel": 0.1}), "did you mean 'rms_error'"),
+        ({"controller": BASE["controller"]}, "missing required table [plant]"),
+        ({"plant": BASE["plant"]}, "missing required table [controller]"),
+    ],
+)
+def test_bad_documents_raise_config_error(doc, needle):
+    with pytest.raises(ConfigError) as info:
+        parse_scenario(doc)
+    assert needle in str(info.value)
+
+
+def test_typo_in_plant_is_reported_before_missing_controller():
+    with pytest.raises(ConfigError, match="did you mean 'pole_length'"):
+        parse_scenario({"plant": {"type": "CartPole", "pole_lenght": 1.0}})
+
+
+def test_file_errors_name_the_file(tmp_path):
+    bad = tmp_path / "broken.toml"
+    bad.write_text("[plant\ntype = 'CartPole'\n")
+    with pytest.raises(ConfigError, match="broken.toml: malformed TOML"):
+        load_scenario(bad)
+    typo = tmp_path / "typo.toml"
+    typo.write_text('[plant]\ntype = "CartPole"\npole_lenght = 1.0\n[controller]\ntype = "LQR"\nQ=[1,1,1,1]\nR=[1]\n')
+    with pytest.raises(ConfigError, match=r"typo\.toml: \[plant\] unknown key 'pole_lenght'"):
+        load_scenario(typo)
+    with pytest.raises(FileNotFoundError, match="cartpole_lqr.toml"):
+        load_scenario(tmp_path / "missing.toml")
+
+
+def test_shipped_configs_are_found_by_name_and_all_parse():
+    assert config_path("cartpole_lqr") == config_path("cartpole_lqr.toml")
+    names = list_configs()
+    assert "cartpole_lqr.toml" in names
+    for name in names:
+        load_scenario(name)
