@@ -422,7 +422,7 @@ class RobotSim:
             raise ValueError(f"duration must be positive, got {duration!r}")
         plant, ctrl, ref = self.plant, self.controller, self.reference
         dt = plant.dt
-        steps = max(1, int(round(duration / dt)))
+        steps = max(1, round(duration / dt))
         n, m = plant.state_dim, plant.input_dim
         t = np.arange(steps + 1) * dt
         X = np.empty((steps + 1, n))

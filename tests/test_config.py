@@ -68,13 +68,13 @@ def test_typo_in_plant_is_reported_before_missing_controller():
 def test_file_errors_name_the_file(tmp_path):
     bad = tmp_path / "broken.toml"
     bad.write_text("[plant\ntype = 'CartPole'\n")
-    with pytest.raises(ConfigError, match="broken.toml: malformed TOML"):
+    with pytest.raises(ConfigError, match=r"broken\.toml: malformed TOML"):
         load_scenario(bad)
     typo = tmp_path / "typo.toml"
     typo.write_text('[plant]\ntype = "CartPole"\npole_lenght = 1.0\n[controller]\ntype = "LQR"\nQ=[1,1,1,1]\nR=[1]\n')
     with pytest.raises(ConfigError, match=r"typo\.toml: \[plant\] unknown key 'pole_lenght'"):
         load_scenario(typo)
-    with pytest.raises(FileNotFoundError, match="cartpole_lqr.toml"):
+    with pytest.raises(FileNotFoundError, match=r"cartpole_lqr\.toml"):
         load_scenario(tmp_path / "missing.toml")
 
 
