@@ -189,7 +189,7 @@ class HolonomicMobileRobot(Plant):
         u = self._input(u_world)
         speeds = self.A_kinematics @ self._world_to_body(u, float(self.state[2])) / self.r
         new = self._integrate(self.state, u)
-        if not np.all(np.isfinite(new)):
+        if not math.isfinite(new.sum()):
             raise SimulationDiverged(f"HolonomicMobileRobot pose became non-finite: {new}")
         self.state = new
         if self._engine is not None:

@@ -126,6 +126,8 @@ class Quadrotor(Plant):
     input_names = ("thrust", "tau_x", "tau_y", "tau_z")
     param_names = ("mass", "Ixx", "Iyy", "Izz", "gravity")
     asset = "quadrotor.xml"
+    #: The states a simulation's error metrics use by default (the pose).
+    tracked_states = ("x", "y", "z", "roll", "pitch", "yaw")
     #: Names in the MJCF asset.
     free_joint = "root"
     body = "quadrotor"
