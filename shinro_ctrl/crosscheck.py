@@ -269,12 +269,12 @@ def format_crosscheck(result: CrosscheckResult) -> str:
         f"  MuJoCo model {r.model} (Euler, h = {r.mujoco_timestep:g} s, explicit damping), eps = {r.eps:g}",
         "",
     ]
+    lines.append(f"A = ∂ẋ/∂x, columns: {', '.join(r.state_names)}")
     lines += _side_by_side("A", r.state_names, (r.A_exact, r.A_fd, r.A_mujoco), headers, r.A_exact)
-    lines.append("")
+    lines += ["", f"B = ∂ẋ/∂u, columns: {', '.join(r.input_names)}"]
     lines += _side_by_side("B", r.state_names, (r.B_exact, r.B_fd, r.B_mujoco), headers, r.B_exact)
     lines += [
         "",
-        f"  inputs: {', '.join(r.input_names)}",
         f"  {'':<20}{'max |Δ| vs exact':>18}{'max relative':>16}{'time per call':>18}",
         f"  {'exact (CasADi)':<20}{'—':>18}{'—':>16}{_duration(r.time_exact_s):>18}",
         f"  {'finite differences':<20}{r.fd_max_abs_error:>18.2e}{r.fd_max_rel_error:>16.2e}"
