@@ -101,6 +101,18 @@ def cmd_linearize(args: argparse.Namespace) -> int:
     return 0
 
 
+# ----------------------------------------------------------------- crosscheck
+def cmd_crosscheck(args: argparse.Namespace) -> int:
+    from shinro_ctrl.crosscheck import crosscheck, format_crosscheck
+    from shinro_ctrl.plants import plant_class
+
+    plant = plant_class(args.plant)()
+    x0 = None if args.x0 is None else parse_vector(args.x0)
+    u0 = None if args.u0 is None else parse_vector(args.u0)
+    print(format_crosscheck(crosscheck(plant, x0, u0, eps=args.eps)))
+    return 0
+
+
 # ------------------------------------------------------------------------ run
 DEFAULT_SCENARIO = "cartpole_lqr.toml"
 
@@ -195,6 +207,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--u0", help="operating input, e.g. '0'")
     p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
     p.set_defaults(func=cmd_linearize)
+
+    p = sub.add_parser("crosscheck", help="exact vs finite differences vs MuJoCo's mjd_transitionFD")
+    p.add_argument("plant", metavar="PLANT", help=f"one of: {', '.join(PLANT_ALIASES)}")
+    p.add_argument("--x0", help="operating state (pi allowed)")
+    p.add_argument("--u0", help="operating input")
+    p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
+    p.set_defaults(func=cmd_crosscheck)
 
     p = sub.add_parser("run", help="run a scenario (default: the embedded cart-pole LQR demo)")
     p.add_argument("config", nargs="?", metavar="CONFIG", help="scenario file or shipped name")

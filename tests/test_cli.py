@@ -48,6 +48,19 @@ def test_user_errors_are_one_line_exit_2(args, needle):
     assert "Traceback" not in res.stderr
 
 
+@pytest.mark.parametrize("plant", ["cartpole", "double_pendulum"])
+def test_crosscheck_prints_three_linearizations(plant):
+    res = run_cli("crosscheck", plant)
+    assert res.returncode == 0, res.stderr
+    assert "exact (CasADi)" in res.stdout and "MuJoCo" in res.stdout and "finite differences" in res.stdout
+
+
+def test_run_with_engine_override():
+    res = run_cli("run", "cartpole_lqr", "--engine", "mujoco", "--duration", "0.5", "--plot", "/dev/null")
+    assert res.returncode == 0, res.stderr
+    assert "(mujoco)" in res.stdout
+
+
 def test_run_without_config_runs_the_embedded_demo(tmp_path):
     res = subprocess.run(
         [sys.executable, "-m", "shinro_ctrl.cli", "run"], capture_output=True, text=True, timeout=120, cwd=tmp_path

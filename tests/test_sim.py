@@ -13,16 +13,31 @@ from shinro_ctrl.resources import list_configs
 from shinro_ctrl.sim import Reference, RobotSim, compute_metrics
 
 STANDALONE_LQR = [c for c in list_configs() if c.endswith("_lqr.toml") and "/" not in c]
+MUJOCO_LQR = [c for c in list_configs() if c.endswith("_lqr_mujoco.toml") and "/" not in c]
 
 
-@pytest.mark.parametrize("name", STANDALONE_LQR)
-def test_shipped_standalone_lqr_scenarios_settle(name):
-    sim = RobotSim.from_config(name, engine="standalone")
+@pytest.mark.parametrize("name", STANDALONE_LQR + MUJOCO_LQR)
+def test_shipped_lqr_scenarios_settle(name):
+    sim = RobotSim.from_config(name)
+    assert sim.loop == ("mujoco" if "mujoco" in name else "standalone")
     result = sim.run()
     assert result.metrics["settling_time"] < sim.scenario.sim.duration
     assert result.metrics["final_error"] < 1e-2
     assert result.x.shape == (len(result.t), sim.plant.state_dim)
     assert result.u.shape == (len(result.t) - 1, sim.plant.input_dim)
+
+
+def test_pendulum_family_mujoco_scenarios_exist():
+    assert {"pendulum_lqr_mujoco.toml", "cartpole_lqr_mujoco.toml", "double_pendulum_lqr_mujoco.toml"} <= set(
+        MUJOCO_LQR
+    )
+
+
+def test_engine_override_switches_the_loop():
+    sim = RobotSim.from_config("cartpole_lqr", engine="mujoco")
+    assert sim.loop == "mujoco" and sim.engine is not None and sim.plant.engine is sim.engine
+    res = sim.run(duration=0.5)
+    assert res.loop == "mujoco" and res.config["engine"]["type"] == "mujoco"
 
 
 def test_metrics_on_a_hand_made_trajectory():
