@@ -57,9 +57,10 @@ import osqp
 import scipy.linalg
 import scipy.sparse as sp
 
+from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import MPCInfeasible, NonFiniteError, NotStabilizable
 from shinro_ctrl.linearization import discretize
-from shinro_ctrl.validation import as_vector, check_positive, closest, did_you_mean, unknown_keys
+from shinro_ctrl.validation import as_vector, check_positive, closest, unknown_keys
 
 __all__ = ["QP", "LinearMPC", "MPCSolution", "RowGroup"]
 
@@ -240,7 +241,7 @@ def _fmt(v: np.ndarray) -> str:
     return np.array2string(np.asarray(v), precision=4, suppress_small=True)
 
 
-class LinearMPC:
+class LinearMPC(Controller):
     r"""Linear MPC on a sparse QP, solved by one warm-started OSQP object.
 
     The QP is written out in the module docstring. ``P`` and ``A_con`` are
@@ -288,6 +289,8 @@ class LinearMPC:
 
     Attributes:
         K: LQR gain ``(m, n)`` of the DARE (None for another terminal cost).
+        u_min, u_max, x_min, x_max: The bounds ``(m,)`` / ``(n,)`` in absolute
+            units (±inf where unbounded).
         P_f: Terminal cost matrix ``(n, n)``.
         last: :class:`MPCSolution` of the latest call (None before the first).
         groups: The :class:`RowGroup` blocks of ``A_con``, by name.
@@ -362,6 +365,8 @@ class LinearMPC:
         if N < 1:
             raise ValueError(f"horizon must be >= 1, got {N}")
         self.n, self.m, self.N = n, m, N
+        self.state_dim, self.input_dim, self.horizon = n, m, N
+        self.model: Any = None  # the LinearModel when built by from_plant
         self.A, self.B, self.Q, self.R = A_, B_, Q_, R_
         self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
         self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
@@ -476,7 +481,18 @@ class LinearMPC:
         u0: Any = None,
         discretization: str = "euler",
         method: str = "exact",
-        **options: Any,
+        u_min: Any = None,
+        u_max: Any = None,
+        x_min: Any = None,
+        x_max: Any = None,
+        du_max: Any = None,
+        soft: bool = False,
+        soft_weight_l1: float = 1e2,
+        soft_weight_quad: float = 1e2,
+        terminal_cost: str | Any = "dare",
+        u_ref: Any = None,
+        fallback: str | None = None,
+        osqp_settings: Mapping[str, Any] | None = None,
     ) -> LinearMPC:
         """Build the controller from a plant's linearization at ``(x0, u0)``.
 
@@ -489,25 +505,46 @@ class LinearMPC:
             u0: Operating input ``(m,)``; default ``plant.equilibrium()``.
             discretization: ``"euler"``, ``"zoh"`` or ``"rk4"``.
             method: Linearization method, ``"exact"`` or ``"fd"``.
-            **options: Any keyword option of :class:`LinearMPC` (bounds,
-                ``soft``, ``terminal_cost``, ``osqp_settings``, …).
+            u_min, u_max, x_min, x_max, du_max, soft, soft_weight_l1,
+            soft_weight_quad, terminal_cost, u_ref, fallback, osqp_settings:
+                As for :class:`LinearMPC`.
 
-        The affine term ``d`` is the discretized drift ``f(x0, u0)`` (zero at
-        an equilibrium), discretized the same way as ``B``.
+        The affine term ``d`` is the drift ``f(x0, u0)`` discretized the same
+        way as ``B`` (zero at an equilibrium). The returned controller keeps
+        the :class:`~shinro_ctrl.linearization.LinearModel` as ``model``.
         """
-        bad = unknown_keys(options, _CONSTRUCTOR_OPTIONS)
-        if bad:
-            raise TypeError(
-                f"LinearMPC.from_plant got an unexpected keyword '{bad[0]}'{did_you_mean(bad[0], _CONSTRUCTOR_OPTIONS)}"
-            )
         lm = plant.linear_model(x0, u0, method=method, discretization=discretization)
         drift = np.asarray(plant.dynamics(lm.x0, lm.u0), dtype=float)
         offset = None
         if np.any(drift != 0.0):
             offset = discretize(lm.A_c, drift.reshape(-1, 1), lm.dt, discretization)[1][:, 0]
-        options.setdefault("state_names", plant.state_names)
-        options.setdefault("input_names", plant.input_names)
-        return cls(lm.A, lm.B, Q, R, horizon, x0=lm.x0, u0=lm.u0, dt=lm.dt, offset=offset, **options)
+        ctrl = cls(
+            lm.A,
+            lm.B,
+            Q,
+            R,
+            horizon,
+            x0=lm.x0,
+            u0=lm.u0,
+            dt=lm.dt,
+            u_min=u_min,
+            u_max=u_max,
+            x_min=x_min,
+            x_max=x_max,
+            du_max=du_max,
+            soft=soft,
+            soft_weight_l1=soft_weight_l1,
+            soft_weight_quad=soft_weight_quad,
+            terminal_cost=terminal_cost,
+            u_ref=u_ref,
+            offset=offset,
+            fallback=fallback,
+            osqp_settings=osqp_settings,
+            state_names=plant.state_names,
+            input_names=plant.input_names,
+        )
+        ctrl.model = lm
+        return ctrl
 
     def _build_structure(self) -> None:
         """Assemble P, A_con, q, l, u and the index maps (once)."""
@@ -675,6 +712,8 @@ class LinearMPC:
         self._iu0 = slice(nx, nx + m)  # u_0 inside z
         self._q_dirty = False  # q differs from the default (reference terms present)
         self._q_const = 0.0  # constant cost term of the current reference
+        self._ref_cache: np.ndarray | None = None  # the reference q was built for
+        self._uref_cache: np.ndarray | None = None
 
     # =============================================================== public
     @property
@@ -766,9 +805,15 @@ class LinearMPC:
                 self._q_dirty = False
                 q = self._q
         else:
-            self._q_const = self._fill_q(self._check_ref(ref), self._check_uref(u_ref), self._q)
-            self._q_dirty = True
-            q = self._q
+            r, ur = self._check_ref(ref), self._check_uref(u_ref)
+            if self._q_dirty and _same(r, self._ref_cache) and _same(ur, self._uref_cache):
+                q = None  # same reference as last call: q is already in OSQP
+            else:
+                self._q_const = self._fill_q(r, ur, self._q)
+                self._q_dirty = True
+                self._ref_cache = None if r is None else r.copy()
+                self._uref_cache = None if ur is None else ur.copy()
+                q = self._q
         if self._warm:
             self._zws[:n] = self._dx0
         low = self._low
@@ -981,25 +1026,39 @@ class LinearMPC:
         raise IndexError(row)  # pragma: no cover - rows always belong to a group
 
     def _explain_certificate(self, cert: np.ndarray) -> str:
-        """Turn OSQP's primal infeasibility certificate into a sentence."""
-        tol = 1e-6 * float(np.max(np.abs(cert)))
+        """Turn OSQP's primal infeasibility certificate into a sentence.
+
+        The certificate ``δy`` (``Aᵀ δy = 0``, ``uᵀ δy₊ + lᵀ δy₋ < 0``) is
+        nonzero on the rows that together cannot hold. Its entries spread
+        over later stages, so the stage named is the *first* one where the
+        culprit group (state, then rate, then input bounds) enters the
+        certificate: the first stage that cannot be met.
+        """
+        peak = float(np.max(np.abs(cert)))
         involved: dict[str, list[int]] = {}
-        best: dict[str, tuple[float, int]] = {}
+        first: dict[str, int] = {}
         for g in self._group_list:
             seg = np.abs(cert[g.start : g.stop])
-            hits = np.flatnonzero(seg > tol)
-            if hits.size:
-                stages = sorted({g.first_stage + int(h) // g.width for h in hits})
-                involved[g.name] = stages
-                h = int(np.argmax(seg))
-                best[g.name] = (float(seg[h]), g.start + h)
-        culprit = next((name for name in ("state bounds", "rate bounds", "input bounds") if name in best), None)
+            gmax = float(seg.max(initial=0.0))
+            if gmax <= 1e-9 * peak:
+                continue
+            hits = np.flatnonzero(seg > 1e-3 * gmax)
+            involved[g.name] = sorted({g.first_stage + int(h) // g.width for h in hits})
+            first[g.name] = g.start + int(hits[0])
+        culprit = next((name for name in ("state bounds", "rate bounds", "input bounds") if name in first), None)
         if culprit is None:  # pragma: no cover - equalities alone are always feasible
             return "the certificate involves only the dynamics (" + ", ".join(involved) + ")"
-        g = self.groups[culprit]
-        k, label = g.locate(best[culprit][1])
-        others = [f"{name} at stages {_stages(s)}" for name, s in involved.items() if name != culprit]
-        return f"{culprit} at stage {k} ({label}) cannot be met together with " + "; ".join(others)
+        k, label = self.groups[culprit].locate(first[culprit])
+        others = [
+            f"{name} at stages {_stages(s)}"
+            for name, s in involved.items()
+            if name not in (culprit, "initial state", "dynamics")
+        ]
+        return (
+            f"{culprit} at stage {k} ({label}) cannot be met from this state under the dynamics"
+            f" (conflict over stages {_stages(involved[culprit])})"
+            + (" together with the " + "; ".join(others) if others else "")
+        )
 
     # ============================================================= describe
     def describe(self) -> str:
@@ -1034,6 +1093,13 @@ class LinearMPC:
         )
 
 
+def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    """Both None, or equal arrays of the same shape."""
+    if a is None or b is None:
+        return a is b
+    return a.shape == b.shape and bool(np.array_equal(a, b))
+
+
 def _stages(stages: list[int]) -> str:
     """``[0, 1, 2, 5]`` -> ``"0-2, 5"``."""
     out: list[str] = []
@@ -1046,23 +1112,3 @@ def _stages(stages: list[int]) -> str:
         if s is not None:
             start = prev = s
     return ", ".join(out)
-
-
-_CONSTRUCTOR_OPTIONS = (
-    "dt",
-    "u_min",
-    "u_max",
-    "x_min",
-    "x_max",
-    "du_max",
-    "soft",
-    "soft_weight_l1",
-    "soft_weight_quad",
-    "terminal_cost",
-    "u_ref",
-    "offset",
-    "fallback",
-    "osqp_settings",
-    "state_names",
-    "input_names",
-)
