@@ -92,6 +92,8 @@ class MujocoEngine:
             inherit the engine's backend).
         substeps: ``mj_step`` calls per :meth:`step`.
         source: Where the model came from (a path or ``"<xml string>"``).
+        joint_names, actuator_names, body_names, site_names: Names in id
+            order (``body_names[0]`` is ``"world"``).
 
     Raises:
         FileNotFoundError: the model file does not exist (the message holds
