@@ -442,11 +442,15 @@ class RobotSim:
         X[0] = x
         bar = _Progress(steps, f"{self.scenario.name} ({self.loop})", progress)
         clock = time.perf_counter
+        # Controllers that look ahead (LQR feed-forward, MPC) get the next `preview` samples too.
+        preview = int(getattr(ctrl, "preview", 0)) if ref.kind != "constant" else 0
         k = 0
         try:
             for k in range(steps):
                 r = ref(t[k])
                 R[k] = r
+                if preview:
+                    r = np.array([r, *(ref(t[k] + i * dt) for i in range(1, preview + 1))])
                 y = x + noise * rng.standard_normal(n) if noise is not None else x
                 t0 = clock()
                 u = ctrl(y, r)

@@ -134,3 +134,27 @@ def test_measurement_noise_is_seeded():
     np.testing.assert_array_equal(a.x, b.x)
     doc["sim"]["seed"] = 8
     assert not np.array_equal(a.x, RobotSim.from_config(doc).run().x)
+
+
+def test_holonomic_square_tracking_in_mujoco():
+    res = RobotSim.from_config("holonomic_mujoco").run()
+    assert res.loop == "mujoco"
+    assert res.metrics["rms_error"] < 0.02
+    assert res.metrics["constraint_violations"] == 0
+    # the path really is a 1 m square
+    assert np.ptp(res.x[:, 0]) == pytest.approx(1.0, abs=0.02) and np.ptp(res.x[:, 1]) == pytest.approx(1.0, abs=0.02)
+
+
+def test_lqr_feedforward_matters_on_a_moving_reference():
+    doc = RobotSim.from_config("holonomic_mujoco").scenario.raw
+    doc = {k: dict(v) for k, v in doc.items() if k != "engine"}
+    with_ff = RobotSim.from_config(doc).run(duration=5.0).metrics["rms_error"]
+    doc["controller"]["feedforward"] = False
+    without = RobotSim.from_config(doc).run(duration=5.0).metrics["rms_error"]
+    assert with_ff < 1e-6 < 1e-3 < without
+
+
+@pytest.mark.parametrize("name", ["quadrotor_lqr", "quadrotor_lqr_mujoco"])
+def test_quadrotor_hover_recovers(name):
+    res = RobotSim.from_config(name).run()
+    assert res.metrics["final_error"] < 1e-2 and res.metrics["settling_time"] < 6.0

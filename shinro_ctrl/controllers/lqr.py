@@ -64,6 +64,10 @@ class LQR(Controller):
         x0: Operating-point state ``(n,)`` (default zeros).
         u0: Operating-point input ``(m,)`` (default zeros).
         u_min, u_max: Optional saturation bounds ``(m,)`` (±inf allowed).
+        feedforward: Track a moving reference with the input that makes the
+            design model follow it: given ``ref = [r_k, r_{k+1}]`` ``(2, n)``,
+            ``ũ_ff = B⁺ (r̃_{k+1} − A r̃_k)`` and ``u = u0 + ũ_ff − K (x − r_k)``
+            (exact when ``B`` has full row rank, e.g. kinematic plants).
         state_names: Optional names used in error messages.
 
     Attributes:
@@ -88,6 +92,7 @@ class LQR(Controller):
         u0: Any = None,
         u_min: Any = None,
         u_max: Any = None,
+        feedforward: bool = False,
         state_names: Any = None,
     ):
         A = np.asarray(A, dtype=float)
@@ -129,6 +134,9 @@ class LQR(Controller):
         self.poles = np.asarray(E)
         self.state_dim, self.input_dim = n, m
         self._x0_u = self.u0 + self.K @ self.x0  # u = (u0 + K x0) - K x
+        self.feedforward = bool(feedforward)
+        self.preview = 1 if self.feedforward else 0  # future reference samples the controller wants
+        self._B_pinv = np.linalg.pinv(B) if self.feedforward else None
 
     @classmethod
     def from_plant(
@@ -144,6 +152,7 @@ class LQR(Controller):
         method: str = "exact",
         u_min: Any = None,
         u_max: Any = None,
+        feedforward: bool = False,
     ) -> LQR:
         """Design on ``plant`` linearized at ``(x0, u0)`` (default its equilibrium).
 
@@ -157,6 +166,7 @@ class LQR(Controller):
                 semi-implicit step to first order), ``zoh`` or ``rk4``.
             method: Linearization method, ``exact`` or ``fd``.
             u_min, u_max: Optional saturation bounds.
+            feedforward: Use reference feed-forward (see the class docstring).
         """
         lm = plant.linear_model(x0, u0, method=method, discretization=discretization)
         A, B = (lm.A, lm.B) if discrete else (lm.A_c, lm.B_c)
@@ -170,6 +180,7 @@ class LQR(Controller):
             u0=lm.u0,
             u_min=u_min,
             u_max=u_max,
+            feedforward=feedforward,
             state_names=plant.state_names,
         )
         ctrl.model = lm
@@ -180,14 +191,27 @@ class LQR(Controller):
 
         Args:
             x: State ``(n,)``.
-            ref: Optional reference state ``(n,)``; default the operating point.
+            ref: Optional reference: a state ``(n,)``, or samples ``(k, n)``
+                starting at the current time (row 0 is used; with
+                ``feedforward`` row 1 gives the feed-forward input).
+                Default: the operating point.
         """
         if type(x) is not np.ndarray or x.shape != (self.state_dim,):
             x = as_vector("x", x, self.state_dim)
         if ref is None:
             u = self._x0_u - self.K @ x
         else:
-            u = self.u0 - self.K @ (x - as_vector("ref", ref, self.state_dim))
+            ref = np.asarray(ref, dtype=float)
+            if ref.ndim == 2:
+                if ref.shape[1] != self.state_dim or ref.shape[0] < 1:
+                    raise ValueError(f"ref: expected (k, {self.state_dim}) but found {ref.shape}")
+                r = as_vector("ref", ref[0], self.state_dim)
+                u = self.u0 - self.K @ (x - r)
+                if self.feedforward and ref.shape[0] > 1:
+                    r_next = as_vector("ref", ref[1], self.state_dim)
+                    u = u + self._B_pinv @ ((r_next - self.x0) - self.A @ (r - self.x0))
+            else:
+                u = self.u0 - self.K @ (x - as_vector("ref", ref, self.state_dim))
         if self._saturate:
             np.clip(u, self.u_min, self.u_max, out=u)
         return u
