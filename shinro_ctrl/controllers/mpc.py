@@ -563,108 +563,99 @@ class LinearMPC(Controller):
         nvar = nx + nu + ns
         self.n_var = nvar
 
-        # ---- cost
-        blocks = [sp.csc_matrix(self.Q)] * N + [sp.csc_matrix(self.P_f)] + [sp.csc_matrix(self.R)] * N
+        # ---- cost: block diagonal, upper triangle
+        Ts = _Triplets()
+        Ts.blocks(self.Q, 0, 0, N, n, n)
+        Ts.blocks(self.P_f, N * n, N * n, 1, 0, 0)
+        Ts.blocks(self.R, nx, nx, N, m, m)
         if ns:
-            blocks.append(sp.identity(ns, format="csc") * self.soft_weight_quad)
-        self._P = sp.triu(sp.block_diag(blocks, format="csc"), format="csc")
-        self._P.sort_indices()
+            Ts.blocks(np.array([[self.soft_weight_quad]]), nx + nu, nx + nu, ns, 1, 1)
+        self._P = Ts.csc((nvar, nvar), upper=True)
         q = np.zeros(nvar)
         q[self._is] = self.soft_weight_l1
         self._q_default = q.copy()
         self._q = q
 
-        # ---- constraints, stage-major inside each group
-        rows: list[sp.spmatrix] = []
+        # ---- constraints: one block of rows per group, stage-major inside each
+        T = _Triplets()
         lo: list[np.ndarray] = []
         hi: list[np.ndarray] = []
         groups: list[RowGroup] = []
         r0 = 0
 
-        def add(name: str, M: sp.spmatrix, l: np.ndarray, u: np.ndarray, width: int, first: int, labels) -> None:
+        def add(name: str, l: np.ndarray, u: np.ndarray, width: int, first: int, labels: Any) -> None:
             nonlocal r0
-            stages = M.shape[0] // width if width else 0
-            rows.append(M)
             lo.append(l)
             hi.append(u)
-            groups.append(RowGroup(name, r0, width, first, stages, tuple(labels)))
-            r0 += M.shape[0]
+            groups.append(RowGroup(name, r0, width, first, l.size // width, tuple(labels)))
+            r0 += l.size
 
-        Ix = sp.identity(n, format="csr")
+        In = np.eye(n)
         # initial state: δx_0 = x - x0
-        M = sp.hstack([Ix, sp.csr_matrix((n, nvar - n))])
-        add("initial state", M, np.zeros(n), np.zeros(n), n, 0, self.state_names)
-        # dynamics: A δx_k + B δu_k - δx_{k+1} = -d
-        Mx = sp.kron(sp.eye(N, N + 1, k=0), self.A) - sp.kron(sp.eye(N, N + 1, k=1), Ix)
-        Mu = sp.kron(sp.identity(N), self.B)
-        M = sp.hstack([Mx, Mu, sp.csr_matrix((N * n, ns))])
+        T.blocks(In, 0, 0, 1, 0, 0)
+        add("initial state", np.zeros(n), np.zeros(n), n, 0, self.state_names)
+        # dynamics, stage k + 1: A δx_k + B δu_k - δx_{k+1} = -d
+        T.blocks(self.A, r0, 0, N, n, n)
+        T.blocks(-In, r0, n, N, n, n)
+        T.blocks(self.B, r0, nx, N, n, m)
         d = np.tile(-self.offset, N)
-        add("dynamics", M, d, d.copy(), n, 1, self.state_names)
-        # input bounds
-        if self._ub_idx.size:
-            S = sp.identity(m, format="csr")[self._ub_idx]
-            M = sp.hstack(
-                [
-                    sp.csr_matrix((N * S.shape[0], nx)),
-                    sp.kron(sp.identity(N), S),
-                    sp.csr_matrix((N * S.shape[0], ns)),
-                ]
+        add("dynamics", d, d.copy(), n, 1, self.state_names)
+        # input bounds on u_0 … u_{N-1}
+        ui = self._ub_idx
+        if ui.size:
+            S = np.eye(m)[ui]
+            T.blocks(S, r0, nx, N, ui.size, m)
+            labels = [f"{self.input_names[i]} in [{self.u_min[i]:g}, {self.u_max[i]:g}]" for i in ui]
+            add(
+                "input bounds",
+                np.tile(self.u_min[ui] - self.u0[ui], N),
+                np.tile(self.u_max[ui] - self.u0[ui], N),
+                ui.size,
+                0,
+                labels,
             )
-            lb = np.tile(self.u_min[self._ub_idx] - self.u0[self._ub_idx], N)
-            ubv = np.tile(self.u_max[self._ub_idx] - self.u0[self._ub_idx], N)
-            labels = [f"{self.input_names[i]} in [{self.u_min[i]:g}, {self.u_max[i]:g}]" for i in self._ub_idx]
-            add("input bounds", M, lb, ubv, S.shape[0], 0, labels)
-        # rate bounds
+        # rate bounds: δu_k - δu_{k-1}; stage 0 uses the previously applied input (in l/u)
         self._rate_idx = np.zeros(0, dtype=int)
         if self.du_max is not None:
             ri = np.flatnonzero(np.isfinite(self.du_max))
             self._rate_idx = ri
             if ri.size:
-                S = sp.identity(m, format="csr")[ri]
-                D = sp.kron(sp.eye(N) - sp.eye(N, k=-1), S)
-                M = sp.hstack([sp.csr_matrix((N * ri.size, nx)), D, sp.csr_matrix((N * ri.size, ns))])
+                S = np.eye(m)[ri]
+                T.blocks(S, r0, nx, N, ri.size, m)
+                T.blocks(-S, r0 + ri.size, nx, N - 1, ri.size, m)
                 dm = np.tile(self.du_max[ri], N)
                 lb, ubv = -dm, dm.copy()
                 lb[: ri.size], ubv[: ri.size] = -_INF, _INF  # no previous input yet
                 labels = [f"|Δ{self.input_names[i]}| <= {self.du_max[i]:g}" for i in ri]
-                add("rate bounds", M, lb, ubv, ri.size, 0, labels)
-        # state bounds on x_1 … x_N
+                add("rate bounds", lb, ubv, ri.size, 0, labels)
+        # state bounds on x_1 … x_N (the measured x_0 is never bounded)
         xi = self._xb_idx
         if xi.size:
-            S = sp.identity(n, format="csr")[xi]
-            Sx = sp.hstack([sp.csr_matrix((N * xi.size, n)), sp.kron(sp.identity(N), S)])
+            w = xi.size
+            S = np.eye(n)[xi]
             xlo = self.x_min[xi] - self.x0[xi]
             xhi = self.x_max[xi] - self.x0[xi]
-            lab_hi = [f"{self.state_names[i]} <= {self.x_max[i]:g}" for i in xi]
-            lab_lo = [f"{self.state_names[i]} >= {self.x_min[i]:g}" for i in xi]
-            zu = sp.csr_matrix((N * xi.size, nu))
             if not self.soft:
-                M = sp.hstack([Sx, zu])
+                T.blocks(S, r0, n, N, w, n)
                 labels = [f"{self.state_names[i]} in [{self.x_min[i]:g}, {self.x_max[i]:g}]" for i in xi]
-                add("state bounds", M, np.tile(xlo, N), np.tile(xhi, N), xi.size, 1, labels)
+                add("state bounds", np.tile(xlo, N), np.tile(xhi, N), w, 1, labels)
             else:
-                # per stage: [δx - s <= hi (upper rows), δx + s >= lo (lower rows)]
-                Is = sp.identity(ns, format="csr")
-                upper = sp.hstack([Sx, zu, -Is]).tocsr()
-                lower = sp.hstack([Sx, zu, Is]).tocsr()
-                w = xi.size
-                order = np.concatenate([np.arange(N * w).reshape(N, w), N * w + np.arange(N * w).reshape(N, w)], axis=1)
-                M = sp.vstack([upper, lower]).tocsr()[order.ravel()]
+                # per stage: w rows δx - s <= hi, then w rows δx + s >= lo
+                s0 = nx + nu
+                Iw = np.eye(w)
+                T.blocks(S, r0, n, N, 2 * w, n)
+                T.blocks(-Iw, r0, s0, N, 2 * w, w)
+                T.blocks(S, r0 + w, n, N, 2 * w, n)
+                T.blocks(Iw, r0 + w, s0, N, 2 * w, w)
                 lb = np.concatenate([np.full((N, w), -_INF), np.tile(xlo, (N, 1))], axis=1).ravel()
                 ubv = np.concatenate([np.tile(xhi, (N, 1)), np.full((N, w), _INF)], axis=1).ravel()
-                add("state bounds", M, lb, ubv, 2 * w, 1, lab_hi + lab_lo)
-                M = sp.hstack([sp.csr_matrix((ns, nx + nu)), Is])
-                add(
-                    "slack bounds",
-                    M,
-                    np.zeros(ns),
-                    np.full(ns, _INF),
-                    w,
-                    1,
-                    [f"slack {self.state_names[i]}" for i in xi],
-                )
-        self._A = sp.vstack(rows, format="csc")
-        self._A.sort_indices()
+                lab_hi = [f"{self.state_names[i]} <= {self.x_max[i]:g}" for i in xi]
+                lab_lo = [f"{self.state_names[i]} >= {self.x_min[i]:g}" for i in xi]
+                add("state bounds", lb, ubv, 2 * w, 1, lab_hi + lab_lo)
+                T.blocks(Iw, r0, s0, N, w, w)
+                slack_labels = [f"slack {self.state_names[i]}" for i in xi]
+                add("slack bounds", np.zeros(ns), np.full(ns, _INF), w, 1, slack_labels)
+        self._A = T.csc((r0, nvar))
         self._l = np.clip(np.concatenate(lo), -_INF, _INF)
         self._u = np.clip(np.concatenate(hi), -_INF, _INF)
         self.n_con = self._A.shape[0]
@@ -1091,6 +1082,38 @@ class LinearMPC(Controller):
             f"LinearMPC(n={self.n}, m={self.m}, horizon={self.N}, soft={self.soft}, "
             f"n_var={self.n_var}, n_con={self.n_con})"
         )
+
+
+class _Triplets:
+    """COO triplets of a sparse matrix assembled from repeated dense blocks."""
+
+    def __init__(self) -> None:
+        self.r: list[np.ndarray] = []
+        self.c: list[np.ndarray] = []
+        self.v: list[np.ndarray] = []
+
+    def blocks(self, M: np.ndarray, row0: int, col0: int, count: int, row_step: int, col_step: int) -> None:
+        """Place the nonzeros of ``M`` at ``(row0 + i·row_step, col0 + i·col_step)``, i < count."""
+        if count <= 0:
+            return
+        r, c = np.nonzero(M)
+        k = np.arange(count)[:, None]
+        self.r.append((row0 + k * row_step + r).ravel())
+        self.c.append((col0 + k * col_step + c).ravel())
+        self.v.append(np.broadcast_to(M[r, c], (count, r.size)).ravel())
+
+    def csc(self, shape: tuple[int, int], *, upper: bool = False) -> sp.csc_matrix:
+        """The CSC matrix (duplicates summed, indices sorted); ``upper`` keeps ``r <= c``."""
+        r = np.concatenate(self.r) if self.r else np.zeros(0, dtype=int)
+        c = np.concatenate(self.c) if self.c else np.zeros(0, dtype=int)
+        v = np.concatenate(self.v) if self.v else np.zeros(0)
+        if upper:
+            keep = r <= c
+            r, c, v = r[keep], c[keep], v[keep]
+        M = sp.csc_matrix((v, (r, c)), shape=shape)
+        M.sum_duplicates()
+        M.sort_indices()
+        return M
 
 
 def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
