@@ -173,6 +173,21 @@ def cmd_design(args: argparse.Namespace) -> int:
     return 0
 
 
+# -------------------------------------------------------------------- regress
+def cmd_regress(args: argparse.Namespace) -> int:
+    from shinro_ctrl.regression import format_report, run_regression
+
+    report = run_regression(args.dir, update=args.update)
+    print(format_report(report))
+    if args.update or report.passed:
+        return 0
+    for c in report.failures:
+        print(f"regression: {c.scenario}: {c.metric} = {c.now:.6g}, baseline {c.baseline}", file=sys.stderr)
+    for label in report.missing:
+        print(f"regression: {label}: no baseline", file=sys.stderr)
+    return 1
+
+
 # ----------------------------------------------------------------------- list
 def cmd_list(args: argparse.Namespace) -> int:
     from shinro_ctrl.controllers import CONTROLLERS
@@ -227,6 +242,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("kind", choices=("lqr", "mpc"))
     p.add_argument("config", metavar="CONFIG")
     p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("regress", help="run regression scenarios and compare with their baselines")
+    p.add_argument("dir", nargs="?", metavar="DIR", help="folder of scenarios (default: the shipped regression set)")
+    p.add_argument("--update", action="store_true", help="rewrite the baselines (atomically)")
+    p.set_defaults(func=cmd_regress)
 
     p = sub.add_parser("list", help="plants, controllers and shipped scenarios")
     p.set_defaults(func=cmd_list)

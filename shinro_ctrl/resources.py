@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["asset_path", "config_path", "list_assets", "list_configs"]
+__all__ = ["asset_path", "config_path", "list_assets", "list_configs", "regression_dir"]
 
 _PKG = Path(__file__).resolve().parent
 
@@ -23,11 +23,11 @@ def _root(kind: str) -> Path:
 
 def _find(kind: str, name: str | Path, suffix: str) -> Path:
     p = Path(name)
-    if p.is_absolute() or p.exists():
-        if p.exists():
-            return p.resolve()
+    if p.is_file():
+        return p.resolve()
     root = _root(kind)
-    for candidate in (root / p, root / p.with_suffix(suffix) if not p.suffix else root / p):
+    candidates = [root / p] if p.suffix else [root / p, root / p.with_suffix(suffix)]
+    for candidate in candidates:
         if candidate.is_file():
             return candidate
     shipped = ", ".join(_list(kind, suffix)) or "none"
@@ -56,6 +56,11 @@ def asset_path(name: str | Path) -> Path:
         FileNotFoundError: listing the shipped assets.
     """
     return _find("assets", name, ".xml")
+
+
+def regression_dir() -> Path:
+    """The folder of shipped regression scenarios and their baselines."""
+    return _root("configs") / "regression"
 
 
 def list_configs() -> list[str]:

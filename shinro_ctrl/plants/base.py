@@ -286,7 +286,7 @@ class Plant:
             self.state = self._engine_read(self._engine)
         else:
             x = self._integrate(self.state, u)
-            if not math.isfinite(x.sum()) and not np.all(np.isfinite(x)):
+            if not math.isfinite(sum(x.tolist())) and not np.all(np.isfinite(x)):
                 raise SimulationDiverged(
                     f"{type(self).__name__} state became non-finite after a step from "
                     f"{np.array2string(self.state, precision=4)} with u = {np.array2string(u, precision=4)}"

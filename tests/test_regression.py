@@ -1,0 +1,92 @@
+"""The regression harness: shipped baselines pass, a detuned controller fails, --update heals."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from shinro_ctrl.regression import compare_metrics, read_baseline, run_regression
+from shinro_ctrl.resources import regression_dir
+from shinro_ctrl.testing import assert_matches_baseline
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "shinro_ctrl.cli", *args], capture_output=True, text=True, timeout=600)
+
+
+def test_shipped_baselines_pass():
+    report = run_regression()
+    assert report.passed, [(c.scenario, c.metric, c.baseline, c.now) for c in report.failures] + report.missing
+    assert len(report.scenarios) >= 6
+    assert any("(mujoco)" in s for s in report.scenarios) and any("(standalone)" in s for s in report.scenarios)
+
+
+@pytest.fixture
+def detuned_copy(tmp_path):
+    """A copy of the cart-pole regression scenario with R scaled by 1000."""
+    src = regression_dir() / "cartpole_lqr.toml"
+    shutil.copy(src, tmp_path / "cartpole_detuned.toml")
+    shutil.copy(src.with_name("cartpole_lqr.baseline.json"), tmp_path / "cartpole_detuned.baseline.json")
+    text = (tmp_path / "cartpole_detuned.toml").read_text()
+    r_line = re.search(r"^R = \[(.*)\]$", text, flags=re.M)
+    assert r_line, "the regression scenario must carry its R = [...] line"
+    scaled = ", ".join(str(float(v) * 1000) for v in r_line.group(1).split(","))
+    (tmp_path / "cartpole_detuned.toml").write_text(text.replace(r_line.group(0), f"R = [{scaled}]"))
+    return tmp_path
+
+
+def test_detuned_controller_fails_then_update_passes(detuned_copy):
+    res = run_cli("regress", str(detuned_copy))
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert "cartpole_detuned" in res.stderr and "rms_error" in res.stderr
+    assert "FAIL" in res.stdout
+    res = run_cli("regress", str(detuned_copy), "--update")
+    assert res.returncode == 0, res.stderr
+    baseline = json.loads((detuned_copy / "cartpole_detuned.baseline.json").read_text())
+    assert baseline["scenario"] == "cartpole_detuned"
+    res = run_cli("regress", str(detuned_copy))
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_missing_baseline_is_reported(tmp_path):
+    shutil.copy(regression_dir() / "cartpole_lqr.toml", tmp_path / "x.toml")
+    report = run_regression(tmp_path)
+    assert not report.passed and report.missing == ["x (standalone)"]
+
+
+def test_corrupt_baseline_is_a_clear_error(tmp_path):
+    (tmp_path / "b.baseline.json").write_text("{ not json")
+    with pytest.raises(ValueError, match="not a valid baseline"):
+        read_baseline(tmp_path / "b.baseline.json")
+
+
+def test_tolerances_are_relative_plus_absolute():
+    checks = {
+        c.metric: c
+        for c in compare_metrics(
+            "s",
+            {"rms_error": 1.0009, "max_error": 1.2},
+            {"rms_error": 1.0, "max_error": 1.0},
+            {"max_error": {"rel": 0.1, "abs": 0.05}},
+        )
+    }
+    assert checks["rms_error"].passed and not checks["max_error"].passed
+    inf = compare_metrics("s", {"settling_time": float("inf")}, {"settling_time": float("inf")})
+    assert inf[0].passed
+
+
+def test_users_fixture_and_assertion(run_scenario, tmp_path):
+    result = run_scenario("pendulum_lqr", duration=1.0)
+    path = tmp_path / "pendulum.baseline.json"
+    with pytest.raises(AssertionError, match="no baseline"):
+        assert_matches_baseline(result, path)
+    assert_matches_baseline(result, path, update=True)
+    assert_matches_baseline(result, path)
+    worse = run_scenario({**result.config, "controller": {**result.config["controller"], "R": [100.0]}}, duration=1.0)
+    with pytest.raises(AssertionError, match="rms_error"):
+        assert_matches_baseline(worse, path)
