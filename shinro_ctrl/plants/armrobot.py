@@ -1,0 +1,713 @@
+r"""A serial-link arm driven in Cartesian space: FK, three Jacobians, IK, MuJoCo mode.
+
+Kinematics. Joint ``i`` turns about one principal axis (``x``, ``y`` or
+``z``) of its own frame, and that frame is its parent's frame translated by
+the link offset ``o_i`` and then rotated by ``q_i``:
+
+.. math::
+
+    T_i = T_{i-1}\, \mathrm{Trans}(o_i)\, \mathrm{Rot}(a_i, q_i), \qquad
+    T_{ee} = T_n\, \mathrm{Trans}(o_{ee}).
+
+Joint ``i`` sits at :math:`p_i = p_{i-1} + R_{i-1} o_i` and turns about the
+world axis :math:`z_i = R_i e_{a_i}`. The geometric Jacobian ``(6, n)``, world
+frame, position rows first, has columns :math:`[z_i \times (p_{ee} - p_i);\ z_i]`:
+its angular rows map joint rates to the world angular velocity (not to Euler
+angle rates).
+
+The chain is written once (:meth:`ArmRobot._chain`) against a scalar backend:
+evaluated on Python floats it is the numeric FK, on ``casadi.SX`` symbols it
+is the symbolic FK from which the exact Jacobian is differentiated and the
+fast compiled evaluator used by the IK solvers is built.
+
+Plant model. The state is the end-effector pose ``[x, y, z, roll, pitch,
+yaw]`` (m, ZYX Euler rad) and the input a twist ``[vx, vy, vz, roll_rate,
+pitch_rate, yaw_rate]`` (m/s, rad/s): ``xdot = u``, so ``get_model()`` is
+``A = I_6``, ``B = dt I_6``. :meth:`ArmRobot.step` integrates the twist into a
+target pose, solves IK for it and commands the joints.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, is_dataclass
+from typing import Any
+
+import casadi as cs
+import numpy as np
+
+from shinro_ctrl.backend import CasadiBackend, ScalarBackend
+from shinro_ctrl.errors import ConfigError, NonFiniteError
+from shinro_ctrl.kinematics import (
+    IKResult,
+    euler_zyx_from_matrix,
+    euler_zyx_to_matrix,
+    pose_to_transform,
+    so3_log,
+    so3_log_flat,
+)
+from shinro_ctrl.plants.base import MjcfPatch, Plant
+from shinro_ctrl.validation import as_matrix, as_vector, check_positive
+
+__all__ = ["ArmRobot"]
+
+_SCALAR = ScalarBackend()
+_CASADI = CasadiBackend()
+_AXES = ("x", "y", "z")
+
+#: The shipped MJCF arm (``assets/arm6.xml``): its joints, axes and the body of each joint.
+ARM6_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
+ARM6_AXES = ("z", "y", "y", "y", "z", "x")
+ARM6_BODIES = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
+ARM6_SITE = "ee_site"
+
+
+class ArmRobot(Plant):
+    """Serial-link arm with forward kinematics, Jacobians and inverse kinematics.
+
+    Standalone, :meth:`step` solves IK on the analytic kinematics and sets the
+    joints; with a MuJoCo engine attached (:meth:`physics_engine`) it sends
+    the IK joint targets to the position actuators, steps the engine and
+    reads the pose back. IK in :meth:`step` uses :attr:`ik` when one is set
+    (an :class:`~shinro_ctrl.controllers.ik_qp.IKQP`: limit- and
+    velocity-aware), else the damped pseudoinverse of
+    :meth:`inverse_kinematics` (standalone) or :meth:`engine_ik` (engine).
+
+    Args:
+        num_dof: Number of joints ``n`` (>= 1).
+        dt: Control step [s], > 0.
+        joint_limits: ``(n, 2)`` rows ``[min, max]`` [rad], ``min <= max``.
+        joint_offsets: ``(n, 3)`` link offsets ``o_i`` [m], each in the parent joint's frame.
+        rot_axes: ``n`` axis letters, each ``"x"``, ``"y"`` or ``"z"`` (a string such as
+            ``"zyyyzx"`` works too).
+        joint_names: ``n`` unique joint names (default ``joint_0`` …); in engine mode they
+            name the MJCF joints (and their position actuators).
+        ee_body_name: In engine mode, the MJCF body whose frame is the end effector. Default:
+            the site ``ee_site`` when the model has one, else the last body.
+        backend: Accepted for API compatibility (numbers are numpy arrays).
+        ee_offset: ``(3,)`` end-effector offset [m] in the last joint's frame (default zero).
+
+    Attributes:
+        num_dof: ``n``.
+        joint_limits: ``(n, 2)`` array [rad].
+        joint_offsets: ``(n, 3)`` array [m].
+        axes: Tuple of the ``n`` axis letters.
+        joint_names: Tuple of the ``n`` joint names.
+        ee_offset: ``(3,)`` array [m].
+        dt: Control step [s].
+        ik: Optional IK solver used by :meth:`step` (anything with ``track(q, T) -> q``,
+            such as an ``IKQP`` built for this arm); None selects the damped pseudoinverse.
+
+    Raises:
+        ValueError: a wrong shape (the message names the argument), ``dt <= 0``, a limit
+            with ``min > max``, or an axis letter other than x, y, z.
+        NonFiniteError: a limit or offset is NaN or infinite.
+    """
+
+    state_names = ("x", "y", "z", "roll", "pitch", "yaw")
+    input_names = ("vx", "vy", "vz", "roll_rate", "pitch_rate", "yaw_rate")
+    param_names = ()
+    asset = "arm6.xml"
+
+    def __init__(
+        self,
+        num_dof: int,
+        dt: float,
+        joint_limits: Any,
+        joint_offsets: Any,
+        rot_axes: Sequence[str],
+        joint_names: Sequence[str] | None = None,
+        ee_body_name: str | None = None,
+        backend: Any = None,
+        ee_offset: Any = None,
+    ):
+        if isinstance(num_dof, bool) or not isinstance(num_dof, int | np.integer) or num_dof < 1:
+            raise ValueError(f"num_dof must be a positive integer, got {num_dof!r}")
+        n = self.num_dof = int(num_dof)
+        check_positive("dt", dt)
+        limits = as_matrix("joint_limits", joint_limits, (n, 2))
+        bad = np.flatnonzero(limits[:, 0] > limits[:, 1])
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(
+                f"joint_limits: row {i} has min > max ({limits[i, 0]:g} > {limits[i, 1]:g}); rows are [min, max]"
+            )
+        self.joint_limits = limits
+        self.joint_offsets = as_matrix("joint_offsets", joint_offsets, (n, 3))
+        axes = tuple(rot_axes)
+        if len(axes) != n:
+            raise ValueError(f"rot_axes: expected {n} axes but found {len(axes)}")
+        for i, a in enumerate(axes):
+            if a not in _AXES:
+                raise ValueError(f"rot_axes[{i}] must be one of 'x', 'y', 'z', got {a!r}")
+        self.axes = axes
+        if joint_names is None:
+            names = tuple(f"joint_{i}" for i in range(n))
+        else:
+            if isinstance(joint_names, str):
+                raise ValueError(f"joint_names must be a list of {n} names, got the string {joint_names!r}")
+            names = tuple(joint_names)
+            if len(names) != n:
+                raise ValueError(f"joint_names: expected {n} names but found {len(names)}")
+            if not all(isinstance(s, str) and s for s in names) or len(set(names)) != n:
+                raise ValueError(f"joint_names must be {n} unique non-empty strings, got {list(names)}")
+        self.joint_names = names
+        if ee_body_name is not None and not isinstance(ee_body_name, str):
+            raise ValueError(f"ee_body_name must be a string or None, got {ee_body_name!r}")
+        self.ee_body_name = ee_body_name
+        self.ee_offset = np.zeros(3) if ee_offset is None else as_vector("ee_offset", ee_offset, 3)
+        self._init(dt=dt, params={}, backend=backend)
+
+        self._lo = self.joint_limits[:, 0].copy()
+        self._hi = self.joint_limits[:, 1].copy()
+        self._offsets = [tuple(float(v) for v in row) for row in self.joint_offsets]
+        self._axis_index = [_AXES.index(a) for a in self.axes]
+        self._ee = tuple(float(v) for v in self.ee_offset)
+        self.ik: Any = None
+        self._q = np.clip(np.zeros(n), self._lo, self._hi)  # home pose (q = 0 where the limits allow)
+        self._q_cmd = self._q.copy()
+        self._sym: tuple | None = None
+        self._fk_fun: cs.Function | None = None
+        self._exact_fun: cs.Function | None = None
+        self._fast: _KinematicsBuffer | None = None
+        self._ee_frame: tuple[str, str] | None = None
+        self._dofs: list[int] = []
+        self.state = self._pose_of(self._q)
+
+    # ------------------------------------------------------------ dynamics
+    def _f(self, bk, x, u, p):
+        """Cartesian kinematic model: the pose moves with the commanded twist, ``xdot = u``."""
+        return bk.stack(bk.unpack(u, 6))
+
+    def equilibrium(self) -> tuple[np.ndarray, np.ndarray]:
+        """The home pose (FK at ``q = 0`` clipped to the limits) and zero twist."""
+        return self._pose_of(np.clip(np.zeros(self.num_dof), self._lo, self._hi)), np.zeros(6)
+
+    # ---------------------------------------------------------- kinematics
+    def _chain(self, bk: Any, q: Sequence[Any]) -> tuple[list, list, list, list]:
+        """The kinematic chain, written once against a scalar backend.
+
+        Args:
+            bk: :class:`ScalarBackend` (Python floats) or :class:`CasadiBackend` (SX scalars).
+            q: ``n`` joint angles (floats or SX scalars).
+
+        Returns:
+            ``(p_ee, cols, positions, axes)``: end-effector position (3 scalars), the three
+            columns of ``R_ee`` (each 3 scalars), and per joint its world position and
+            world axis (lists of 3 scalars).
+        """
+        c = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]  # columns of R
+        p = [0.0, 0.0, 0.0]
+        positions, axes = [], []
+        for i in range(self.num_dof):
+            p = _add_rotated(p, c, self._offsets[i])
+            k = self._axis_index[i]
+            a, b = (k + 1) % 3, (k + 2) % 3
+            cq, sq = bk.cos(q[i]), bk.sin(q[i])
+            ca, cb = c[a], c[b]
+            c[a] = [cq * ca[r] + sq * cb[r] for r in range(3)]
+            c[b] = [cq * cb[r] - sq * ca[r] for r in range(3)]
+            positions.append(p)
+            axes.append(c[k])
+        return _add_rotated(p, c, self._ee), c, positions, axes
+
+    @staticmethod
+    def _geometric_columns(p_ee: list, positions: list, axes: list) -> list[list]:
+        """Columns ``[z_i × (p_ee − p_i); z_i]`` of the geometric Jacobian (lists of 6 scalars)."""
+        cols = []
+        for p, z in zip(positions, axes, strict=True):
+            dx, dy, dz = p_ee[0] - p[0], p_ee[1] - p[1], p_ee[2] - p[2]
+            cols.append([z[1] * dz - z[2] * dy, z[2] * dx - z[0] * dz, z[0] * dy - z[1] * dx, z[0], z[1], z[2]])
+        return cols
+
+    def _joints(self, q: Any, name: str = "q") -> np.ndarray:
+        return as_vector(name, q, self.num_dof)
+
+    def forward_kinematics(self, q: Any) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        """End-effector transform and the joints' world positions and axes.
+
+        Args:
+            q: Joint angles ``(n,)`` [rad].
+
+        Returns:
+            ``(T_ee, positions, axes)``: ``T_ee (4, 4)``; ``positions``, a list of ``n``
+            joint origins ``(3,)`` [m]; ``axes``, a list of ``n`` unit world axes ``(3,)``.
+        """
+        q = self._joints(q)
+        p, c, positions, axes = self._chain(_SCALAR, q.tolist())
+        T = np.eye(4)
+        T[:3, :3] = np.array(c).T
+        T[:3, 3] = p
+        return T, [np.array(v) for v in positions], [np.array(v) for v in axes]
+
+    def ee_pose(self, q: Any) -> np.ndarray:
+        """End-effector pose ``[x, y, z, roll, pitch, yaw]`` (6,) at joints ``q (n,)``."""
+        return self._pose_of(self._joints(q))
+
+    def _pose_of(self, q: np.ndarray) -> np.ndarray:
+        p, c, _, _ = self._chain(_SCALAR, q.tolist())
+        return np.concatenate([p, euler_zyx_from_matrix(np.array(c).T)])
+
+    def jacobian(self, q: Any, method: str = "geometric", eps: float = 1e-6) -> np.ndarray:
+        r"""World-frame end-effector Jacobian ``J (6, n)``, position rows first.
+
+        ``[v; ω] = J q̇`` with ``v`` the EE linear velocity [m/s] and ``ω`` the world angular
+        velocity [rad/s].
+
+        Args:
+            q: Joint angles ``(n,)`` [rad].
+            method: ``"geometric"`` (axes × lever arms, the fast default), ``"exact"``
+                (CasADi derivative of the symbolic FK; angular rows
+                :math:`\mathrm{vee}(\partial R/\partial q_i\, R^\top)`) or ``"fd"`` (central
+                differences of the FK with step ``eps``; angular rows from the log map).
+            eps: Finite-difference step [rad] (``"fd"`` only).
+        """
+        q = self._joints(q)
+        if method == "geometric":
+            p, _, positions, axes = self._chain(_SCALAR, q.tolist())
+            return np.array(self._geometric_columns(p, positions, axes)).T
+        if method == "exact":
+            if self._exact_fun is None:
+                qs, p, R, _ = self._symbolic_chain()
+                Jp = cs.jacobian(p, qs)
+                Rt = R.T
+                cols = []
+                for i in range(self.num_dof):
+                    S = cs.reshape(cs.jacobian(cs.vec(R), qs[i]), 3, 3) @ Rt  # ∂R/∂q_i Rᵀ (skew)
+                    cols.append(cs.vertcat(S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]) / 2)
+                self._exact_fun = cs.Function("jac_exact", [qs], [cs.densify(cs.vertcat(Jp, cs.horzcat(*cols)))])
+            return np.array(self._exact_fun(q), dtype=float)
+        if method == "fd":
+            eps = check_positive("eps", eps)
+            J = np.empty((6, self.num_dof))
+            for i in range(self.num_dof):
+                qp, qm = q.copy(), q.copy()
+                qp[i] += eps
+                qm[i] -= eps
+                Tp, _, _ = self.forward_kinematics(qp)
+                Tm, _, _ = self.forward_kinematics(qm)
+                J[:3, i] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
+                J[3:, i] = so3_log(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * eps)
+            return J
+        raise ValueError(f"unknown Jacobian method {method!r}; valid: exact, fd, geometric")
+
+    def _symbolic_chain(self) -> tuple:
+        """``(q, p (3, 1), R (3, 3), J_geometric (6, n))`` as CasADi SX, built once."""
+        if self._sym is None:
+            qs = cs.SX.sym("q", self.num_dof)
+            p, c, positions, axes = self._chain(_CASADI, [qs[i] for i in range(self.num_dof)])
+            P = cs.vertcat(*p)
+            R = cs.horzcat(*[cs.vertcat(*col) for col in c])
+            J = cs.horzcat(*[cs.vertcat(*col) for col in self._geometric_columns(p, positions, axes)])
+            self._sym = (qs, P, R, J)
+        return self._sym
+
+    def symbolic_fk(self) -> cs.Function:
+        """The FK as a CasADi ``Function`` named ``"fk"``: ``q (n,) -> (p (3,), R (3, 3))``."""
+        if self._fk_fun is None:
+            qs, p, R, _ = self._symbolic_chain()
+            self._fk_fun = cs.Function("fk", [qs], [p, R], ["q"], ["p", "R"])
+        return self._fk_fun
+
+    def _kinematics(self) -> _KinematicsBuffer:
+        """Compiled evaluator of ``(p, R, J)`` at a joint vector (the IK hot path)."""
+        if self._fast is None:
+            self._fast = _KinematicsBuffer(self)
+        return self._fast
+
+    # ------------------------------------------------------------------ IK
+    def inverse_kinematics(
+        self,
+        target_T: Any,
+        max_iters: int = 100,
+        q_init: Any = None,
+        tol: float = 1e-4,
+        max_step: float = 0.2,
+        *,
+        lam: float = 1e-3,
+        full_output: bool = False,
+    ) -> np.ndarray | IKResult:
+        r"""Damped-pseudoinverse IK on the analytic kinematics (the seed's solver, made robust).
+
+        Each iteration takes :math:`\Delta q = J^\top (J J^\top + \lambda^2 I)^{-1} e` with
+        ``e = [p_t − p; log(R_t Rᵀ)]`` (world-frame rotation vector, robust near pitch ±90°
+        and at a rotation of π), clamps every component to ``±max_step`` and clips ``q`` to
+        the joint limits. It stops when both errors are below ``tol``.
+
+        Args:
+            target_T: Target end-effector transform ``(4, 4)``.
+            max_iters: Maximum iterations.
+            q_init: Start ``(n,)`` [rad]; default the current joints.
+            tol: Convergence tolerance on the position [m] and orientation [rad] errors.
+            max_step: Largest joint change per iteration [rad].
+            lam: Damping ``λ`` of the least-squares solve.
+            full_output: Return an :class:`~shinro_ctrl.kinematics.IKResult` instead of ``q``.
+
+        Returns:
+            Joint angles ``(n,)`` inside the limits (the last iterate, converged or not), or the
+            :class:`IKResult` when ``full_output``.
+        """
+        Tt = as_matrix("target_T", target_T, (4, 4))
+        q = self._q.copy() if q_init is None else np.clip(self._joints(q_init, "q_init"), self._lo, self._hi)
+        check_positive("max_step", max_step)
+        kin = self._kinematics()
+        pt = Tt[:3, 3].copy()
+        Rt = Tt[:3, :3].copy()
+        lam2 = float(lam) ** 2 * np.eye(6)
+        it = 0
+        while True:
+            p, R, J = kin(q)
+            e = np.concatenate([pt - p, so3_log_flat((Rt @ R.T).ravel().tolist())])
+            pos_err, ori_err = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
+            converged = pos_err < tol and ori_err < tol
+            if converged or it >= max_iters:
+                break
+            dq = J.T @ np.linalg.solve(J @ J.T + lam2, e)
+            q = np.clip(q + np.clip(dq, -max_step, max_step), self._lo, self._hi)
+            it += 1
+        if not full_output:
+            return q
+        return IKResult(q, converged, it, pos_err, ori_err, float(np.linalg.cond(J)), 1)
+
+    def engine_ik(
+        self,
+        target_ee: Any,
+        target_euler: Any = None,
+        max_iters: int = 20,
+        lam: float = 0.01,
+        max_dq: float = 0.5,
+        *,
+        tol: float = 1e-3,
+    ) -> np.ndarray:
+        r"""Damped-least-squares IK on the MuJoCo engine's end-effector Jacobian.
+
+        Iterates :math:`\Delta q = J^\top (J J^\top + \lambda^2 I)^{-1} e` with the engine's
+        Jacobian and pose, ``Δq`` clamped to ``±max_dq`` and ``q`` clipped to the limits.
+        Without ``target_euler`` only the position is solved (3 rows); with it the full pose
+        (world-frame log-map orientation error). The engine's joint state is restored
+        afterwards: the arm reaches the result through its actuators, not by a jump.
+
+        Args:
+            target_ee: Target position ``(3,)`` [m].
+            target_euler: Optional target ZYX Euler angles ``(3,)`` [rad].
+            max_iters: Maximum iterations.
+            lam: Damping ``λ``.
+            max_dq: Largest joint change per iteration [rad].
+            tol: Stop when the error norm is below this.
+
+        Returns:
+            Joint angles ``(n,)`` inside the limits.
+
+        Raises:
+            RuntimeError: no engine is attached.
+        """
+        engine = self._engine
+        if engine is None:
+            raise RuntimeError("engine_ik needs a physics engine: call physics_engine(engine) first")
+        pt = as_vector("target_ee", target_ee, 3)
+        Rt = None if target_euler is None else euler_zyx_to_matrix(as_vector("target_euler", target_euler, 3))
+        rows = 3 if Rt is None else 6
+        saved = [(engine.get_joint_qpos(n), engine.get_joint_vel(n)) for n in self.joint_names]
+        q = self._read_joints()
+        try:
+            for _ in range(max_iters + 1):
+                p, R = self._engine_ee()
+                e = pt - p if Rt is None else np.concatenate([pt - p, so3_log(Rt @ R.T)])
+                if np.linalg.norm(e) < tol:
+                    break
+                J = self._engine_jacobian()[:rows]
+                dq = J.T @ np.linalg.solve(J @ J.T + lam**2 * np.eye(rows), e)
+                q = np.clip(q + np.clip(dq, -max_dq, max_dq), self._lo, self._hi)
+                for name, v in zip(self.joint_names, q.tolist(), strict=True):
+                    engine.set_joint_qpos(name, v)
+                engine.forward()
+        finally:
+            for name, (qp, qv) in zip(self.joint_names, saved, strict=True):
+                engine.set_joint_qpos(name, qp)
+                engine.set_joint_vel(name, qv)
+            engine.forward()
+        return q
+
+    # -------------------------------------------------------------- joints
+    @property
+    def q(self) -> np.ndarray:
+        """Current joint angles ``(n,)`` [rad] (measured from the engine in engine mode)."""
+        if self._engine is not None:
+            self._q = self._read_joints()
+        return self._q.copy()
+
+    joint_positions = q
+
+    @property
+    def q_cmd(self) -> np.ndarray:
+        """Last commanded joint targets ``(n,)`` [rad] (equal to :attr:`q` standalone)."""
+        return self._q_cmd.copy()
+
+    def set_joint_positions(self, q: Any) -> None:
+        """Place the arm at joints ``q (n,)`` [rad] (engine: at rest, actuators holding ``q``).
+
+        Raises:
+            ValueError: wrong shape or outside the joint limits.
+        """
+        q = self._joints(q)
+        out = np.flatnonzero((q < self._lo) | (q > self._hi))
+        if out.size:
+            i = int(out[0])
+            raise ValueError(
+                f"joint '{self.joint_names[i]}' = {q[i]:g} rad is outside its limits [{self._lo[i]:g}, {self._hi[i]:g}]"
+            )
+        self._q = q.copy()
+        self._q_cmd = q.copy()
+        if self._engine is not None:
+            for name, v in zip(self.joint_names, q.tolist(), strict=True):
+                self._engine.set_joint_qpos(name, v)
+                self._engine.set_joint_vel(name, 0.0)
+                self._engine.set_joint_ctrl(name, v)
+            self._engine.forward()
+            self.state = self._engine_pose()
+        else:
+            self.state = self._pose_of(q)
+
+    # ---------------------------------------------------------------- step
+    def step(self, u: Any) -> np.ndarray:
+        """Move the end effector by the twist ``u`` for one step ``dt``.
+
+        The twist is integrated into a target pose (``x + dt u``, Euler angles integrated
+        with their rates, as the seed does) from the current pose; IK (:attr:`ik` if set,
+        else the damped pseudoinverse) turns it into joint targets, starting from the last
+        commanded joints. Standalone, the joints are set (clipped to the limits) and the
+        state becomes their FK pose; with an engine, the targets go to the position
+        actuators, the engine steps ``dt`` and the state is read back.
+
+        Args:
+            u: Twist ``(6,)`` ``[vx, vy, vz, roll_rate, pitch_rate, yaw_rate]`` [m/s, rad/s].
+
+        Returns:
+            Joint angles ``(n,)`` [rad] after the step (measured in engine mode).
+
+        Raises:
+            ValueError: ``u`` has the wrong shape.
+            NonFiniteError: ``u`` holds NaN or inf.
+        """
+        u = self._input(u)
+        x = self.get_state()
+        target = x + self.dt * u
+        if self._engine is not None:
+            if self.ik is not None:
+                q_cmd = self.ik.track(self._q_cmd, pose_to_transform(target))
+            else:
+                q_cmd = self.engine_ik(target[:3], target_euler=target[3:])
+            q_cmd = np.clip(q_cmd, self._lo, self._hi)
+            for name, v in zip(self.joint_names, q_cmd.tolist(), strict=True):
+                self._engine.set_joint_ctrl(name, v)
+            self._engine.step()
+            self._q_cmd = q_cmd
+            self._q = self._read_joints()
+            self.state = self._engine_pose()
+            return self._q.copy()
+        T = pose_to_transform(target)
+        if self.ik is not None:
+            q = self.ik.track(self._q_cmd, T)
+        else:
+            q = self.inverse_kinematics(T, q_init=self._q_cmd)
+        q = np.clip(q, self._lo, self._hi)
+        self._q = q
+        self._q_cmd = q.copy()
+        self.state = self._pose_of(q)
+        return q.copy()
+
+    def get_state(self) -> np.ndarray:
+        """End-effector pose ``[x, y, z, roll, pitch, yaw]`` (6,) (read from MuJoCo in engine mode)."""
+        if self._engine is not None:
+            self.state = self._engine_pose()
+        return self.state.copy()
+
+    def set_state(self, x: Any) -> None:
+        """Move the arm to the end-effector pose ``x (6,)`` by IK (from the current joints).
+
+        Uses :attr:`ik` (its ``solve`` with restarts) when set, else the damped
+        pseudoinverse with 500 iterations.
+
+        Raises:
+            ValueError: wrong shape, or the pose is not reached to 1e-6 (unreachable).
+        """
+        x = as_vector("ArmRobot state", x, 6)
+        T = pose_to_transform(x)
+        if self.ik is not None and hasattr(self.ik, "solve"):
+            res = self.ik.solve(T, self._q_cmd, tol=1e-8, restarts=20, seed=0)
+        else:
+            res = self.inverse_kinematics(T, q_init=self._q_cmd, max_iters=500, tol=1e-8, full_output=True)
+        if not (res.pos_err < 1e-6 and res.ori_err < 1e-6):
+            raise ValueError(
+                f"pose {np.array2string(x, precision=4)} is not reachable within the joint limits "
+                f"(closest: {res.pos_err:.3g} m, {res.ori_err:.3g} rad away)"
+            )
+        self.set_joint_positions(res.q)
+
+    # -------------------------------------------------------------- engine
+    def physics_engine(self, engine: Any) -> None:
+        """Attach a MuJoCo engine (or detach with None).
+
+        On attach the end-effector frame is resolved (``ee_body_name``, else the site
+        ``ee_site``, else the last body), every joint name is checked against the model,
+        and joints and pose are read from the engine; the commanded targets start at the
+        measured joints. On detach the arm keeps its last joints and its state becomes
+        their FK pose.
+
+        Raises:
+            KeyError: a joint or the end-effector body is missing from the model (the
+                message lists the valid names).
+        """
+        if engine is None:
+            self._engine = None
+            self._ee_frame = None
+            self.state = self._pose_of(self._q)
+            return
+        if self.ee_body_name is not None:
+            frame = ("body", self.ee_body_name)
+        elif ARM6_SITE in getattr(engine, "site_names", ()):
+            frame = ("site", ARM6_SITE)
+        else:
+            frame = ("body", engine.body_names[-1])
+        model = engine.model
+        dofs = []
+        for name in self.joint_names:
+            engine.get_joint_qpos(name)  # KeyError listing the joints if missing
+            dofs.append(int(model.jnt_dofadr[model.joint(name).id]))
+        self._engine = engine
+        self._ee_frame = frame
+        self._dofs = dofs
+        engine.forward()
+        self._engine_ee()  # KeyError for an unknown ee_body_name
+        self._q = self._read_joints()
+        self._q_cmd = self._q.copy()
+        self.state = self._engine_pose()
+
+    def _read_joints(self) -> np.ndarray:
+        e = self._engine
+        return np.array([e.get_joint_qpos(n) for n in self.joint_names])
+
+    def _engine_ee(self) -> tuple[np.ndarray, np.ndarray]:
+        """End-effector ``(p (3,), R (3, 3))`` from the engine."""
+        kind, name = self._ee_frame
+        get = self._engine.get_site_pose if kind == "site" else self._engine.get_body_pose
+        p, euler = get(name)
+        return p, euler_zyx_to_matrix(euler)
+
+    def _engine_pose(self) -> np.ndarray:
+        kind, name = self._ee_frame
+        get = self._engine.get_site_pose if kind == "site" else self._engine.get_body_pose
+        p, euler = get(name)
+        return np.concatenate([p, euler])
+
+    def _engine_jacobian(self) -> np.ndarray:
+        kind, name = self._ee_frame
+        get = self._engine.get_site_jacobian if kind == "site" else self._engine.get_body_jacobian
+        return get(name)[:, self._dofs]
+
+    def mjcf_patch(self) -> MjcfPatch:
+        """Match ``assets/arm6.xml`` to this arm: link offsets (body positions), visuals, ``dt``.
+
+        Raises:
+            ValueError: the arm is not the shipped 6-joint layout (axes ``z y y y z x`` and the
+                joint names of :data:`ARM6_JOINTS`), or has a non-zero ``ee_offset``.
+        """
+        if self.axes != ARM6_AXES or self.joint_names != ARM6_JOINTS or np.any(self.ee_offset != 0.0):
+            raise ValueError(
+                "arm6.xml models a 6-joint arm with axes z y y y z x, joints "
+                f"{', '.join(ARM6_JOINTS)} and no ee_offset; this arm has axes {' '.join(self.axes)}, "
+                f"joints {', '.join(self.joint_names)} and ee_offset {self.ee_offset.tolist()}"
+            )
+        body_pos = {b: tuple(o) for b, o in zip(ARM6_BODIES, self._offsets, strict=True)}
+        fromto = {f"{b}_geom": (0.0, 0.0, 0.0, *self._offsets[i + 1]) for i, b in enumerate(ARM6_BODIES[:-1])}
+        return MjcfPatch(asset=self.asset, timestep=self.dt, body_pos=body_pos, geom_fromto=fromto)
+
+    # -------------------------------------------------------------- config
+    @classmethod
+    def from_config(cls, config: Any, *, engine: Any = None) -> ArmRobot:
+        """Build the arm from a ``[plant]`` mapping (or dataclass) of constructor arguments.
+
+        Standalone, ``joint_limits`` is required. With an engine, the limits come from the
+        MJCF joint ranges (``engine.get_joint_limits``); limits given in the config as well
+        must agree with them.
+
+        Raises:
+            ConfigError: unknown key, invalid value, missing ``joint_limits`` (standalone),
+                a joint missing from the model, or config limits that disagree with the MJCF.
+        """
+        cfg = _as_dict(config)
+        if engine is None:
+            if "joint_limits" not in cfg:
+                raise ConfigError("[plant] ArmRobot: 'joint_limits' is required without an engine")
+            return super().from_config(cfg)
+        num = cfg.get("num_dof")
+        names = cfg.get("joint_names")
+        if names is None and isinstance(num, int):
+            names = [f"joint_{i}" for i in range(num)]
+        try:
+            limits = np.array([engine.get_joint_limits(n) for n in (names or [])], dtype=float)
+        except KeyError as exc:
+            raise ConfigError(f"[plant] ArmRobot: {exc.args[0] if exc.args else exc}") from None
+        if "joint_limits" in cfg:
+            given = np.asarray(cfg["joint_limits"], dtype=float)
+            if given.shape != limits.shape or not np.allclose(given, limits, rtol=0.0, atol=1e-9):
+                raise ConfigError(
+                    "[plant] ArmRobot: joint_limits disagree with the MJCF joint ranges "
+                    f"{limits.tolist()}; omit them to use the model's"
+                )
+        cfg["joint_limits"] = limits if limits.size else cfg.get("joint_limits")
+        return super().from_config(cfg, engine=engine)
+
+    def __repr__(self) -> str:
+        mode = "standalone" if self._engine is None else "engine"
+        return f"ArmRobot(num_dof={self.num_dof}, axes={''.join(self.axes)!r}, dt={self.dt:g}, {mode})"
+
+
+def _as_dict(config: Any) -> dict:
+    """A config mapping or dataclass as a plain dict without its ``type`` key."""
+    if is_dataclass(config) and not isinstance(config, type):
+        config = asdict(config)
+    return {k: v for k, v in dict(config).items() if k != "type"}
+
+
+def _add_rotated(p: list, c: list, o: tuple[float, float, float]) -> list:
+    """``p + R o`` for ``R`` given by columns ``c``, skipping zero offset components."""
+    out = list(p)
+    for j in range(3):
+        if o[j] != 0.0:
+            col = c[j]
+            out = [out[r] + col[r] * o[j] for r in range(3)]
+    return out
+
+
+class _KinematicsBuffer:
+    """``q -> (p (3,), R (3, 3), J (6, n))`` through a CasADi buffer (about 1 µs).
+
+    The compiled function is the symbolic form of :meth:`ArmRobot._chain` and
+    :meth:`ArmRobot._geometric_columns`, so it equals the geometric Jacobian. Outputs are
+    written into arrays this object owns (CasADi writes column-major nonzeros, so the
+    function returns transposes, whose column-major layout is numpy's row-major one); the
+    returned arrays are overwritten by the next call.
+    """
+
+    def __init__(self, arm: ArmRobot):
+        qs, p, R, J = arm._symbolic_chain()
+        n = arm.num_dof
+        f = cs.Function("fk_jac", [qs], [cs.densify(p), cs.densify(R.T), cs.densify(J.T)])
+        self._q = np.zeros(n)
+        self.p = np.zeros(3)
+        self.R = np.zeros((3, 3))
+        self.J = np.zeros((6, n))
+        self._buf, self._eval = f.buffer()
+        self._buf.set_arg(0, memoryview(self._q))
+        self._buf.set_res(0, memoryview(self.p))
+        self._buf.set_res(1, memoryview(self.R.reshape(-1)))
+        self._buf.set_res(2, memoryview(self.J.reshape(-1)))
+
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self._q[:] = q
+        self._eval()
+        if not math.isfinite(self.p[0] + self.p[1] + self.p[2]):
+            raise NonFiniteError(f"joint angles must be finite, got {np.array2string(q, precision=4)}")
+        return self.p, self.R, self.J
