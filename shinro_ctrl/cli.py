@@ -188,6 +188,28 @@ def cmd_regress(args: argparse.Namespace) -> int:
     return 1
 
 
+# ---------------------------------------------------------------------- sweep
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from shinro_ctrl.sweep import parse_params, run_sweep
+
+    result = run_sweep(
+        args.config,
+        parse_params(args.param),
+        samples=args.samples,
+        grid=args.grid,
+        workers=args.workers,
+        seed=args.seed,
+        out=args.out,
+        scheduler=args.scheduler,
+        engine=args.engine,
+        method=args.method,
+        stable_tol=args.stable_tol,
+        metric=args.metric,
+    )
+    print(result.summary())
+    return 0
+
+
 # ----------------------------------------------------------------------- list
 def cmd_list(args: argparse.Namespace) -> int:
     from shinro_ctrl.controllers import CONTROLLERS
@@ -247,6 +269,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", nargs="?", metavar="DIR", help="folder of scenarios (default: the shipped regression set)")
     p.add_argument("--update", action="store_true", help="rewrite the baselines (atomically)")
     p.set_defaults(func=cmd_regress)
+
+    p = sub.add_parser("sweep", help="robustness sweep: the nominal controller on perturbed plants")
+    p.add_argument("config", metavar="CONFIG", help="scenario file or shipped name")
+    p.add_argument("--param", action="append", required=True, metavar="KEY=LO:HI", help="e.g. plant.pole_mass=0.05:0.5")
+    p.add_argument("--samples", type=int, default=16, metavar="N", help="Monte-Carlo samples, or points per parameter")
+    p.add_argument("--grid", action="store_true", help="full grid of N points per parameter instead of random samples")
+    p.add_argument("--workers", type=int, default=1, metavar="W", help="local worker processes (default 1)")
+    p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the parameter draws (default 0)")
+    p.add_argument("--out", required=True, metavar="DIR", help="write sweep.csv, sweep.json and sweep.png here")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask cluster (dask.distributed scheduler address)")
+    p.add_argument("--engine", choices=("standalone", "mujoco"), help="override the scenario's loop")
+    p.add_argument("--method", choices=("auto", "pool", "dask", "batch", "serial"), default="auto")
+    p.add_argument("--stable-tol", type=float, metavar="E", help="final-error bound (default 10 x settle_tol)")
+    p.add_argument("--metric", default="rms_error", help="metric to plot (default rms_error)")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("list", help="plants, controllers and shipped scenarios")
     p.set_defaults(func=cmd_list)
