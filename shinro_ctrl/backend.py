@@ -61,11 +61,13 @@ class NumpyBackend(ArrayBackend):
     arctan2 = staticmethod(np.arctan2)
 
     def unpack(self, v: Any, n: int) -> tuple:
-        v = np.asarray(v, dtype=float)
+        v = np.asarray(v)  # float, or complex for complex-step differentiation
         return tuple(v[..., i] for i in range(n))
 
     def stack(self, items: Sequence[Any]) -> np.ndarray:
-        return np.stack(np.broadcast_arrays(*[np.asarray(i, dtype=float) for i in items]), axis=-1)
+        return np.stack(np.broadcast_arrays(*[np.asarray(i) for i in items]), axis=-1).astype(
+            np.result_type(float, *items), copy=False
+        )
 
     # Matrix helpers (single instance).
     @staticmethod

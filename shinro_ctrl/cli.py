@@ -98,6 +98,19 @@ def cmd_linearize(args: argparse.Namespace) -> int:
     print(side_by_side([("B exact (CasADi)", cmp.B_exact), ("B finite diff", cmp.B_fd)]))
     print()
     print(f"max |exact - fd| = {cmp.max_abs_error:.3e}   max relative = {cmp.max_rel_error:.3e}")
+    if args.eps_sweep:
+        from shinro_ctrl.reports import eps_sweep, plot_eps_sweep
+
+        sweep = eps_sweep(plant, xe, ue)
+        print()
+        print("FD error against a complex-step reference, by step size:")
+        for e, err in zip(sweep.eps[::4], sweep.fd_error[::4], strict=True):
+            print(f"  eps = {e:8.1e}   max error = {err:8.2e}")
+        print(f"  best eps = {sweep.best_eps:.1e}; exact (CasADi) error = {sweep.exact_error:.2e}")
+        if args.plot:
+            print(f"plot: {plot_eps_sweep(sweep, args.plot, title=f'{type(plant).__name__}: FD step sweep')}")
+    elif args.plot:
+        raise ValueError("--plot goes with --eps-sweep")
     return 0
 
 
@@ -109,7 +122,12 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     plant = plant_class(args.plant)()
     x0 = None if args.x0 is None else parse_vector(args.x0)
     u0 = None if args.u0 is None else parse_vector(args.u0)
-    print(format_crosscheck(crosscheck(plant, x0, u0, eps=args.eps)))
+    result = crosscheck(plant, x0, u0, eps=args.eps)
+    print(format_crosscheck(result))
+    if args.plot:
+        from shinro_ctrl.reports import plot_crosscheck
+
+        print(f"plot: {plot_crosscheck(result, args.plot)}")
     return 0
 
 
@@ -243,6 +261,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--x0", help="operating state, e.g. '0,0,0.1,0' (pi allowed: 'pi,pi,0,0')")
     p.add_argument("--u0", help="operating input, e.g. '0'")
     p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
+    p.add_argument("--eps-sweep", action="store_true", help="FD error against the step size (complex-step reference)")
+    p.add_argument("--plot", metavar="PNG", help="with --eps-sweep: plot the V-shaped error curve")
     p.set_defaults(func=cmd_linearize)
 
     p = sub.add_parser("crosscheck", help="exact vs finite differences vs MuJoCo's mjd_transitionFD")
@@ -250,6 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--x0", help="operating state (pi allowed)")
     p.add_argument("--u0", help="operating input")
     p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
+    p.add_argument("--plot", metavar="PNG", help="draw the exact / FD / MuJoCo comparison")
     p.set_defaults(func=cmd_crosscheck)
 
     p = sub.add_parser("run", help="run a scenario (default: the embedded cart-pole LQR demo)")

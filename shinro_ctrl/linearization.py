@@ -36,6 +36,7 @@ __all__ = [
     "LinearModel",
     "LinearizationComparison",
     "compare",
+    "complex_step_jacobians",
     "discretize",
     "fd_jacobians",
 ]
@@ -132,6 +133,35 @@ def fd_jacobians(
     Z[k + idx, idx] -= eps
     F = f(Z[:, :n], Z[:, n:])
     J = ((F[:k] - F[k:]) / (2.0 * eps)).T
+    return J[:, :n].copy(), J[:, n:].copy()
+
+
+def complex_step_jacobians(plant, x0: np.ndarray, u0: np.ndarray, h: float = 1e-30) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians by complex-step differentiation: ``∂f/∂z_i = Im f(z + i h e_i) / h``.
+
+    No subtraction, hence no cancellation: for dynamics built from analytic
+    operations (sin, cos, products, quotients) the result is exact to
+    rounding for any tiny ``h``. It is an independent reference for the exact
+    (CasADi) Jacobians, computed from the plant's numeric dynamics with
+    complex arrays through :class:`~shinro_ctrl.backend.NumpyBackend`.
+
+    Args:
+        plant: A plant (its ``_f`` evaluated with complex states and inputs).
+        x0: State ``(n,)``.
+        u0: Input ``(m,)``.
+        h: Imaginary step.
+
+    Returns:
+        ``(A_c (n, n), B_c (n, m))``.
+    """
+    from shinro_ctrl.backend import NumpyBackend
+
+    n, m = x0.shape[0], u0.shape[0]
+    k = n + m
+    Z = np.repeat(np.concatenate([x0, u0]).astype(complex)[None, :], k, axis=0)
+    Z[np.arange(k), np.arange(k)] += 1j * h
+    F = np.asarray(plant._f(NumpyBackend(), Z[:, :n], Z[:, n:], plant._params))
+    J = (F.imag / h).T
     return J[:, :n].copy(), J[:, n:].copy()
 
 

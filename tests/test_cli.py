@@ -55,6 +55,15 @@ def test_crosscheck_prints_three_linearizations(plant):
     assert "exact (CasADi)" in res.stdout and "MuJoCo" in res.stdout and "finite differences" in res.stdout
 
 
+def test_linearize_eps_sweep_and_crosscheck_plots(tmp_path):
+    res = run_cli("linearize", "cartpole", "--x0", "0.1,0.2,0.3,0.4", "--eps-sweep", "--plot", str(tmp_path / "e.png"))
+    assert res.returncode == 0, res.stderr
+    assert "best eps" in res.stdout and (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
+    res = run_cli("crosscheck", "double_pendulum", "--x0", "pi,pi,0,0", "--plot", str(tmp_path / "c.png"))
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "c.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_run_with_engine_override():
     res = run_cli("run", "cartpole_lqr", "--engine", "mujoco", "--duration", "0.5", "--plot", "/dev/null")
     assert res.returncode == 0, res.stderr
