@@ -834,7 +834,7 @@ class LinearMPC(Controller):
         z = sol.x
         u_out = z[self._iu0] + self.u0
         self._clip(u_out)
-        self._u_prev = u_out
+        self._u_prev = u_out.copy()  # private: the caller may modify what we return
         if self._rate0 is not None:
             self._fill_rate0(u_out, self._l, self._u)
         # shifted warm start for the next call
@@ -970,7 +970,7 @@ class LinearMPC(Controller):
         self._plan_age = age
         u_out = self._plan_u[age].copy()
         self._clip(u_out)
-        self._u_prev = u_out
+        self._u_prev = u_out.copy()
         if self._rate0 is not None:
             self._fill_rate0(u_out, self._l, self._u)
         idx = np.minimum(np.arange(self.N + 1) + age, self.N)
