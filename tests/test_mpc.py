@@ -497,3 +497,29 @@ def test_keyword_only_options(cartpole):
     _, A, B = cartpole
     with pytest.raises(TypeError):
         LinearMPC(A, B, Q_CP, R_CP, 10, None)  # x0 is keyword-only
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [{"warm_starting": False}, {"polishing": True}, {"check_termination": 25, "alpha": 1.6}, {"scaling": 0}],
+)
+def test_osqp_settings_are_overridable(cartpole, settings):
+    _, A, B = cartpole
+    x = np.array([0.0, 0.0, 0.25, 0.0])
+    ref = LinearMPC(A, B, Q_CP, R_CP, 15, u_min=-1.0, u_max=4.0, osqp_settings=TIGHT)(x)
+    mpc = LinearMPC(A, B, Q_CP, R_CP, 15, u_min=-1.0, u_max=4.0, osqp_settings=settings)
+    assert all(mpc.osqp_settings[k] == v for k, v in settings.items())
+    for _ in range(3):  # repeated calls, warm or not
+        u = mpc(x)
+        assert abs(u[0] - ref[0]) <= 1e-2 * max(1.0, abs(ref[0]))
+
+
+def test_mutating_the_returned_input_does_not_move_the_rate_window(cartpole):
+    _, A, B = cartpole
+    mpc = LinearMPC(A, B, Q_CP, R_CP, 10, u_min=-5.0, u_max=5.0, du_max=0.5)
+    u = mpc([0.0, 0.0, 0.1, 0.0])
+    applied = u.copy()
+    u[:] = 100.0  # the caller reuses the array
+    r0 = mpc.groups["rate bounds"].start
+    qp = mpc.build([0.0, 0.0, 0.1, 0.0])
+    np.testing.assert_allclose([qp.l[r0], qp.u[r0]], [applied[0] - 0.5, applied[0] + 0.5])

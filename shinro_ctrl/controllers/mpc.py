@@ -244,9 +244,22 @@ def _fmt(v: np.ndarray) -> str:
 class LinearMPC(Controller):
     r"""Linear MPC on a sparse QP, solved by one warm-started OSQP object.
 
-    The QP is written out in the module docstring. ``P`` and ``A_con`` are
-    built once; a call only updates the initial-state rows, the first
-    rate-bound rows, and (when the reference changes) the linear cost.
+    With ``δx = x − x0``, ``δu = u − u0`` and references ``r_k``, ``ū`` (in
+    absolute units; default ``x0``, ``u0``) each call solves
+
+    .. math::
+
+        \min \tfrac12 \sum_{k=0}^{N-1} \big[\lVert x_k - r_k \rVert_Q^2 + \lVert u_k - \bar u \rVert_R^2\big]
+            + \tfrac12 \lVert x_N - r_N \rVert_{P_f}^2
+            + \sum_{k=1}^{N} \big(w_1 \mathbf 1^\top s_k + \tfrac{w_2}{2} \lVert s_k \rVert^2\big)
+
+    subject to ``x_0 = x`` (measured), ``δx_{k+1} = A δx_k + B δu_k + d``,
+    ``u_min <= u_k <= u_max`` (k = 0..N−1), ``|u_k − u_{k−1}| <= du_max``
+    (``u_{−1}`` the previously applied input), ``x_min − s_k <= x_k <= x_max + s_k``
+    (k = 1..N; ``s_k >= 0`` only when ``soft``, else ``s_k = 0``). The module
+    docstring spells out the sparse form. ``P`` and ``A_con`` are built once;
+    a call only updates the initial-state rows, the first rate-bound rows,
+    and (when the reference changes) the linear cost ``q``.
 
     Args:
         A: Discrete state matrix ``(n, n)``.
@@ -701,6 +714,7 @@ class LinearMPC(Controller):
         self._dx0 = self._l[:n]  # views into the bound vectors
         self._dx0u = self._u[:n]
         self._iu0 = slice(nx, nx + m)  # u_0 inside z
+        self._u_prev_buf = np.zeros(m)  # the previously applied input (when _u_prev is not None)
         self._q_dirty = False  # q differs from the default (reference terms present)
         self._q_const = 0.0  # constant cost term of the current reference
         self._ref_cache: np.ndarray | None = None  # the reference q was built for
@@ -751,7 +765,10 @@ class LinearMPC(Controller):
             u_prev: Optional input ``(m,)`` to treat as previously applied (for
                 the rate bounds of the first move).
         """
-        self._u_prev = None if u_prev is None else as_vector("u_prev", u_prev, self.m)
+        self._u_prev: np.ndarray | None = None
+        if u_prev is not None:
+            self._u_prev_buf[:] = as_vector("u_prev", u_prev, self.m)
+            self._u_prev = self._u_prev_buf
         self._fill_rate0(self._u_prev, self._l, self._u)
         self._zws[:] = 0.0
         self._yws[:] = 0.0
@@ -834,7 +851,8 @@ class LinearMPC(Controller):
         z = sol.x
         u_out = z[self._iu0] + self.u0
         self._clip(u_out)
-        self._u_prev = u_out.copy()  # private: the caller may modify what we return
+        self._u_prev = self._u_prev_buf  # a private copy: the caller may modify what we return
+        self._u_prev_buf[:] = u_out
         if self._rate0 is not None:
             self._fill_rate0(u_out, self._l, self._u)
         # shifted warm start for the next call
@@ -970,7 +988,8 @@ class LinearMPC(Controller):
         self._plan_age = age
         u_out = self._plan_u[age].copy()
         self._clip(u_out)
-        self._u_prev = u_out.copy()
+        self._u_prev = self._u_prev_buf
+        self._u_prev_buf[:] = u_out
         if self._rate0 is not None:
             self._fill_rate0(u_out, self._l, self._u)
         idx = np.minimum(np.arange(self.N + 1) + age, self.N)
