@@ -246,8 +246,8 @@ class ArmRobot(Plant):
         return self._pose_of(self._joints(q))
 
     def _pose_of(self, q: np.ndarray) -> np.ndarray:
-        p, c, _, _ = self._chain(_SCALAR, q.tolist())
-        return np.concatenate([p, euler_zyx_from_matrix(np.array(c).T)])
+        p, R, _ = self._kinematics()(q)
+        return np.concatenate([p, euler_zyx_from_matrix(R)])
 
     def jacobian(self, q: Any, method: str = "geometric", eps: float = 1e-6) -> np.ndarray:
         r"""World-frame end-effector Jacobian ``J (6, n)``, position rows first.
@@ -257,7 +257,8 @@ class ArmRobot(Plant):
 
         Args:
             q: Joint angles ``(n,)`` [rad].
-            method: ``"geometric"`` (axes × lever arms, the fast default), ``"exact"``
+            method: ``"geometric"`` (axes × lever arms, the fast default: the formula of
+                :meth:`_geometric_columns` compiled once with CasADi, a few µs), ``"exact"``
                 (CasADi derivative of the symbolic FK; angular rows
                 :math:`\mathrm{vee}(\partial R/\partial q_i\, R^\top)`) or ``"fd"`` (central
                 differences of the FK with step ``eps``; angular rows from the log map).
@@ -265,8 +266,7 @@ class ArmRobot(Plant):
         """
         q = self._joints(q)
         if method == "geometric":
-            p, _, positions, axes = self._chain(_SCALAR, q.tolist())
-            return np.array(self._geometric_columns(p, positions, axes)).T
+            return self._kinematics()(q)[2].copy()
         if method == "exact":
             if self._exact_fun is None:
                 qs, p, R, _ = self._symbolic_chain()
@@ -473,12 +473,17 @@ class ArmRobot(Plant):
     def step(self, u: Any) -> np.ndarray:
         """Move the end effector by the twist ``u`` for one step ``dt``.
 
-        The twist is integrated into a target pose (``x + dt u``, Euler angles integrated
-        with their rates, as the seed does) from the current pose; IK (:attr:`ik` if set,
-        else the damped pseudoinverse) turns it into joint targets, starting from the last
-        commanded joints. Standalone, the joints are set (clipped to the limits) and the
-        state becomes their FK pose; with an engine, the targets go to the position
-        actuators, the engine steps ``dt`` and the state is read back.
+        The twist is integrated into a target pose ``x + dt u`` from the current (in engine
+        mode, measured) pose, Euler angles with their rates, as the seed does. IK turns the
+        target into joint targets: :attr:`ik` (``ik.track``, from the last commanded joints)
+        when set, else the damped pseudoinverse (standalone: :meth:`inverse_kinematics`
+        from the last commanded joints; engine: :meth:`engine_ik` from the measured ones).
+        Standalone, the joints are set (clipped to the limits) and the state becomes their
+        FK pose; with an engine, the targets go to the position actuators, the engine steps
+        ``dt`` and the state is read back. Because the target is relative to the measured
+        pose, the servo lag slows an open-loop twist in engine mode; a feedback controller
+        (such as ``IKQP.__call__``) computes its twist from that same measured pose and
+        closes the gap.
 
         Args:
             u: Twist ``(6,)`` ``[vx, vy, vz, roll_rate, pitch_rate, yaw_rate]`` [m/s, rad/s].
@@ -497,7 +502,9 @@ class ArmRobot(Plant):
             if self.ik is not None:
                 q_cmd = self.ik.track(self._q_cmd, pose_to_transform(target))
             else:
-                q_cmd = self.engine_ik(target[:3], target_euler=target[3:])
+                # A tolerance well below one step's motion (the seed's 1e-3 m would ignore a
+                # twist of less than 1e-3 / dt m/s).
+                q_cmd = self.engine_ik(target[:3], target_euler=target[3:], tol=1e-7)
             q_cmd = np.clip(q_cmd, self._lo, self._hi)
             for name, v in zip(self.joint_names, q_cmd.tolist(), strict=True):
                 self._engine.set_joint_ctrl(name, v)
