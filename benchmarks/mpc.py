@@ -323,6 +323,7 @@ def main() -> None:
             ("do-mpc IPOPT (tol 1e-4)", 25),
             ("do-mpc IPOPT (tol 1e-8)", 25),
             ("build+solve (LinearMPC)", 3),
+            ("setup+solve (OSQP only)", 3),
         ):
             if key in d:
                 print(f"  >= {want}x faster than {key}: {d[key]:.1f}x -> {'met' if d[key] >= want else 'NOT met'}")
