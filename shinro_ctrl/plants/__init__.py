@@ -6,6 +6,7 @@ names; :func:`plant_class` resolves either.
 """
 
 from shinro_ctrl.errors import ConfigError
+from shinro_ctrl.plants.armrobot import ArmRobot
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.plants.cartpole import CartPole
 from shinro_ctrl.plants.double_pendulum import DoublePendulum
@@ -17,6 +18,7 @@ from shinro_ctrl.validation import did_you_mean
 __all__ = [
     "PLANTS",
     "PLANT_ALIASES",
+    "ArmRobot",
     "CartPole",
     "DoublePendulum",
     "HolonomicMobileRobot",
@@ -33,6 +35,7 @@ PLANTS: dict[str, type[Plant]] = {
     "DoublePendulum": DoublePendulum,
     "HolonomicMobileRobot": HolonomicMobileRobot,
     "Quadrotor": Quadrotor,
+    "ArmRobot": ArmRobot,
 }
 
 PLANT_ALIASES: dict[str, str] = {

@@ -29,7 +29,10 @@ target pose, solves IK for it and commands the joints.
 
 from __future__ import annotations
 
+import copy
+import functools
 import math
+import tomllib
 from collections.abc import Sequence
 from dataclasses import asdict, is_dataclass
 from typing import Any
@@ -48,9 +51,10 @@ from shinro_ctrl.kinematics import (
     so3_log_flat,
 )
 from shinro_ctrl.plants.base import MjcfPatch, Plant
+from shinro_ctrl.resources import config_path
 from shinro_ctrl.validation import as_matrix, as_vector, check_positive
 
-__all__ = ["ArmRobot"]
+__all__ = ["ARM6_JOINTS", "ArmRobot", "shipped_arm6"]
 
 _SCALAR = ScalarBackend()
 _CASADI = CasadiBackend()
@@ -74,15 +78,19 @@ class ArmRobot(Plant):
     velocity-aware), else the damped pseudoinverse of
     :meth:`inverse_kinematics` (standalone) or :meth:`engine_ik` (engine).
 
+    ``ArmRobot()`` without geometry is the shipped arm of ``configs/arm6.toml`` /
+    ``assets/arm6.xml`` (UR5 link lengths, axes ``z y y y z x``).
+
     Args:
         num_dof: Number of joints ``n`` (>= 1).
         dt: Control step [s], > 0.
         joint_limits: ``(n, 2)`` rows ``[min, max]`` [rad], ``min <= max``.
         joint_offsets: ``(n, 3)`` link offsets ``o_i`` [m], each in the parent joint's frame.
         rot_axes: ``n`` axis letters, each ``"x"``, ``"y"`` or ``"z"`` (a string such as
-            ``"zyyyzx"`` works too).
-        joint_names: ``n`` unique joint names (default ``joint_0`` …); in engine mode they
-            name the MJCF joints (and their position actuators).
+            ``"zyyyzx"`` works too). ``joint_limits``, ``joint_offsets`` and ``rot_axes`` are
+            given together, or all omitted for the shipped arm.
+        joint_names: ``n`` unique joint names (default ``joint_0`` …, or the shipped arm's
+            names); in engine mode they name the MJCF joints (and their position actuators).
         ee_body_name: In engine mode, the MJCF body whose frame is the end effector. Default:
             the site ``ee_site`` when the model has one, else the last body.
         backend: Accepted for API compatibility (numbers are numpy arrays).
@@ -109,14 +117,16 @@ class ArmRobot(Plant):
     input_names = ("vx", "vy", "vz", "roll_rate", "pitch_rate", "yaw_rate")
     param_names = ()
     asset = "arm6.xml"
+    #: Scenario metrics track the end-effector position [m] (Euler angles wrap and mix units).
+    tracked_states = ("x", "y", "z")
 
     def __init__(
         self,
-        num_dof: int,
-        dt: float,
-        joint_limits: Any,
-        joint_offsets: Any,
-        rot_axes: Sequence[str],
+        num_dof: int = 6,
+        dt: float = 0.002,
+        joint_limits: Any = None,
+        joint_offsets: Any = None,
+        rot_axes: Sequence[str] | None = None,
         joint_names: Sequence[str] | None = None,
         ee_body_name: str | None = None,
         backend: Any = None,
@@ -125,6 +135,21 @@ class ArmRobot(Plant):
         if isinstance(num_dof, bool) or not isinstance(num_dof, int | np.integer) or num_dof < 1:
             raise ValueError(f"num_dof must be a positive integer, got {num_dof!r}")
         n = self.num_dof = int(num_dof)
+        geometry = {"joint_limits": joint_limits, "joint_offsets": joint_offsets, "rot_axes": rot_axes}
+        if all(v is None for v in geometry.values()):
+            if n != 6:
+                raise ValueError(
+                    f"num_dof = {n} needs joint_limits, joint_offsets and rot_axes "
+                    "(without them the arm is the shipped 6-joint arm6)"
+                )
+            shipped = shipped_arm6()
+            joint_limits, joint_offsets, rot_axes = (shipped[k] for k in geometry)
+            if joint_names is None:
+                joint_names = shipped["joint_names"]
+        else:
+            missing = [k for k, v in geometry.items() if v is None]
+            if missing:
+                raise ValueError(f"{missing[0]} is required when any of {', '.join(geometry)} is given")
         check_positive("dt", dt)
         limits = as_matrix("joint_limits", joint_limits, (n, 2))
         bad = np.flatnonzero(limits[:, 0] > limits[:, 1])
@@ -444,6 +469,11 @@ class ArmRobot(Plant):
         """Last commanded joint targets ``(n,)`` [rad] (equal to :attr:`q` standalone)."""
         return self._q_cmd.copy()
 
+    def limit_violation(self) -> float:
+        """How far [rad] the current joints are outside their limits (0 when inside)."""
+        q = self.q
+        return float(max(0.0, np.max(self._lo - q), np.max(q - self._hi)))
+
     def set_joint_positions(self, q: Any) -> None:
         """Place the arm at joints ``q (n,)`` [rad] (engine: at rest, actuators holding ``q``).
 
@@ -635,23 +665,23 @@ class ArmRobot(Plant):
     def from_config(cls, config: Any, *, engine: Any = None) -> ArmRobot:
         """Build the arm from a ``[plant]`` mapping (or dataclass) of constructor arguments.
 
-        Standalone, ``joint_limits`` is required. With an engine, the limits come from the
-        MJCF joint ranges (``engine.get_joint_limits``); limits given in the config as well
-        must agree with them.
+        Omitted keys take the constructor defaults (no geometry: the shipped arm). With an
+        engine, omitted ``joint_limits`` come from the MJCF joint ranges
+        (``engine.get_joint_limits``); limits given in the config as well must agree with them.
 
         Raises:
-            ConfigError: unknown key, invalid value, missing ``joint_limits`` (standalone),
-                a joint missing from the model, or config limits that disagree with the MJCF.
+            ConfigError: unknown key, invalid value (e.g. ``joint_offsets`` without
+                ``joint_limits`` standalone), a joint missing from the model, or config limits
+                that disagree with the MJCF.
         """
         cfg = _as_dict(config)
         if engine is None:
-            if "joint_limits" not in cfg:
-                raise ConfigError("[plant] ArmRobot: 'joint_limits' is required without an engine")
             return super().from_config(cfg)
-        num = cfg.get("num_dof")
+        num = cfg.get("num_dof", 6)
         names = cfg.get("joint_names")
         if names is None and isinstance(num, int):
-            names = [f"joint_{i}" for i in range(num)]
+            custom = any(k in cfg for k in ("joint_offsets", "rot_axes"))
+            names = [f"joint_{i}" for i in range(num)] if custom else list(ARM6_JOINTS)
         try:
             limits = np.array([engine.get_joint_limits(n) for n in (names or [])], dtype=float)
         except KeyError as exc:
@@ -669,6 +699,18 @@ class ArmRobot(Plant):
     def __repr__(self) -> str:
         mode = "standalone" if self._engine is None else "engine"
         return f"ArmRobot(num_dof={self.num_dof}, axes={''.join(self.axes)!r}, dt={self.dt:g}, {mode})"
+
+
+@functools.cache
+def _shipped_arm6_cached() -> dict:
+    with open(config_path("arm6.toml"), "rb") as fh:
+        plant = tomllib.load(fh)["plant"]
+    return {k: v for k, v in plant.items() if k != "type"}
+
+
+def shipped_arm6() -> dict:
+    """The ``[plant]`` table of ``configs/arm6.toml`` (a fresh copy), the default arm."""
+    return copy.deepcopy(_shipped_arm6_cached())
 
 
 def _as_dict(config: Any) -> dict:
