@@ -379,6 +379,7 @@ class LinearMPC(Controller):
             raise ValueError(f"horizon must be >= 1, got {N}")
         self.n, self.m, self.N = n, m, N
         self.state_dim, self.input_dim, self.horizon = n, m, N
+        self.preview = N  # a simulation passes reference trajectories of N + 1 samples (see sim.RobotSim.run)
         self.model: Any = None  # the LinearModel when built by from_plant
         self.A, self.B, self.Q, self.R = A_, B_, Q_, R_
         self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
