@@ -148,6 +148,7 @@ class _BoxQP:
         raw = getattr(self.solver, "_solver", None)
         names = ("update_data_vec", "update_data_mat", "solve", "solution", "info")
         self._raw = raw if raw is not None and all(hasattr(raw, a) for a in names) else None
+        self._rho0 = float(settings.get("rho", self.solver.settings.rho))
 
     def solve(self, P_upper: np.ndarray, c: np.ndarray, l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, int, int]:
         """Solve with new values; returns ``(x (n,), status_val, admm_iterations)``."""
@@ -163,8 +164,13 @@ class _BoxQP:
         return res.x, int(res.info.status_val), int(res.info.iter)
 
     def reset(self) -> None:
-        """Drop the warm start (primal and dual iterates to zero)."""
+        """Back to the set-up state: no warm start (iterates zero) and the initial ``rho``.
+
+        OSQP carries both from one solve to the next (adaptive rho included), so results
+        depend on the solve history unless this is called first.
+        """
         self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(self.n))
+        self.solver.update_settings(rho=self._rho0)
 
 
 class IKQP(Controller):
@@ -348,14 +354,26 @@ class IKQP(Controller):
         self._e[:] = (ex, ey, ez, wx, wy, wz)
         return math.sqrt(ex * ex + ey * ey + ez * ez), math.sqrt(wx * wx + wy * wy + wz * wz)
 
-    def _qp_step(self, q: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, s: Any) -> tuple[np.ndarray, int]:
-        """Solve the QP at the last evaluation; return new joints (a fresh array inside the box) and the status."""
+    def _qp_step(
+        self, q: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, s: Any, scale: float
+    ) -> tuple[np.ndarray, int]:
+        """Solve the QP at the last evaluation; return new joints (a fresh array inside the box) and the status.
+
+        The QP is posed for ``z = Δq / scale`` with ``scale`` the task error norm: ``c`` and
+        the bounds are divided by it, so the solution is of order one and OSQP's absolute
+        tolerance acts as a relative one (otherwise steps below ``eps_abs`` come out as noise
+        and the iteration stalls near that size).
+        """
         c, l, u = self._c, self._l, self._u
+        inv = 1.0 / scale
         np.dot(self._negJtW, self._e[: self.k], out=c)
+        c *= inv
         np.subtract(box_lo, q, out=l)
         np.maximum(l, -s, out=l)
+        l *= inv
         np.subtract(box_hi, q, out=u)
         np.minimum(u, s, out=u)
+        u *= inv
         x, status, _ = self._qp.solve(self._Hu, c, l, u)
         if status not in _USABLE or not math.isfinite(float(x.sum())):
             # A box QP with P ≻ 0 is always feasible; should OSQP still fail, fall back on the
@@ -364,6 +382,7 @@ class IKQP(Controller):
         # OSQP meets bounds to ~eps: clip the step, then the joints (rounding of q + dq).
         np.minimum(x, u, out=x)
         np.maximum(x, l, out=x)
+        x *= scale
         x += q
         np.maximum(x, box_lo, out=x)
         return np.minimum(x, box_hi, out=x), status
@@ -430,7 +449,8 @@ class IKQP(Controller):
     def step(self, q: Any, target: Any, *, max_step: Any = None) -> np.ndarray:
         """Solve one QP: the joint change ``dq (n,)`` [rad] from ``q`` towards ``target``.
 
-        ``q + dq`` lies inside the joint limits and ``|dq| ≤ max_step``.
+        ``q + dq`` lies inside the joint limits and ``|dq| ≤ max_step``, both exactly (in
+        floating point).
 
         Args:
             q: Joint angles ``(n,)`` [rad] (clipped to the limits first).
@@ -441,9 +461,12 @@ class IKQP(Controller):
         pt, Rt = self._target(target)
         s = self.max_step if max_step is None else np.asarray(max_step, dtype=float)
         self._evaluate(q)
-        self._error(pt, Rt)
-        q_new, _ = self._qp_step(q, self.lo, self.hi, s)
-        return q_new - q
+        pos_err, ori_err = self._error(pt, Rt)
+        scale = math.hypot(pos_err, ori_err) if self.k == 6 else pos_err
+        if scale == 0.0:
+            return np.zeros(self.n)
+        q_new, _ = self._qp_step(q, self.lo, self.hi, s, scale)
+        return _bounded_difference(q, q_new, s)
 
     def solve(
         self,
@@ -475,7 +498,8 @@ class IKQP(Controller):
 
         Returns:
             :class:`IKResult`; ``q`` is inside the limits even when not converged (then it is
-            the closest configuration found). An unreachable target is not an error.
+            the closest configuration found). An unreachable target is not an error. The
+            solver's warm start is reset first, so the result depends only on the arguments.
         """
         q0 = self._joints(q0, "q0")
         pt, Rt = self._target(T_target, "T_target")
@@ -484,6 +508,7 @@ class IKQP(Controller):
         if not isinstance(restarts, int) or restarts < 0:
             raise ValueError(f"restarts must be a non-negative integer, got {restarts!r}")
         tol = check_positive("tol", tol)
+        self._qp.reset()  # the same call gives the same answer, whatever was solved before
         best, total = self._attempt(q0, pt, Rt, max_iters, tol)
         attempts = 1
         rng = None
@@ -524,7 +549,8 @@ class IKQP(Controller):
                 stalled += 1
             if it >= max_iters or stalled >= 10:
                 return (q, False, pos_err, ori_err, cost), it
-            q, _ = self._qp_step(q, lo, hi, s)
+            scale = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + (e3 * e3 + e4 * e4 + e5 * e5 if pose else 0.0))
+            q, _ = self._qp_step(q, lo, hi, s, scale)
             it += 1
 
     # -------------------------------------------------------------- control
@@ -557,7 +583,8 @@ class IKQP(Controller):
             pos_err, ori_err = self._error(pt, Rt)
             if it >= iters or self._converged(pos_err, ori_err, tol):
                 break
-            q, status = self._qp_step(q, box_lo, box_hi, vdt)
+            scale = math.hypot(pos_err, ori_err) if self.k == 6 else pos_err
+            q, status = self._qp_step(q, box_lo, box_hi, vdt, scale)
             it += 1
         name = osqp.SolverStatus(status).name if status >= 0 else "not run"
         self.last = IKStep(q.copy(), q - q0, it, pos_err, ori_err, name, time.perf_counter() - t0)
@@ -601,3 +628,17 @@ class IKQP(Controller):
             f"IKQP(task={self.task!r}, n={self.n}, damping={self.damping:g}, max_step={self.max_step:g}, "
             f"dt={self.dt:g})"
         )
+
+
+def _bounded_difference(q: np.ndarray, q_new: np.ndarray, s: Any) -> np.ndarray:
+    """``q_new − q`` nudged towards zero until ``|dq| ≤ s`` and ``q + dq`` equals a point inside
+    the box ``q_new`` came from, despite rounding (zero satisfies both, so this terminates)."""
+    dq = q_new - q
+    s = np.broadcast_to(np.asarray(s, dtype=float), dq.shape)
+    lo, hi = np.minimum(q, q_new), np.maximum(q, q_new)
+    for _ in range(8):
+        bad = (np.abs(dq) > s) | (q + dq < lo) | (q + dq > hi)
+        if not bad.any():
+            return dq
+        dq[bad] = np.nextafter(dq[bad], 0.0)
+    return np.where(bad, 0.0, dq)
