@@ -16,12 +16,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from shinro_ctrl.errors import ShinroError
+from shinro_ctrl.errors import InvalidArgument, ShinroError
 
 __all__ = ["main"]
 
 EXIT_USER_ERROR = 2
-_USER_ERRORS = (ShinroError, OSError, ValueError, KeyError)
+_USER_ERRORS = (ShinroError, OSError)  # anything else is a bug and keeps its traceback
 
 
 class _Parser(argparse.ArgumentParser):
@@ -47,7 +47,7 @@ def parse_number(text: str) -> float:
         pass
     m = _PI_TERM.match(text)
     if not m:
-        raise ValueError(f"not a number: '{text}'")
+        raise InvalidArgument(f"not a number: '{text}'")
     sign = -1.0 if m.group(1) == "-" else 1.0
     factor = float(m.group(2)) if m.group(2) not in ("", ".") else 1.0
     div = float(m.group(3)) if m.group(3) else 1.0
@@ -58,7 +58,7 @@ def parse_vector(text: str) -> np.ndarray:
     """A comma- or space-separated list of numbers (see :func:`parse_number`)."""
     parts = [p for p in re.split(r"[,\s]+", text.strip().strip("[]")) if p]
     if not parts:
-        raise ValueError("empty vector")
+        raise InvalidArgument("empty vector")
     return np.array([parse_number(p) for p in parts])
 
 
@@ -110,7 +110,7 @@ def cmd_linearize(args: argparse.Namespace) -> int:
         if args.plot:
             print(f"plot: {plot_eps_sweep(sweep, args.plot, title=f'{type(plant).__name__}: FD step sweep')}")
     elif args.plot:
-        raise ValueError("--plot goes with --eps-sweep")
+        raise InvalidArgument("--plot goes with --eps-sweep")
     return 0
 
 
@@ -164,7 +164,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     ctrl = sim.controller
     kind = {"lqr": "LQR", "mpc": "LinearMPC"}[args.kind]
     if type(ctrl).__name__ != kind:
-        raise ValueError(f"{args.config} configures a {type(ctrl).__name__} controller, not {kind}")
+        raise InvalidArgument(f"{args.config} configures a {type(ctrl).__name__} controller, not {kind}")
     np.set_printoptions(precision=5, suppress=True, linewidth=120)
     if args.kind == "lqr":
         model = getattr(ctrl, "model", None)

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.engine import MujocoEngine
+from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.validation import as_vector, check_positive
 
 __all__ = ["CrosscheckResult", "crosscheck", "format_crosscheck", "mujoco_continuous_jacobians"]
@@ -114,9 +115,11 @@ def mujoco_continuous_jacobians(
     m = engine.model
     nv, nu = m.nv, m.nu
     if m.nq != nv or m.na != 0:
-        raise ValueError(f"crosscheck needs nq == nv and no activations; the model has nq={m.nq}, nv={nv}, na={m.na}")
+        raise InvalidArgument(
+            f"crosscheck needs nq == nv and no activations; the model has nq={m.nq}, nv={nv}, na={m.na}"
+        )
     if engine.integrator != "mjINT_EULER" or not engine.explicit_damping:
-        raise ValueError(
+        raise InvalidArgument(
             f"crosscheck needs the Euler integrator with mjDSBL_EULERDAMP (as MujocoEngine.for_plant sets); "
             f"the model uses {engine.integrator} with explicit damping {engine.explicit_damping}"
         )
@@ -159,7 +162,7 @@ def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6)
     try:
         T, _ = plant.engine_state_map()
     except NotImplementedError as exc:
-        raise ValueError(f"{type(plant).__name__} has no MuJoCo state map to cross-check against") from exc
+        raise InvalidArgument(f"{type(plant).__name__} has no MuJoCo state map to cross-check against") from exc
 
     A_e, B_e = plant.linearize(x0, u0, method="exact")  # first call compiles
     t_exact = _median_time(lambda: plant.linearize(x0, u0, method="exact"))

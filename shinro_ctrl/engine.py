@@ -30,6 +30,7 @@ and one array read (about 0.2 µs), and :meth:`MujocoEngine.step` adds about
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ import mujoco
 import numpy as np
 
 from shinro_ctrl.backend import NumpyBackend
-from shinro_ctrl.errors import NonFiniteError, SimulationDiverged
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, SimulationDiverged, UnknownName
 from shinro_ctrl.resources import asset_path, list_assets
 from shinro_ctrl.validation import closest
 
@@ -360,7 +361,7 @@ class MujocoEngine:
         """
         u = np.asarray(u, dtype=float).reshape(-1)
         if u.shape != self._ctrl.shape:
-            raise ValueError(f"ctrl: expected shape {self._ctrl.shape} but found {u.shape}")
+            raise InvalidArgument(f"ctrl: expected shape {self._ctrl.shape} but found {u.shape}")
         if not np.all(np.isfinite(u)):
             raise NonFiniteError(f"ctrl must be finite, got {np.array2string(u, precision=4)}")
         self._ctrl[:] = u
@@ -388,7 +389,7 @@ class MujocoEngine:
         nq, nv = self.model.nq, self.model.nv
         z = np.asarray(z, dtype=float).reshape(-1)
         if z.shape != (nq + nv,):
-            raise ValueError(f"state vector: expected shape ({nq + nv},) but found {z.shape}")
+            raise InvalidArgument(f"state vector: expected shape ({nq + nv},) but found {z.shape}")
         if not np.all(np.isfinite(z)):
             raise NonFiniteError(f"state vector must be finite, got {np.array2string(z, precision=4)}")
         self._qpos[:] = z[:nq]
@@ -475,7 +476,7 @@ class MujocoEngine:
         j = self._joint_id(name)
         jtype = int(self.model.jnt_type[j])
         if jtype != _FREE:
-            raise ValueError(f"joint '{name}' is a {_JOINT_TYPES[jtype]} joint, not a free joint")
+            raise InvalidArgument(f"joint '{name}' is a {_JOINT_TYPES[jtype]} joint, not a free joint")
         return j
 
     def pin_free_base(self, x: float, y: float, z: float | None = None, yaw: float = 0.0) -> None:
@@ -490,7 +491,7 @@ class MujocoEngine:
             NonFiniteError: a non-finite coordinate.
         """
         if self._free is None:
-            raise ValueError(f"model {self.source!r} has no free joint to pin")
+            raise InvalidArgument(f"model {self.source!r} has no free joint to pin")
         vals = [x, y, yaw] if z is None else [x, y, z, yaw]
         if not all(math.isfinite(float(v)) for v in vals):
             raise NonFiniteError(f"pin_free_base arguments must be finite, got {vals}")
@@ -556,25 +557,47 @@ class MujocoEngine:
         k = sizes[jtype]
         v = np.asarray(value, dtype=float).reshape(-1)
         if v.shape != (k,):
-            raise ValueError(f"{_JOINT_TYPES[jtype]} joint '{name}' {what}: expected shape ({k},) but found {v.shape}")
+            raise InvalidArgument(
+                f"{_JOINT_TYPES[jtype]} joint '{name}' {what}: expected shape ({k},) but found {v.shape}"
+            )
         if not np.all(np.isfinite(v)):
             raise NonFiniteError(f"joint '{name}' {what} must be finite, got {np.array2string(v, precision=4)}")
         a = int(adr[j])
         arr[a : a + k] = v
 
+    # ------------------------------------------- offscreen rendering (video.py)
+    def make_renderer(self, width: int = 320, height: int = 240) -> OffscreenRenderer:
+        """An offscreen renderer of this engine's model, showing its current data.
+
+        MuJoCo picks its OpenGL backend from ``MUJOCO_GL`` when ``mujoco`` is
+        first imported (see :mod:`shinro_ctrl.video`, which chooses one
+        before that import). Close the renderer when done (or use it as a
+        context manager): MuJoCo's own finalizer may fail at interpreter exit.
+
+        Args:
+            width: Image width [px], 16 to 8192.
+            height: Image height [px], 16 to 8192.
+
+        Raises:
+            ValueError: a size out of range.
+            RuntimeError: no OpenGL context could be created (the message
+                names ``MUJOCO_GL`` and MuJoCo's reason).
+        """
+        return OffscreenRenderer(self, width, height)
+
 
 # ------------------------------------------------------------------- loading
 def _check_substeps(substeps: Any) -> int:
     if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) or substeps < 1:
-        raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
+        raise InvalidArgument(f"substeps must be an integer >= 1, got {substeps!r}")
     return int(substeps)
 
 
-def _unknown(kind: str, name: Any, names: Iterable[str]) -> KeyError:
+def _unknown(kind: str, name: Any, names: Iterable[str]) -> UnknownName:
     names = sorted(names)
     near = closest(str(name), names)
     hint = f" (did you mean '{near}'?)" if near is not None else ""
-    return KeyError(f"unknown {kind} {name!r}{hint}; {kind}s in the model: {', '.join(names) or 'none'}")
+    return UnknownName(f"unknown {kind} {name!r}{hint}; {kind}s in the model: {', '.join(names) or 'none'}")
 
 
 def _mujoco_message(exc: Exception) -> str:
@@ -590,7 +613,7 @@ def _load_spec(path_or_xml: str | Path) -> tuple[mujoco.MjSpec, str]:
         try:
             return mujoco.MjSpec.from_string(path_or_xml), "<xml string>"
         except ValueError as exc:
-            raise ValueError(f"invalid MJCF XML string: {_mujoco_message(exc)}") from exc
+            raise InvalidArgument(f"invalid MJCF XML string: {_mujoco_message(exc)}") from exc
     try:
         path = asset_path(path_or_xml)
     except FileNotFoundError:
@@ -602,14 +625,14 @@ def _load_spec(path_or_xml: str | Path) -> tuple[mujoco.MjSpec, str]:
     try:
         return mujoco.MjSpec.from_file(str(path)), str(path)
     except ValueError as exc:
-        raise ValueError(f"invalid MJCF model '{path}': {_mujoco_message(exc)}") from exc
+        raise InvalidArgument(f"invalid MJCF model '{path}': {_mujoco_message(exc)}") from exc
 
 
 def _compile(spec: mujoco.MjSpec, source: str) -> mujoco.MjModel:
     try:
         return spec.compile()
     except ValueError as exc:
-        raise ValueError(f"MJCF model '{source}' does not compile: {_mujoco_message(exc)}") from exc
+        raise InvalidArgument(f"MJCF model '{source}' does not compile: {_mujoco_message(exc)}") from exc
 
 
 def _find(spec: mujoco.MjSpec, kind: str, name: str) -> Any:
@@ -651,13 +674,13 @@ def _apply_patch(spec: mujoco.MjSpec, patch: Any, substeps: int) -> None:
     for name, fromto in patch.geom_fromto.items():
         fromto = np.asarray(fromto, dtype=float)
         if fromto.shape != (6,):
-            raise ValueError(f"geom_fromto['{name}']: expected shape (6,) but found {fromto.shape}")
+            raise InvalidArgument(f"geom_fromto['{name}']: expected shape (6,) but found {fromto.shape}")
         _find(spec, "geom", name).fromto = fromto
     for name, size in patch.geom_size.items():
         geom = _find(spec, "geom", name)
         size = np.asarray(size, dtype=float).reshape(-1)
         if not 1 <= size.shape[0] <= 3:
-            raise ValueError(f"geom_size['{name}']: expected 1 to 3 values but found {size.shape[0]}")
+            raise InvalidArgument(f"geom_size['{name}']: expected 1 to 3 values but found {size.shape[0]}")
         full = np.array(geom.size, dtype=float)
         full[: size.shape[0]] = size
         geom.size = full
@@ -670,3 +693,84 @@ def _euler_zyx_from_quat(q: np.ndarray) -> np.ndarray:
     pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     return np.array([roll, pitch, yaw])
+
+
+# --------------------------------------------------------- offscreen rendering
+class OffscreenRenderer:
+    """Renders an engine's current state offscreen (made by :meth:`MujocoEngine.make_renderer`).
+
+    The default view is a free camera, initially MuJoCo's default framing of
+    the whole model; :meth:`look_at` moves it. Named model cameras can be
+    used per call.
+
+    Attributes:
+        width, height: Image size [px].
+        fovy: Vertical field of view of the free camera [deg].
+    """
+
+    def __init__(self, engine: MujocoEngine, width: int, height: int):
+        for name, v in (("width", width), ("height", height)):
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or not 16 <= v <= 8192:
+                raise InvalidArgument(f"renderer {name} must be an integer in [16, 8192], got {v!r}")
+        self.width, self.height = int(width), int(height)
+        self._engine = engine
+        model = engine.model
+        g = model.vis.global_
+        g.offwidth, g.offheight = max(int(g.offwidth), self.width), max(int(g.offheight), self.height)
+        self.fovy = float(g.fovy)
+        self._renderer: Any = None
+        try:
+            self._renderer = mujoco.Renderer(model, height=self.height, width=self.width)
+        except (ImportError, RuntimeError, OSError, mujoco.FatalError) as exc:
+            backend = os.environ.get("MUJOCO_GL") or "unset (glfw)"
+            raise RuntimeError(
+                f"cannot create an offscreen OpenGL context (MUJOCO_GL={backend}): {_mujoco_message(exc)}"
+            ) from exc
+        self._camera = mujoco.MjvCamera()
+        mujoco.mjv_defaultFreeCamera(model, self._camera)
+
+    def look_at(self, center: Any, distance: float, *, azimuth: float = 90.0, elevation: float = -15.0) -> None:
+        """Point the free camera at ``center (3,)`` [m] from ``distance`` [m].
+
+        ``azimuth`` and ``elevation`` are in degrees, as in MuJoCo: azimuth
+        90 looks along +y (the xz plane seen from -y, +x to the right);
+        negative elevations look down.
+        """
+        c = np.asarray(center, dtype=float).reshape(-1)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise InvalidArgument(f"look_at center must be 3 finite values, got {c}")
+        if not (math.isfinite(distance) and distance > 0):
+            raise InvalidArgument(f"look_at distance must be positive, got {distance!r}")
+        cam = self._camera
+        cam.type = int(mujoco.mjtCamera.mjCAMERA_FREE)
+        cam.lookat[:] = c
+        cam.distance = float(distance)
+        cam.azimuth = float(azimuth)
+        cam.elevation = float(elevation)
+
+    def render(self, camera: str | int | None = None) -> np.ndarray:
+        """Render the engine's current state: an ``(height, width, 3)`` ``uint8`` RGB image.
+
+        Args:
+            camera: None for the free camera, or a model camera's name or id.
+
+        Raises:
+            RuntimeError: the renderer is closed.
+        """
+        if self._renderer is None:
+            raise RuntimeError("render called on a closed OffscreenRenderer")
+        self._engine._ensure_kinematics()
+        self._renderer.update_scene(self._engine.data, camera=self._camera if camera is None else camera)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        """Free the OpenGL context (idempotent)."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self) -> OffscreenRenderer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

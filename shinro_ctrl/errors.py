@@ -11,11 +11,13 @@ from __future__ import annotations
 
 __all__ = [
     "ConfigError",
+    "InvalidArgument",
     "MPCInfeasible",
     "NonFiniteError",
     "NotStabilizable",
     "ShinroError",
     "SimulationDiverged",
+    "UnknownName",
 ]
 
 
@@ -25,6 +27,17 @@ class ShinroError(Exception):
 
 class ConfigError(ShinroError, ValueError):
     """A scenario file or config dict is malformed, unknown or out of range."""
+
+
+class InvalidArgument(ShinroError, ValueError):
+    """An argument has the wrong shape, type or value; the message names it and says what was expected."""
+
+
+class UnknownName(ShinroError, KeyError):
+    """A joint, actuator, body or other named item does not exist; the message lists the valid names."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
 
 
 class NonFiniteError(ShinroError, FloatingPointError, ValueError):

@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.errors import InvalidArgument
+
 __all__ = [
     "IKResult",
     "euler_zyx_from_matrix",
@@ -103,7 +105,7 @@ def rotation_about(axis: str, angle: float) -> np.ndarray:
         return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     if axis == "z":
         return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    raise ValueError(f"axis must be 'x', 'y' or 'z', got {axis!r}")
+    raise InvalidArgument(f"axis must be 'x', 'y' or 'z', got {axis!r}")
 
 
 def euler_zyx_to_matrix(rpy: Any) -> np.ndarray:

@@ -30,6 +30,8 @@ import casadi as cs
 import numpy as np
 import scipy.linalg
 
+from shinro_ctrl.errors import InvalidArgument
+
 __all__ = [
     "DISCRETIZATIONS",
     "ExactJacobian",
@@ -103,7 +105,7 @@ def discretize(A_c: np.ndarray, B_c: np.ndarray, dt: float, method: str = "euler
             term = term @ (dt * A_c) / k
             A = A + term
         return A, Bsum @ B_c
-    raise ValueError(f"unknown discretization {method!r}; valid: {', '.join(DISCRETIZATIONS)}")
+    raise InvalidArgument(f"unknown discretization {method!r}; valid: {', '.join(DISCRETIZATIONS)}")
 
 
 def fd_jacobians(

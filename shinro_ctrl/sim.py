@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
-from shinro_ctrl.errors import ConfigError, ShinroError
+from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
 from shinro_ctrl.files import atomic_write, dump_json, dump_toml
 
 __all__ = ["Reference", "RobotSim", "SimResult", "compute_metrics", "format_metrics"]
@@ -419,7 +419,7 @@ class RobotSim:
         sim = self.scenario.sim
         duration = sim.duration if duration is None else float(duration)
         if not math.isfinite(duration) or duration <= 0:
-            raise ValueError(f"duration must be positive, got {duration!r}")
+            raise InvalidArgument(f"duration must be positive, got {duration!r}")
         plant, ctrl, ref = self.plant, self.controller, self.reference
         dt = plant.dt
         steps = max(1, round(duration / dt))

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.errors import NonFiniteError
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 
 __all__ = [
     "as_matrix",
@@ -55,9 +55,9 @@ def check_positive(name: str, value: Any) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a positive number, got {value!r}") from None
+        raise InvalidArgument(f"{name} must be a positive number, got {value!r}") from None
     if not math.isfinite(v) or v <= 0.0:
-        raise ValueError(f"{name} must be positive and finite, got {v!r}")
+        raise InvalidArgument(f"{name} must be positive and finite, got {v!r}")
     return v
 
 
@@ -66,9 +66,9 @@ def check_nonnegative(name: str, value: Any) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a non-negative number, got {value!r}") from None
+        raise InvalidArgument(f"{name} must be a non-negative number, got {value!r}") from None
     if not math.isfinite(v) or v < 0.0:
-        raise ValueError(f"{name} must be >= 0 and finite, got {v!r}")
+        raise InvalidArgument(f"{name} must be >= 0 and finite, got {v!r}")
     return v
 
 
@@ -95,11 +95,11 @@ def as_vector(name: str, value: Any, n: int, *, finite: bool = True) -> np.ndarr
         try:
             arr = np.asarray(value, dtype=float)
         except (TypeError, ValueError):
-            raise ValueError(f"{name} must be numeric with shape ({n},), got {value!r}") from None
+            raise InvalidArgument(f"{name} must be numeric with shape ({n},), got {value!r}") from None
     if arr.ndim == 0 and n == 1:
         arr = arr.reshape(1)
     if arr.shape != (n,):
-        raise ValueError(f"{name}: expected shape ({n},) but found {arr.shape}")
+        raise InvalidArgument(f"{name}: expected shape ({n},) but found {arr.shape}")
     if finite and not np.all(np.isfinite(arr)):
         raise NonFiniteError(f"{name} must be finite, got {np.array2string(arr, precision=4)}")
     return arr
@@ -115,9 +115,9 @@ def as_matrix(name: str, value: Any, shape: tuple[int, int], *, finite: bool = T
     try:
         arr = np.atleast_2d(np.asarray(value, dtype=float))
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a numeric {shape} matrix, got {value!r}") from None
+        raise InvalidArgument(f"{name} must be a numeric {shape} matrix, got {value!r}") from None
     if arr.shape != shape:
-        raise ValueError(f"{name}: expected shape {shape} but found {arr.shape}")
+        raise InvalidArgument(f"{name}: expected shape {shape} but found {arr.shape}")
     if finite and not np.all(np.isfinite(arr)):
         raise NonFiniteError(f"{name} must be finite")
     return arr
@@ -141,11 +141,11 @@ def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False) -> n
     W = as_matrix(name, arr, (n, n))
     scale = max(1.0, float(np.abs(W).max()))
     if np.abs(W - W.T).max() > 1e-9 * scale:
-        raise ValueError(f"{name} must be symmetric (max |{name} - {name}ᵀ| = {np.abs(W - W.T).max():.3g})")
+        raise InvalidArgument(f"{name} must be symmetric (max |{name} - {name}ᵀ| = {np.abs(W - W.T).max():.3g})")
     W = 0.5 * (W + W.T)
     lam_min = float(np.linalg.eigvalsh(W).min())
     if definite and lam_min <= 1e-12 * scale:
-        raise ValueError(f"{name} must be positive definite (smallest eigenvalue {lam_min:.3g})")
+        raise InvalidArgument(f"{name} must be positive definite (smallest eigenvalue {lam_min:.3g})")
     if lam_min < -1e-9 * scale:
-        raise ValueError(f"{name} must be positive semidefinite (smallest eigenvalue {lam_min:.3g})")
+        raise InvalidArgument(f"{name} must be positive semidefinite (smallest eigenvalue {lam_min:.3g})")
     return W

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.controllers.base import Controller
-from shinro_ctrl.errors import NotStabilizable
+from shinro_ctrl.errors import InvalidArgument, NotStabilizable
 from shinro_ctrl.validation import as_matrix, as_vector, weight_matrix
 
 __all__ = ["LQR", "check_stabilizable"]
@@ -114,7 +114,7 @@ class LQR(Controller):
         self.u_min = np.full(m, -np.inf) if u_min is None else as_vector("u_min", u_min, m, finite=False)
         self.u_max = np.full(m, np.inf) if u_max is None else as_vector("u_max", u_max, m, finite=False)
         if np.any(np.isnan(self.u_min)) or np.any(np.isnan(self.u_max)) or np.any(self.u_min > self.u_max):
-            raise ValueError("u_min must be <= u_max elementwise")
+            raise InvalidArgument("u_min must be <= u_max elementwise")
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
         check_stabilizable(A, B, discrete=self.discrete, names=state_names)
         import control  # deferred: importing python-control costs about a second
@@ -204,7 +204,7 @@ class LQR(Controller):
             ref = np.asarray(ref, dtype=float)
             if ref.ndim == 2:
                 if ref.shape[1] != self.state_dim or ref.shape[0] < 1:
-                    raise ValueError(f"ref: expected (k, {self.state_dim}) but found {ref.shape}")
+                    raise InvalidArgument(f"ref: expected (k, {self.state_dim}) but found {ref.shape}")
                 r = as_vector("ref", ref[0], self.state_dim)
                 u = self.u0 - self.K @ (x - r)
                 if self.feedforward and ref.shape[0] > 1:

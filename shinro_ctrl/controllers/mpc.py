@@ -58,7 +58,7 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from shinro_ctrl.controllers.base import Controller
-from shinro_ctrl.errors import MPCInfeasible, NonFiniteError, NotStabilizable
+from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
 from shinro_ctrl.linearization import discretize
 from shinro_ctrl.validation import as_vector, check_positive, closest, unknown_keys
 
@@ -191,13 +191,13 @@ def _square(name: str, value: Any, size: int) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a numeric ({size}, {size}) matrix, got {value!r}") from None
+        raise InvalidArgument(f"{name} must be a numeric ({size}, {size}) matrix, got {value!r}") from None
     if arr.ndim == 0 and size == 1:
         arr = arr.reshape(1, 1)
     elif arr.ndim == 1 and arr.shape == (size,):
         arr = np.diag(arr)
     if arr.shape != (size, size):
-        raise ValueError(f"{name}: expected ({size}, {size}) but found {arr.shape}")
+        raise InvalidArgument(f"{name}: expected ({size}, {size}) but found {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise NonFiniteError(f"{name} must be finite")
     return arr
@@ -208,15 +208,15 @@ def _symmetric(name: str, M: np.ndarray, *, definite: bool, rtol: float = 1e-9) 
     scale = float(np.max(np.abs(M), initial=0.0))
     asym = float(np.max(np.abs(M - M.T), initial=0.0))
     if asym > rtol * max(scale, np.finfo(float).tiny):
-        raise ValueError(f"{name} must be symmetric; max |{name} - {name}ᵀ| = {asym:.3g} (scale {scale:.3g})")
+        raise InvalidArgument(f"{name} must be symmetric; max |{name} - {name}ᵀ| = {asym:.3g} (scale {scale:.3g})")
     M = 0.5 * (M + M.T)
     eig = np.linalg.eigvalsh(M) if M.size else np.zeros(0)
     lo = float(eig.min()) if eig.size else 0.0
     if definite:
         if not eig.size or lo <= rtol * max(scale, np.finfo(float).tiny):
-            raise ValueError(f"{name} must be positive definite; smallest eigenvalue {lo:.3g}")
+            raise InvalidArgument(f"{name} must be positive definite; smallest eigenvalue {lo:.3g}")
     elif lo < -rtol * max(scale, np.finfo(float).tiny):
-        raise ValueError(f"{name} must be positive semidefinite; smallest eigenvalue {lo:.3g}")
+        raise InvalidArgument(f"{name} must be positive semidefinite; smallest eigenvalue {lo:.3g}")
     return M
 
 
@@ -227,11 +227,11 @@ def _bound(name: str, value: Any, size: int, default: float) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be numeric with shape ({size},), got {value!r}") from None
+        raise InvalidArgument(f"{name} must be numeric with shape ({size},), got {value!r}") from None
     if arr.ndim == 0:
         arr = np.full(size, float(arr))
     if arr.shape != (size,):
-        raise ValueError(f"{name}: expected ({size},) but found {arr.shape}")
+        raise InvalidArgument(f"{name}: expected ({size},) but found {arr.shape}")
     if np.any(np.isnan(arr)):
         raise NonFiniteError(f"{name} must not contain NaN, got {np.array2string(arr, precision=4)}")
     return arr
@@ -356,27 +356,27 @@ class LinearMPC(Controller):
             A_ = np.atleast_2d(np.asarray(A, dtype=float))
             B_ = np.asarray(B, dtype=float)
         except (TypeError, ValueError):
-            raise ValueError("A and B must be numeric matrices") from None
+            raise InvalidArgument("A and B must be numeric matrices") from None
         if A_.ndim != 2 or A_.shape[0] != A_.shape[1]:
-            raise ValueError(f"A: expected a square (n, n) matrix but found {A_.shape}")
+            raise InvalidArgument(f"A: expected a square (n, n) matrix but found {A_.shape}")
         n = A_.shape[0]
         if B_.ndim == 1 and B_.shape == (n,):
             B_ = B_.reshape(n, 1)
         if B_.ndim != 2 or B_.shape[0] != n:
-            raise ValueError(f"B: expected ({n}, m) but found {B_.shape}")
+            raise InvalidArgument(f"B: expected ({n}, m) but found {B_.shape}")
         m = B_.shape[1]
         if m == 0 or n == 0:
-            raise ValueError(f"A and B must have at least one state and one input, found n={n}, m={m}")
+            raise InvalidArgument(f"A and B must have at least one state and one input, found n={n}, m={m}")
         for name, M in (("A", A_), ("B", B_)):
             if not np.all(np.isfinite(M)):
                 raise NonFiniteError(f"{name} must be finite")
         Q_ = _symmetric("Q", _square("Q", Q, n), definite=False)
         R_ = _symmetric("R", _square("R", R, m), definite=True)
         if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)):
-            raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
+            raise InvalidArgument(f"horizon must be an int >= 1, got {horizon!r}")
         N = int(horizon)
         if N < 1:
-            raise ValueError(f"horizon must be >= 1, got {N}")
+            raise InvalidArgument(f"horizon must be >= 1, got {N}")
         self.n, self.m, self.N = n, m, N
         self.state_dim, self.input_dim, self.horizon = n, m, N
         self.preview = N  # a simulation passes reference trajectories of N + 1 samples (see sim.RobotSim.run)
@@ -397,7 +397,7 @@ class LinearMPC(Controller):
             bad = np.flatnonzero(~(lo <= hi) | (lo == np.inf) | (hi == -np.inf))
             if bad.size:
                 i = int(bad[0])
-                raise ValueError(
+                raise InvalidArgument(
                     f"{lo_name} must be <= {hi_name} (and finite on its side); index {i}: {lo[i]} > {hi[i]}"
                 )
         if du_max is None:
@@ -405,17 +405,17 @@ class LinearMPC(Controller):
         else:
             self.du_max = _bound("du_max", du_max, m, np.inf)
             if np.any(self.du_max <= 0):
-                raise ValueError(f"du_max must be > 0, got {_fmt(self.du_max)}")
+                raise InvalidArgument(f"du_max must be > 0, got {_fmt(self.du_max)}")
         self.soft = bool(soft)
         self.soft_weight_l1 = float(soft_weight_l1)
         self.soft_weight_quad = float(soft_weight_quad)
         if not math.isfinite(self.soft_weight_l1) or self.soft_weight_l1 < 0:
-            raise ValueError(f"soft_weight_l1 must be >= 0 and finite, got {soft_weight_l1!r}")
+            raise InvalidArgument(f"soft_weight_l1 must be >= 0 and finite, got {soft_weight_l1!r}")
         if not math.isfinite(self.soft_weight_quad) or self.soft_weight_quad <= 0:
-            raise ValueError(f"soft_weight_quad must be > 0 and finite, got {soft_weight_quad!r}")
+            raise InvalidArgument(f"soft_weight_quad must be > 0 and finite, got {soft_weight_quad!r}")
         self.u_ref = None if u_ref is None else as_vector("u_ref", u_ref, m)
         if fallback not in (None, "shift"):
-            raise ValueError(f"fallback must be None or 'shift', got {fallback!r}")
+            raise InvalidArgument(f"fallback must be None or 'shift', got {fallback!r}")
         self.fallback = fallback
         self.state_names = self._names("state_names", state_names, n, "x")
         self.input_names = self._names("input_names", input_names, m, "u")
@@ -430,7 +430,7 @@ class LinearMPC(Controller):
             elif terminal_cost == "Q":
                 self.P_f = Q_.copy()
             else:
-                raise ValueError(f"terminal_cost must be 'dare', 'Q' or an (n, n) matrix, got {terminal_cost!r}")
+                raise InvalidArgument(f"terminal_cost must be 'dare', 'Q' or an (n, n) matrix, got {terminal_cost!r}")
             self.terminal_cost = terminal_cost
         else:
             self.P_f = _symmetric("terminal_cost", _square("terminal_cost", terminal_cost, n), definite=False)
@@ -444,7 +444,7 @@ class LinearMPC(Controller):
             if bad:
                 close = closest(bad[0], valid)
                 near = f" (did you mean '{close}'?)" if close else ""
-                raise ValueError(f"unknown OSQP setting '{bad[0]}'{near}; valid settings: {', '.join(valid)}")
+                raise InvalidArgument(f"unknown OSQP setting '{bad[0]}'{near}; valid settings: {', '.join(valid)}")
             settings.update(osqp_settings)
         self.osqp_settings = settings
         self._warm = bool(settings["warm_starting"])
@@ -455,7 +455,7 @@ class LinearMPC(Controller):
         try:
             self._solver.setup(self._P, self._q, self._A, self._l, self._u, **settings)
         except (ValueError, TypeError, osqp.OSQPException) as exc:
-            raise ValueError(f"OSQP rejected the MPC problem or its settings {settings}: {exc!r}") from exc
+            raise InvalidArgument(f"OSQP rejected the MPC problem or its settings {settings}: {exc!r}") from exc
         low = getattr(self._solver, "_solver", None)
         needed = ("update_data_vec", "warm_start", "solve", "info", "solution")
         self._low = low if low is not None and all(hasattr(low, a) for a in needed) else None
@@ -468,7 +468,7 @@ class LinearMPC(Controller):
             return tuple(f"{prefix}[{i}]" for i in range(size))
         names = tuple(str(s) for s in names)
         if len(names) != size:
-            raise ValueError(f"{arg}: expected {size} names but found {len(names)}")
+            raise InvalidArgument(f"{arg}: expected {size} names but found {len(names)}")
         return names
 
     def _dare(self) -> np.ndarray:
@@ -887,7 +887,7 @@ class LinearMPC(Controller):
             if not np.isfinite(r).all():
                 raise NonFiniteError("ref must be finite")
             return r.reshape(-1, self.n) if r.ndim == 1 and r.shape != (self.n,) else r
-        raise ValueError(f"ref: expected ({self.n},) or ({self.N + 1}, {self.n}) but found {r.shape}")
+        raise InvalidArgument(f"ref: expected ({self.n},) or ({self.N + 1}, {self.n}) but found {r.shape}")
 
     def _check_uref(self, u_ref: Any) -> np.ndarray | None:
         if u_ref is None:

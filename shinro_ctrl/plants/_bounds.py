@@ -6,6 +6,8 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.errors import InvalidArgument
+
 
 def state_bounds(value: Any, n: int, default_lo: list[float], default_hi: list[float]):
     """Normalize ``state_bounds`` to a ``(lo (n,), hi (n,))`` pair of arrays, or None.
@@ -19,17 +21,17 @@ def state_bounds(value: Any, n: int, default_lo: list[float], default_hi: list[f
     if isinstance(value, dict):
         extra = set(value) - {"min", "max"}
         if extra:
-            raise ValueError(f"state_bounds: unknown key {sorted(extra)[0]!r}; valid: max, min")
+            raise InvalidArgument(f"state_bounds: unknown key {sorted(extra)[0]!r}; valid: max, min")
         lo, hi = value.get("min", default_lo), value.get("max", default_hi)
     else:
         try:
             lo, hi = value
         except (TypeError, ValueError):
-            raise ValueError("state_bounds must be a (min, max) pair or {min = [...], max = [...]}") from None
+            raise InvalidArgument("state_bounds must be a (min, max) pair or {min = [...], max = [...]}") from None
     lo = np.asarray(lo, dtype=float)
     hi = np.asarray(hi, dtype=float)
     if lo.shape != (n,) or hi.shape != (n,):
-        raise ValueError(f"state_bounds: expected min and max of shape ({n},) but found {lo.shape} and {hi.shape}")
+        raise InvalidArgument(f"state_bounds: expected min and max of shape ({n},) but found {lo.shape} and {hi.shape}")
     if np.any(np.isnan(lo)) or np.any(np.isnan(hi)) or np.any(lo > hi):
-        raise ValueError("state_bounds: every min must be <= its max")
+        raise InvalidArgument("state_bounds: every min must be <= its max")
     return lo, hi

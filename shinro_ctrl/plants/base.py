@@ -29,7 +29,7 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import CasadiBackend, ListBackend, NumpyBackend, ScalarBackend
-from shinro_ctrl.errors import ConfigError, SimulationDiverged
+from shinro_ctrl.errors import ConfigError, InvalidArgument, SimulationDiverged
 from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd_jacobians
 from shinro_ctrl.validation import as_vector, check_positive, did_you_mean, unknown_keys
 
@@ -154,7 +154,7 @@ class Plant:
         if m == 1 and (u.ndim == 0 or (u.ndim == 1 and x.ndim == 2 and u.shape[0] != 1)):
             u = u[..., None]
         if x.shape[-1:] != (n,) or u.shape[-1:] != (m,):
-            raise ValueError(
+            raise InvalidArgument(
                 f"{type(self).__name__}.dynamics: expected x (..., {n}) and u (..., {m}) "
                 f"but found {x.shape} and {u.shape}"
             )
@@ -164,7 +164,7 @@ class Plant:
         if params:
             bad = unknown_keys(params, self.param_names)
             if bad:
-                raise ValueError(f"unknown parameter {bad[0]!r}{did_you_mean(bad[0], self.param_names)}")
+                raise InvalidArgument(f"unknown parameter {bad[0]!r}{did_you_mean(bad[0], self.param_names)}")
             p.update({k: np.asarray(v, dtype=float) for k, v in params.items()})
         return self._f(_NUMPY, x, u, p)
 
@@ -220,7 +220,7 @@ class Plant:
         if method == "fd":
             eps = check_positive("eps", eps)
             return fd_jacobians(lambda X, U: self._f(_NUMPY, X, U, self._params), x0, u0, eps)
-        raise ValueError(f"unknown linearization method {method!r}; valid: exact, fd")
+        raise InvalidArgument(f"unknown linearization method {method!r}; valid: exact, fd")
 
     def linear_model(
         self,
@@ -320,7 +320,7 @@ class Plant:
         plant keeps the last state it had.
         """
         if engine is not None and self.asset is None:
-            raise ValueError(f"{type(self).__name__} has no MuJoCo model to attach an engine to")
+            raise InvalidArgument(f"{type(self).__name__} has no MuJoCo model to attach an engine to")
         self._engine = engine
         if engine is not None:
             self.state = self._engine_read(engine)

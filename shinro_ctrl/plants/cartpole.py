@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
 
@@ -148,7 +149,7 @@ def _track_limits(value: Any) -> tuple[float, float] | None:
     try:
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
-        raise ValueError(f"track_limits must be a (min, max) pair, got {value!r}") from None
+        raise InvalidArgument(f"track_limits must be a (min, max) pair, got {value!r}") from None
     if not lo <= hi:
-        raise ValueError(f"track_limits: min must be <= max, got ({lo}, {hi})")
+        raise InvalidArgument(f"track_limits: min must be <= max, got ({lo}, {hi})")
     return lo, hi

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.errors import SimulationDiverged
+from shinro_ctrl.errors import InvalidArgument, SimulationDiverged
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_positive
 
@@ -89,24 +89,24 @@ class HolonomicMobileRobot(Plant):
         backend: Any = None,
     ):
         if isinstance(num_wheels, bool) or not isinstance(num_wheels, (int, np.integer)) or num_wheels < 3:
-            raise ValueError(f"num_wheels must be an integer >= 3 (a holonomic base), got {num_wheels!r}")
+            raise InvalidArgument(f"num_wheels must be an integer >= 3 (a holonomic base), got {num_wheels!r}")
         self.n = int(num_wheels)
         self.R = check_positive("radius_robots", radius_robots)
         try:
             self.gamma = float(gamma)
         except (TypeError, ValueError):
-            raise ValueError(f"gamma must be a number (rad), got {gamma!r}") from None
+            raise InvalidArgument(f"gamma must be a number (rad), got {gamma!r}") from None
         if not math.isfinite(self.gamma):
-            raise ValueError(f"gamma must be finite, got {gamma!r}")
+            raise InvalidArgument(f"gamma must be finite, got {gamma!r}")
         self.r = check_positive("radius_wheels", radius_wheels)
         if drive_joints is None:
             joints = [f"wheel_{i}" for i in range(self.n)]
         elif isinstance(drive_joints, str) or not all(isinstance(j, str) for j in drive_joints):
-            raise ValueError(f"drive_joints must be a list of joint names, got {drive_joints!r}")
+            raise InvalidArgument(f"drive_joints must be a list of joint names, got {drive_joints!r}")
         else:
             joints = list(drive_joints)
             if joints and len(joints) != self.n:
-                raise ValueError(
+                raise InvalidArgument(
                     f"drive_joints: expected {self.n} names (one per wheel) or none, but found {len(joints)}"
                 )
         self.drive_joints: list[str] = joints

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.backend import ScalarBackend
+from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_nonnegative, check_positive
 
@@ -149,7 +150,7 @@ class Quadrotor(Plant):
         self.arm_length = check_positive("arm_length", arm_length)
         self.g = check_nonnegative("gravity", gravity)
         if rotor_layout not in ROTOR_LAYOUTS:
-            raise ValueError(f"rotor_layout must be one of {', '.join(ROTOR_LAYOUTS)}; got {rotor_layout!r}")
+            raise InvalidArgument(f"rotor_layout must be one of {', '.join(ROTOR_LAYOUTS)}; got {rotor_layout!r}")
         self.rotor_layout = rotor_layout
         self.yaw_moment_coefficient = check_nonnegative("yaw_moment_coefficient", yaw_moment_coefficient)
         Ixx, Iyy, Izz = self.inertia
@@ -267,7 +268,7 @@ class Quadrotor(Plant):
             ValueError: the mixer is singular (``yaw_moment_coefficient == 0``).
         """
         if self._mixer_inv is None:
-            raise ValueError("the rotor mixer is singular: yaw_moment_coefficient must be > 0 to invert it")
+            raise InvalidArgument("the rotor mixer is singular: yaw_moment_coefficient must be > 0 to invert it")
         return self._mixer_inv @ as_vector("Quadrotor input u", u, 4)
 
     # -------------------------------------------------------------- engine
@@ -321,15 +322,15 @@ def _inertia(value: Any) -> tuple[float, float, float]:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"inertia must be three numbers (Ixx, Iyy, Izz), got {value!r}") from None
+        raise InvalidArgument(f"inertia must be three numbers (Ixx, Iyy, Izz), got {value!r}") from None
     if arr.shape != (3,):
-        raise ValueError(f"inertia: expected shape (3,) (Ixx, Iyy, Izz) but found {arr.shape}")
+        raise InvalidArgument(f"inertia: expected shape (3,) (Ixx, Iyy, Izz) but found {arr.shape}")
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
-        raise ValueError(f"inertia must hold three positive finite values, got {arr.tolist()}")
+        raise InvalidArgument(f"inertia must hold three positive finite values, got {arr.tolist()}")
     Ixx, Iyy, Izz = (float(v) for v in arr)
     tol = 1e-12 * (Ixx + Iyy + Izz)
     if Ixx + Iyy < Izz - tol or Iyy + Izz < Ixx - tol or Izz + Ixx < Iyy - tol:
-        raise ValueError(
+        raise InvalidArgument(
             f"inertia {arr.tolist()} violates the triangle inequality (each moment must be <= the sum "
             "of the other two for a physical rigid body)"
         )
