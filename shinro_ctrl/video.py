@@ -1,0 +1,505 @@
+"""Offscreen videos of closed-loop runs, rendered with MuJoCo.
+
+:func:`render_rollout` replays a finished run (:class:`~shinro_ctrl.sim.SimResult`)
+through a MuJoCo model of the plant and writes a GIF (Pillow) or an MP4
+(``ffmpeg``, e.g. from ``pip install imageio-ffmpeg``). It works for both
+loops: a standalone run is replayed through a MuJoCo model built for the
+plant just for rendering, so any plant with an MJCF asset can be filmed. The
+replay writes every k-th recorded state with ``plant.set_state`` (which runs
+MuJoCo's forward kinematics) so that the video plays in real time at about
+:data:`DEFAULT_FPS` frames per second, or at fewer frames per second for runs
+longer than :data:`MAX_FRAMES` frames allow.
+
+**OpenGL backend.** MuJoCo chooses its OpenGL backend from the environment
+variable ``MUJOCO_GL`` once, when ``mujoco`` is first imported (by
+:mod:`shinro_ctrl.engine`). :func:`select_gl_backend` must therefore run
+before that import; :func:`prepare_video` (called by ``shinro-ctrl run
+--video`` before it builds anything) and :func:`render_rollout` both call it.
+When ``MUJOCO_GL`` is unset and there is no display it selects ``osmesa``
+(software rendering; Debian: ``apt-get install libosmesa6``), or ``egl`` when
+only EGL is installed. With a display the default (``glfw``) is kept. Code
+that imports :mod:`shinro_ctrl.engine` before rendering on a headless machine
+should call :func:`select_gl_backend` first, or export ``MUJOCO_GL=osmesa``.
+
+Rendering a 320 × 240 frame with OSMesa takes about 60-80 ms on one core,
+so a 5 s run at 30 frames per second renders in about 10 s.
+
+Example::
+
+    from shinro_ctrl.video import render_rollout
+    from shinro_ctrl.sim import RobotSim
+
+    sim = RobotSim.from_config("cartpole_lqr_mujoco")
+    render_rollout(sim, sim.run(2.0), "cartpole.gif")
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shinro_ctrl.errors import ShinroError
+
+__all__ = [
+    "DEFAULT_FPS",
+    "FORMATS",
+    "MAX_FRAMES",
+    "VideoError",
+    "VideoInfo",
+    "find_ffmpeg",
+    "frame_indices",
+    "prepare_video",
+    "render_rollout",
+    "select_gl_backend",
+    "write_gif",
+    "write_mp4",
+]
+
+#: Target frame rate [frames per simulated second].
+DEFAULT_FPS = 30.0
+#: Largest number of frames of one video; longer runs get a lower frame rate.
+MAX_FRAMES = 600
+#: Supported file suffixes.
+FORMATS = (".gif", ".mp4")
+
+_LIBRARIES = {"osmesa": ("OSMesa", "libosmesa6"), "egl": ("EGL", "libegl1")}
+_GLFW_VALUES = ("", "glfw", "glx", "enable", "enabled", "on", "true", "1")
+_DISABLED_VALUES = ("disable", "disabled", "off", "false", "0")
+
+
+class VideoError(ShinroError, RuntimeError):
+    """A video cannot be made: no OpenGL backend, no encoder, an unsupported format or plant."""
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What :func:`render_rollout` wrote.
+
+    Attributes:
+        path: The video file.
+        frames: Number of frames.
+        fps: Playback frame rate [1/s] (real time: one frame per ``stride`` steps).
+        stride: Recorded steps per frame.
+        width, height: Frame size [px].
+        seconds: Wall-clock rendering time [s].
+    """
+
+    path: Path
+    frames: int
+    fps: float
+    stride: int
+    width: int
+    height: int
+    seconds: float
+
+    @property
+    def ms_per_frame(self) -> float:
+        """Mean wall-clock time per frame (replay, render and encode) [ms]."""
+        return 1e3 * self.seconds / max(self.frames, 1)
+
+
+# ----------------------------------------------------------------- backends
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _find_library(name: str) -> str | None:
+    return ctypes.util.find_library(name)
+
+
+def _missing(backend: str) -> VideoError:
+    lib, package = _LIBRARIES[backend]
+    return VideoError(
+        f"MUJOCO_GL={backend} but the {lib} library is not installed: apt-get install {package} "
+        f"(Debian/Ubuntu), or choose another backend with MUJOCO_GL=osmesa|egl|glfw"
+    )
+
+
+def select_gl_backend() -> str:
+    """Choose MuJoCo's OpenGL backend for offscreen rendering and export it as ``MUJOCO_GL``.
+
+    Must run before ``mujoco`` is first imported to have any effect (MuJoCo
+    reads the variable once). An explicit ``MUJOCO_GL`` is kept but checked;
+    when it is unset: ``glfw`` with a display, else ``osmesa`` if libOSMesa
+    is installed, else ``egl`` if libEGL is.
+
+    Returns:
+        The backend: ``"osmesa"``, ``"egl"`` or ``"glfw"``.
+
+    Raises:
+        VideoError: an invalid ``MUJOCO_GL`` value, the library of the chosen
+            backend is missing (naming the Debian package to install), or no
+            backend is available at all.
+    """
+    value = os.environ.get("MUJOCO_GL", "").strip().lower()
+    if value in _DISABLED_VALUES:
+        raise VideoError(f"MuJoCo rendering is disabled (MUJOCO_GL={value}); unset it or set MUJOCO_GL=osmesa")
+    if value in _LIBRARIES:
+        if _find_library(_LIBRARIES[value][0]) is None:
+            raise _missing(value)
+        return value
+    if value not in _GLFW_VALUES:
+        raise VideoError(
+            f"invalid MUJOCO_GL={value!r}: use osmesa (apt-get install libosmesa6), egl (apt-get install libegl1) "
+            "or glfw (needs a display)"
+        )
+    if value or _has_display():
+        if not _has_display():
+            raise VideoError(
+                f"MUJOCO_GL={value} needs a display and DISPLAY is not set: "
+                "set MUJOCO_GL=osmesa (apt-get install libosmesa6) for offscreen rendering"
+            )
+        return "glfw"
+    if "mujoco" in sys.modules:
+        # Too late to choose: MuJoCo took its default (glfw), which needs a display.
+        raise VideoError(
+            "no display, and mujoco was imported before an offscreen OpenGL backend was selected: "
+            "export MUJOCO_GL=osmesa (apt-get install libosmesa6) or call shinro_ctrl.video.select_gl_backend() "
+            "before importing shinro_ctrl.engine"
+        )
+    for backend in ("osmesa", "egl"):
+        if _find_library(_LIBRARIES[backend][0]) is not None:
+            os.environ["MUJOCO_GL"] = backend
+            return backend
+    raise VideoError(
+        "no offscreen OpenGL backend for MuJoCo: apt-get install libosmesa6 (Debian/Ubuntu), or run with a display"
+    )
+
+
+def find_ffmpeg() -> str | None:
+    """Path of an ``ffmpeg`` executable: imageio-ffmpeg's bundled binary, else ``ffmpeg`` on PATH."""
+    try:
+        import imageio_ffmpeg  # type: ignore[import-not-found]
+    except ImportError:
+        pass
+    else:
+        try:
+            return str(imageio_ffmpeg.get_ffmpeg_exe())
+        except RuntimeError:
+            pass
+    return shutil.which("ffmpeg")
+
+
+def _check_format(path: str | Path) -> str:
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        raise VideoError(f"unsupported video format '{suffix or Path(path).name}': use {' or '.join(FORMATS)}")
+    if suffix == ".mp4" and find_ffmpeg() is None:
+        raise VideoError(
+            "writing .mp4 needs ffmpeg: pip install imageio-ffmpeg (or apt-get install ffmpeg), or use .gif"
+        )
+    return suffix
+
+
+def prepare_video(path: str | Path) -> str:
+    """Check that a video can be written to ``path`` and select the OpenGL backend.
+
+    Call it before anything imports ``mujoco`` (and before a long run), so a
+    missing encoder or backend is reported before any work is done.
+
+    Returns:
+        The backend chosen by :func:`select_gl_backend`.
+
+    Raises:
+        VideoError: unsupported suffix, no MP4 encoder, or no OpenGL backend.
+    """
+    _check_format(path)
+    return select_gl_backend()
+
+
+# ------------------------------------------------------------------- frames
+def frame_indices(
+    n_states: int,
+    dt: float,
+    *,
+    fps: float = DEFAULT_FPS,
+    max_frames: int = MAX_FRAMES,
+    quantum: float | None = None,
+) -> tuple[np.ndarray, int]:
+    """Which recorded states become frames, for real-time playback near ``fps``.
+
+    Args:
+        n_states: Number of recorded states ``T + 1``.
+        dt: Time between recorded states [s].
+        fps: Target frame rate [1/s].
+        max_frames: Upper bound on the number of frames (long runs get a
+            larger stride, hence a lower frame rate).
+        quantum: Resolution of the container's frame delay [s] (GIF: 0.01).
+            Among strides within about a third of the ideal one, the one
+            whose frame interval ``stride * dt`` is closest to a multiple of
+            ``quantum`` wins, so that playback stays real time.
+
+    Returns:
+        ``(indices (F,), stride)``: every ``stride``-th state from the first,
+        plus the last state when the stride skips it.
+    """
+    if n_states < 1:
+        raise ValueError(f"n_states must be >= 1, got {n_states}")
+    if not (math.isfinite(dt) and dt > 0 and math.isfinite(fps) and fps > 0):
+        raise ValueError(f"dt and fps must be positive, got dt={dt!r}, fps={fps!r}")
+    if max_frames < 2:
+        raise ValueError(f"max_frames must be >= 2, got {max_frames}")
+    ideal = 1.0 / (fps * dt)
+    floor = max(1, math.ceil((n_states - 1) / (max_frames - 1)))
+    stride = max(floor, round(ideal))
+    if quantum is not None and stride > floor:
+
+        def timing_error(s: int) -> float:
+            interval = s * dt
+            return abs(interval - quantum * max(1, round(interval / quantum))) / interval
+
+        candidates = range(max(floor, math.floor(0.75 * ideal)), max(floor, math.ceil(1.34 * ideal)) + 1)
+        stride = min(candidates, key=lambda s: (round(timing_error(s), 9), abs(s - ideal)))
+    idx = np.arange(0, n_states, stride)
+    if idx[-1] != n_states - 1:
+        idx = np.append(idx, n_states - 1)
+    return idx, stride
+
+
+def write_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float) -> Path:
+    """Write RGB frames ``(H, W, 3) uint8`` as a looping GIF (atomically).
+
+    GIF frame delays are whole centiseconds, so the playback rate is
+    ``100 / round(100 / fps)`` frames per second.
+    """
+    from PIL import Image
+
+    from shinro_ctrl.files import atomic_write
+
+    if not frames:
+        raise ValueError("no frames to write")
+    images = [Image.fromarray(np.ascontiguousarray(f)).quantize(colors=256, dither=Image.Dither.NONE) for f in frames]
+    duration = max(10, 10 * round(100.0 / fps))  # [ms], a multiple of 10
+    return atomic_write(
+        path,
+        lambda f: images[0].save(
+            f, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0, optimize=False
+        ),
+        binary=True,
+    )
+
+
+def write_mp4(frames: Sequence[np.ndarray], path: str | Path, fps: float, *, ffmpeg: str | None = None) -> Path:
+    """Write RGB frames ``(H, W, 3) uint8`` as an H.264 MP4 through ``ffmpeg`` (atomically).
+
+    Raises:
+        VideoError: no ffmpeg, or ffmpeg failed (with its last message line).
+    """
+    ffmpeg = ffmpeg or find_ffmpeg()
+    if ffmpeg is None:
+        raise VideoError("writing .mp4 needs ffmpeg: pip install imageio-ffmpeg (or apt-get install ffmpeg)")
+    if not frames:
+        raise ValueError("no frames to write")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = frames[0].shape[:2]
+    tmp = path.with_name(f".{path.name}.tmp.mp4")
+    cmd = [
+        ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
+        "-r", f"{fps:.6g}", "-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p",
+        "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-movflags", "+faststart", str(tmp),
+    ]  # fmt: skip
+    data = b"".join(np.ascontiguousarray(f, dtype=np.uint8).tobytes() for f in frames)
+    try:
+        proc = subprocess.run(cmd, input=data, capture_output=True, check=False)
+        if proc.returncode != 0:
+            lines = proc.stderr.decode(errors="replace").strip().splitlines() or [f"exit status {proc.returncode}"]
+            raise VideoError(f"ffmpeg failed writing {path}: {lines[-1]}")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+# ------------------------------------------------------------------- camera
+def _moving_bounds(engine: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """Axis-aligned box ``(lo (3,), hi (3,))`` [m] around the geoms of moving bodies, at the current state."""
+    model, data = engine.model, engine.data
+    moving = np.asarray(model.geom_bodyid) != 0
+    if not np.any(moving):
+        return None
+    pos = np.asarray(data.geom_xpos)[moving]
+    rad = np.minimum(np.asarray(model.geom_rbound)[moving], 0.5 * float(model.stat.extent) + 1e-9)[:, None]
+    return (pos - rad).min(axis=0), (pos + rad).max(axis=0)
+
+
+def _framing(lo: np.ndarray, hi: np.ndarray, fovy_deg: float, aspect: float, extent: float) -> dict[str, Any]:
+    """A free-camera pose that keeps the box ``[lo, hi]`` in view."""
+    center = 0.5 * (lo + hi)
+    size = np.maximum(hi - lo, 1e-3)
+    radius = max(0.5 * float(np.linalg.norm(size)), 0.05 * extent, 0.05)
+    half_v = math.radians(fovy_deg) / 2
+    half_h = math.atan(math.tan(half_v) * aspect)
+    distance = 1.1 * radius / math.sin(min(half_v, half_h))
+    planar = size[2] < 0.3 * max(size[0], size[1])  # ground robots: look down on the plane
+    return {"center": center, "distance": distance, "azimuth": 90.0, "elevation": -50.0 if planar else -12.0}
+
+
+def _stamp(image: np.ndarray, text: str) -> np.ndarray:
+    """A copy of ``image`` with ``text`` in its top-left corner."""
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(image)
+    ImageDraw.Draw(im).text((6, 4), text, fill=(235, 235, 235))
+    return np.asarray(im)
+
+
+# ---------------------------------------------------------------- progress
+class _Progress:
+    """A one-line progress bar on stderr, shown when a render takes more than ``delay`` seconds."""
+
+    def __init__(self, total: int, label: str, enabled: bool | None, delay: float = 1.0):
+        self.total, self.label = total, label
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self.start = time.perf_counter()
+        self.delay, self.shown, self.last = delay, False, 0.0
+
+    def update(self, k: int) -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if now - self.start < self.delay or now - self.last < 0.2:
+            return
+        self.last, self.shown = now, True
+        frac = k / self.total
+        eta = (now - self.start) * (1 - frac) / max(frac, 1e-9)
+        sys.stderr.write(f"\r{self.label} [{'#' * int(30 * frac):30s}] {k}/{self.total} frames  eta {eta:5.1f} s")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.shown:
+            elapsed = time.perf_counter() - self.start
+            sys.stderr.write(f"\r{self.label} [{'#' * 30}] {self.total}/{self.total} frames  {elapsed:.1f} s\n")
+            sys.stderr.flush()
+
+
+# ------------------------------------------------------------------ render
+def _render_plant(sim: Any) -> tuple[Any, Any]:
+    """A fresh plant like ``sim.plant`` attached to a MuJoCo model built for rendering only."""
+    scenario = sim.scenario
+    plant_cls = type(sim.plant)
+    model = scenario.engine.model if scenario.engine is not None else None
+    if plant_cls.asset is None and model is None:
+        raise VideoError(f"{plant_cls.__name__} has no MuJoCo model (MJCF asset) to render; videos need one")
+    from shinro_ctrl.engine import MujocoEngine
+
+    plant = plant_cls.from_config(scenario.plant.params)
+    engine = MujocoEngine.for_plant(plant, model=model)
+    plant.physics_engine(engine)
+    return plant, engine
+
+
+def _replay(plant: Any, states: np.ndarray) -> Iterator[int]:
+    """Write each state into the plant (and so into its engine); yield the frame number."""
+    for k, x in enumerate(states):
+        try:
+            plant.set_state(x)
+        except (ValueError, ShinroError) as exc:
+            raise VideoError(f"cannot show the state of frame {k} in MuJoCo: {exc}") from exc
+        yield k
+
+
+def render_rollout(
+    sim: Any,
+    result: Any,
+    path: str | Path,
+    *,
+    width: int = 320,
+    height: int = 240,
+    fps: float = DEFAULT_FPS,
+    max_frames: int = MAX_FRAMES,
+    camera: str | None = None,
+    label: bool = True,
+    progress: bool | None = None,
+    on_frame: Callable[[int, np.ndarray], None] | None = None,
+) -> VideoInfo:
+    """Render a finished run offscreen with MuJoCo and write it as a GIF or MP4.
+
+    The recorded states ``result.x`` are replayed (every ``stride``-th, see
+    :func:`frame_indices`) through a MuJoCo model built for ``sim``'s plant
+    and parameters, whichever loop produced them. The free camera sees the
+    plant from the side (-y, +x to the right), or from above at 50° for
+    robots moving in the ground plane, framed once so that every moving part
+    stays in view over the whole run.
+
+    Args:
+        sim: The :class:`~shinro_ctrl.sim.RobotSim` that ran (for its plant and scenario).
+        result: Its :class:`~shinro_ctrl.sim.SimResult`.
+        path: Output file, ``.gif`` (Pillow) or ``.mp4`` (ffmpeg).
+        width: Frame width [px].
+        height: Frame height [px].
+        fps: Target frame rate [1/s]; the video plays in real time.
+        max_frames: At most this many frames (long runs get a lower frame rate).
+        camera: A camera of the MJCF model by name instead of the framed free camera.
+        label: Print the simulated time in the top-left corner.
+        progress: Progress bar on stderr (None: when stderr is a terminal and
+            the render takes longer than a second).
+        on_frame: Optional callback ``(k, image)`` for each rendered frame.
+
+    Returns:
+        A :class:`VideoInfo`.
+
+    Raises:
+        VideoError: unsupported format, missing encoder or OpenGL backend, a
+            plant without an MJCF asset, or a state MuJoCo cannot show.
+    """
+    suffix = _check_format(path)
+    select_gl_backend()
+    x = np.asarray(result.x, dtype=float)
+    t = np.asarray(result.t, dtype=float)
+    dt = float(t[1] - t[0]) if t.shape[0] > 1 else float(sim.plant.dt)
+    idx, stride = frame_indices(
+        x.shape[0], dt, fps=fps, max_frames=max_frames, quantum=0.01 if suffix == ".gif" else None
+    )
+    play_fps = 1.0 / (stride * dt)
+    plant, engine = _render_plant(sim)
+    states, times = x[idx], t[idx]
+
+    start = time.perf_counter()
+    # Pass 1: the plant writes each state into MuJoCo (its own coordinates, IK for an arm);
+    # keep MuJoCo's full state for pass 2 and the box the moving parts sweep.
+    snapshots = []
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for _ in _replay(plant, states):
+        engine.forward()  # some plants only write qpos (a pinned base); refresh what the box reads
+        snapshots.append(engine.get_state_vector())
+        box = _moving_bounds(engine)
+        if box is not None:
+            lo, hi = np.minimum(lo, box[0]), np.maximum(hi, box[1])
+    try:
+        renderer = engine.make_renderer(width, height)
+    except RuntimeError as exc:
+        raise VideoError(f"{exc}; for offscreen rendering: apt-get install libosmesa6 and MUJOCO_GL=osmesa") from exc
+    frames: list[np.ndarray] = []
+    bar = _Progress(len(snapshots), f"video {Path(path).name}", progress)
+    try:
+        if camera is None and np.all(np.isfinite(lo)):
+            model = engine.model
+            view = _framing(lo, hi, float(model.vis.global_.fovy), width / height, float(model.stat.extent))
+            renderer.look_at(view["center"], view["distance"], azimuth=view["azimuth"], elevation=view["elevation"])
+        for k, z in enumerate(snapshots):
+            engine.set_state_vector(z)
+            try:
+                image = renderer.render(camera)
+            except (KeyError, ValueError) as exc:
+                raise VideoError(f"camera {camera!r}: {exc}") from exc
+            frames.append(_stamp(image, f"t = {times[k]:.2f} s") if label else image.copy())
+            if on_frame is not None:
+                on_frame(k, frames[-1])
+            bar.update(k + 1)
+    finally:
+        renderer.close()
+        bar.close()
+    out = write_gif(frames, path, play_fps) if suffix == ".gif" else write_mp4(frames, path, play_fps)
+    return VideoInfo(Path(out), len(frames), play_fps, stride, width, height, time.perf_counter() - start)
