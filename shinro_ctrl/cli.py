@@ -138,6 +138,10 @@ DEFAULT_SCENARIO = "cartpole_lqr.toml"
 def cmd_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    if args.video:  # before mujoco is imported: it reads MUJOCO_GL once
+        from shinro_ctrl.video import prepare_video
+
+        prepare_video(args.video)
     from shinro_ctrl.sim import RobotSim, format_metrics
 
     sim = RobotSim.from_config(args.config or DEFAULT_SCENARIO, engine=args.engine)
@@ -153,6 +157,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         plot = result.plot(args.plot or Path("out") / f"{sim.scenario.name}_{sim.loop}.png")
     print(f"plot: {plot}")
+    if args.video:
+        from shinro_ctrl.video import render_rollout
+
+        video = render_rollout(sim, result, args.video)
+        print(f"video: {video.path} ({video.frames} frames, {video.ms_per_frame:.0f} ms/frame)")
     return 0
 
 
@@ -279,6 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the scenario's)")
     p.add_argument("--plot", metavar="PNG", help="where to write the plot")
     p.add_argument("--out", metavar="DIR", help="save result.npz, metrics.json, scenario.toml and run.png")
+    p.add_argument("--video", metavar="PATH", help="render the run offscreen with MuJoCo: .gif, or .mp4 with ffmpeg")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("design", help="design a controller from a scenario and print it")
