@@ -579,7 +579,7 @@ class MujocoEngine:
             height: Image height [px], 16 to 8192.
 
         Raises:
-            ValueError: a size out of range.
+            InvalidArgument: a size out of range.
             RuntimeError: no OpenGL context could be created (the message
                 names ``MUJOCO_GL`` and MuJoCo's reason).
         """
