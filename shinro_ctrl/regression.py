@@ -195,6 +195,9 @@ def run_regression(
     if not paths:
         raise FileNotFoundError(f"no regression scenarios (*.toml) in '{folder}'")
     report = RegressionReport()
+    if update:  # temporary files orphaned by an interrupted earlier update (see files.atomic_write)
+        for orphan in folder.glob(".*.baseline.json.*.tmp"):
+            orphan.unlink(missing_ok=True)
     t0 = time.perf_counter()
     for path in paths:
         sim = RobotSim.from_config(path)
