@@ -22,6 +22,7 @@ read and return fresh ``float64`` arrays.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -62,8 +63,10 @@ class IKResult:
         iterations: Iterations (QP or least-squares solves) over all attempts.
         pos_err: Position error ``|p_t − p(q)|`` [m].
         ori_err: Orientation error ``|log(R_t R(q)ᵀ)|`` [rad].
-        cond: 2-norm condition number of the task Jacobian at ``q``.
+        jacobian: Task Jacobian at ``q`` (``(6, n)`` pose, ``(3, n)`` position task).
         attempts: Starts tried (1 + the restarts used).
+        cond: 2-norm condition number of ``jacobian`` (computed on first access: an SVD
+            costs more than a whole IK iteration).
     """
 
     q: np.ndarray
@@ -71,8 +74,13 @@ class IKResult:
     iterations: int
     pos_err: float
     ori_err: float
-    cond: float
+    jacobian: np.ndarray
     attempts: int = 1
+
+    @functools.cached_property
+    def cond(self) -> float:
+        """2-norm condition number of the task Jacobian at ``q``."""
+        return float(np.linalg.cond(self.jacobian))
 
 
 def wrap_angle(a: Any) -> Any:

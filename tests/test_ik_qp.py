@@ -8,6 +8,7 @@ from scipy.optimize import lsq_linear
 from scipy.spatial.transform import Rotation
 
 from shinro_ctrl.controllers.ik_qp import IKQP, IKProblem
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 from shinro_ctrl.kinematics import pose_to_transform
 from shinro_ctrl.plants import ArmRobot
 
@@ -84,12 +85,16 @@ def test_invalid_options_name_themselves(arm, kw, word):
 
 
 def test_invalid_targets_and_joints(ik):
-    with pytest.raises(ValueError, match="target"):
+    with pytest.raises(InvalidArgument, match="target"):
         ik.step(np.zeros(6), np.zeros(3))  # a point is only a pose-task target for task="position"
     with pytest.raises(ValueError, match="q"):
         ik.step(np.zeros(5), np.eye(4))
     with pytest.raises(ValueError, match="restarts"):
         ik.solve(np.eye(4), np.zeros(6), restarts=-1)
+    with pytest.raises(NonFiniteError, match="T_target"):
+        ik.solve(np.full((4, 4), np.nan), np.zeros(6))
+    with pytest.raises(NonFiniteError, match="q0"):
+        ik.solve(np.eye(4), np.full(6, np.inf))
 
 
 # ---------------------------------------------------------------- the QP itself
@@ -225,7 +230,9 @@ def test_unreachable_targets_fail_gracefully(arm, ik, pose):
     assert inside(arm, res.q)
     pos, _ = pose_errors(arm, res.q, T)
     assert pos == pytest.approx(res.pos_err, abs=1e-9)
-    assert np.isfinite(res.cond) and res.attempts == 4
+    assert res.attempts == 4
+    np.testing.assert_allclose(res.jacobian, arm.jacobian(res.q), atol=1e-12)
+    assert res.cond == pytest.approx(np.linalg.cond(arm.jacobian(res.q)), rel=1e-9)
 
 
 def test_position_task(arm, rng):

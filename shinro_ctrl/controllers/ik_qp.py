@@ -38,6 +38,7 @@ import osqp
 import scipy.sparse as sp
 
 from shinro_ctrl.controllers.base import Controller
+from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.kinematics import (
     IKResult,
     euler_zyx_from_matrix,
@@ -136,7 +137,7 @@ class _BoxQP:
         self.n = n
         self.nnz = pattern.nnz
         if P_upper.shape != (self.nnz,):
-            raise ValueError(f"P upper triangle: expected {self.nnz} values but found {P_upper.shape}")
+            raise InvalidArgument(f"P upper triangle: expected {self.nnz} values but found {P_upper.shape}")
         P = sp.csc_matrix((P_upper.copy(), pattern.indices, pattern.indptr), shape=(n, n))
         self.solver = osqp.OSQP()
         try:
@@ -144,11 +145,12 @@ class _BoxQP:
                 P=P, q=np.zeros(n), A=sp.identity(n, format="csc"), l=-np.ones(n), u=np.ones(n), **settings
             )
         except ValueError as exc:
-            raise ValueError(f"osqp_settings: {exc}") from exc
+            raise InvalidArgument(f"osqp_settings: {exc}") from exc
         raw = getattr(self.solver, "_solver", None)
         names = ("update_data_vec", "update_data_mat", "solve", "solution", "info")
         self._raw = raw if raw is not None and all(hasattr(raw, a) for a in names) else None
         self._rho0 = float(settings.get("rho", self.solver.settings.rho))
+        self._zeros = np.zeros(n)
 
     def solve(self, P_upper: np.ndarray, c: np.ndarray, l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, int, int]:
         """Solve with new values; returns ``(x (n,), status_val, admm_iterations)``."""
@@ -169,6 +171,10 @@ class _BoxQP:
         OSQP carries both from one solve to the next (adaptive rho included), so results
         depend on the solve history unless this is called first.
         """
+        if self._raw is not None:
+            self._raw.warm_start(self._zeros, self._zeros)
+            self._raw.update_rho(self._rho0)
+            return
         self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(self.n))
         self.solver.update_settings(rho=self._rho0)
 
@@ -235,7 +241,7 @@ class IKQP(Controller):
         self.arm = arm
         n = self.n = int(arm.num_dof)
         if task not in ("pose", "position"):
-            raise ValueError(f"task must be 'pose' or 'position', got {task!r}")
+            raise InvalidArgument(f"task must be 'pose' or 'position', got {task!r}")
         self.task = task
         k = self.k = 6 if task == "pose" else 3
         self.damping = check_nonnegative("damping", damping)
@@ -246,7 +252,7 @@ class IKQP(Controller):
         else:
             vlim = as_vector("velocity_limit", velocity_limit, n)
         if not np.all(np.isfinite(vlim)) or np.any(vlim <= 0):
-            raise ValueError(f"velocity_limit must be positive and finite, got {velocity_limit!r}")
+            raise InvalidArgument(f"velocity_limit must be positive and finite, got {velocity_limit!r}")
         self.velocity_limit = vlim
         if weights is None:
             w = np.ones(k)
@@ -255,10 +261,10 @@ class IKQP(Controller):
         else:
             w = as_vector("weights", weights, k)
             if np.any(w < 0):
-                raise ValueError(f"weights must be >= 0, got {w.tolist()}")
+                raise InvalidArgument(f"weights must be >= 0, got {w.tolist()}")
         self.weights = w
         if not isinstance(control_iters, int) or control_iters < 1:
-            raise ValueError(f"control_iters must be a positive integer, got {control_iters!r}")
+            raise InvalidArgument(f"control_iters must be a positive integer, got {control_iters!r}")
         self.control_iters = control_iters
         limits = np.asarray(arm.joint_limits, dtype=float)
         self.lo = limits[:, 0].copy()
@@ -401,18 +407,22 @@ class IKQP(Controller):
         """``(p (3,), R (3, 3))`` of a transform (4, 4), a pose (6,) or (position task) a point (3,)."""
         a = np.asarray(target, dtype=float)
         if a.shape == (4, 4):
-            T = as_matrix(name, a, (4, 4))
-            return T[:3, 3].copy(), T[:3, :3].copy()
+            if not math.isfinite(float(a.sum())):
+                as_matrix(name, a, (4, 4))  # raises NonFiniteError naming the target
+            return a[:3, 3].copy(), a[:3, :3].copy()
         if a.shape == (6,):
             a = as_vector(name, a, 6)
             return a[:3].copy(), euler_zyx_to_matrix(a[3:])
         if a.shape == (3,) and self.task == "position":
             return as_vector(name, a, 3).copy(), np.eye(3)
         shapes = "(4, 4) or (6,)" + (" or (3,)" if self.task == "position" else "")
-        raise ValueError(f"{name}: expected shape {shapes} but found {a.shape}")
+        raise InvalidArgument(f"{name}: expected shape {shapes} but found {a.shape}")
 
     def _joints(self, q: Any, name: str) -> np.ndarray:
-        return np.clip(as_vector(name, q, self.n), self.lo, self.hi)
+        """``q`` as a fresh ``(n,)`` array clipped to the limits (validated: shape, finite)."""
+        if not (type(q) is np.ndarray and q.shape == (self.n,) and math.isfinite(float(q.sum()))):
+            q = as_vector(name, q, self.n)
+        return np.minimum(np.maximum(q, self.lo), self.hi)
 
     def _converged(self, pos_err: float, ori_err: float, tol: float) -> bool:
         return pos_err < tol and (self.k == 3 or ori_err < tol)
@@ -504,9 +514,9 @@ class IKQP(Controller):
         q0 = self._joints(q0, "q0")
         pt, Rt = self._target(T_target, "T_target")
         if not isinstance(max_iters, int) or max_iters < 0:
-            raise ValueError(f"max_iters must be a non-negative integer, got {max_iters!r}")
+            raise InvalidArgument(f"max_iters must be a non-negative integer, got {max_iters!r}")
         if not isinstance(restarts, int) or restarts < 0:
-            raise ValueError(f"restarts must be a non-negative integer, got {restarts!r}")
+            raise InvalidArgument(f"restarts must be a non-negative integer, got {restarts!r}")
         tol = check_positive("tol", tol)
         self._qp.reset()  # the same call gives the same answer, whatever was solved before
         best, total = self._attempt(q0, pt, Rt, max_iters, tol)
@@ -520,9 +530,9 @@ class IKQP(Controller):
             if res[1] or res[4] < best[4]:
                 best = res
         q, converged, pos_err, ori_err, _ = best
-        self._evaluate(q)
-        cond = float(np.linalg.cond(self._J[: self.k]))
-        return IKResult(q, converged, total, pos_err, ori_err, cond, attempts)
+        if not np.array_equal(q, self._qb):
+            self._evaluate(q)
+        return IKResult(q, converged, total, pos_err, ori_err, self._J[: self.k].copy(), attempts)
 
     def _attempt(
         self, q: np.ndarray, pt: np.ndarray, Rt: np.ndarray, max_iters: int, tol: float

@@ -41,7 +41,7 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import CasadiBackend, ScalarBackend
-from shinro_ctrl.errors import ConfigError, NonFiniteError
+from shinro_ctrl.errors import ConfigError, InvalidArgument, NonFiniteError
 from shinro_ctrl.kinematics import (
     IKResult,
     euler_zyx_from_matrix,
@@ -133,12 +133,12 @@ class ArmRobot(Plant):
         ee_offset: Any = None,
     ):
         if isinstance(num_dof, bool) or not isinstance(num_dof, int | np.integer) or num_dof < 1:
-            raise ValueError(f"num_dof must be a positive integer, got {num_dof!r}")
+            raise InvalidArgument(f"num_dof must be a positive integer, got {num_dof!r}")
         n = self.num_dof = int(num_dof)
         geometry = {"joint_limits": joint_limits, "joint_offsets": joint_offsets, "rot_axes": rot_axes}
         if all(v is None for v in geometry.values()):
             if n != 6:
-                raise ValueError(
+                raise InvalidArgument(
                     f"num_dof = {n} needs joint_limits, joint_offsets and rot_axes "
                     "(without them the arm is the shipped 6-joint arm6)"
                 )
@@ -149,37 +149,37 @@ class ArmRobot(Plant):
         else:
             missing = [k for k, v in geometry.items() if v is None]
             if missing:
-                raise ValueError(f"{missing[0]} is required when any of {', '.join(geometry)} is given")
+                raise InvalidArgument(f"{missing[0]} is required when any of {', '.join(geometry)} is given")
         check_positive("dt", dt)
         limits = as_matrix("joint_limits", joint_limits, (n, 2))
         bad = np.flatnonzero(limits[:, 0] > limits[:, 1])
         if bad.size:
             i = int(bad[0])
-            raise ValueError(
+            raise InvalidArgument(
                 f"joint_limits: row {i} has min > max ({limits[i, 0]:g} > {limits[i, 1]:g}); rows are [min, max]"
             )
         self.joint_limits = limits
         self.joint_offsets = as_matrix("joint_offsets", joint_offsets, (n, 3))
         axes = tuple(rot_axes)
         if len(axes) != n:
-            raise ValueError(f"rot_axes: expected {n} axes but found {len(axes)}")
+            raise InvalidArgument(f"rot_axes: expected {n} axes but found {len(axes)}")
         for i, a in enumerate(axes):
             if a not in _AXES:
-                raise ValueError(f"rot_axes[{i}] must be one of 'x', 'y', 'z', got {a!r}")
+                raise InvalidArgument(f"rot_axes[{i}] must be one of 'x', 'y', 'z', got {a!r}")
         self.axes = axes
         if joint_names is None:
             names = tuple(f"joint_{i}" for i in range(n))
         else:
             if isinstance(joint_names, str):
-                raise ValueError(f"joint_names must be a list of {n} names, got the string {joint_names!r}")
+                raise InvalidArgument(f"joint_names must be a list of {n} names, got the string {joint_names!r}")
             names = tuple(joint_names)
             if len(names) != n:
-                raise ValueError(f"joint_names: expected {n} names but found {len(names)}")
+                raise InvalidArgument(f"joint_names: expected {n} names but found {len(names)}")
             if not all(isinstance(s, str) and s for s in names) or len(set(names)) != n:
-                raise ValueError(f"joint_names must be {n} unique non-empty strings, got {list(names)}")
+                raise InvalidArgument(f"joint_names must be {n} unique non-empty strings, got {list(names)}")
         self.joint_names = names
         if ee_body_name is not None and not isinstance(ee_body_name, str):
-            raise ValueError(f"ee_body_name must be a string or None, got {ee_body_name!r}")
+            raise InvalidArgument(f"ee_body_name must be a string or None, got {ee_body_name!r}")
         self.ee_body_name = ee_body_name
         self.ee_offset = np.zeros(3) if ee_offset is None else as_vector("ee_offset", ee_offset, 3)
         self._init(dt=dt, params={}, backend=backend)
@@ -315,7 +315,7 @@ class ArmRobot(Plant):
                 J[:3, i] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
                 J[3:, i] = so3_log(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * eps)
             return J
-        raise ValueError(f"unknown Jacobian method {method!r}; valid: exact, fd, geometric")
+        raise InvalidArgument(f"unknown Jacobian method {method!r}; valid: exact, fd, geometric")
 
     def _symbolic_chain(self) -> tuple:
         """``(q, p (3, 1), R (3, 3), J_geometric (6, n))`` as CasADi SX, built once."""
@@ -393,7 +393,7 @@ class ArmRobot(Plant):
             it += 1
         if not full_output:
             return q
-        return IKResult(q, converged, it, pos_err, ori_err, float(np.linalg.cond(J)), 1)
+        return IKResult(q, converged, it, pos_err, ori_err, J.copy(), 1)
 
     def engine_ik(
         self,
@@ -484,7 +484,7 @@ class ArmRobot(Plant):
         out = np.flatnonzero((q < self._lo) | (q > self._hi))
         if out.size:
             i = int(out[0])
-            raise ValueError(
+            raise InvalidArgument(
                 f"joint '{self.joint_names[i]}' = {q[i]:g} rad is outside its limits [{self._lo[i]:g}, {self._hi[i]:g}]"
             )
         self._q = q.copy()
@@ -576,7 +576,7 @@ class ArmRobot(Plant):
         else:
             res = self.inverse_kinematics(T, q_init=self._q_cmd, max_iters=500, tol=1e-8, full_output=True)
         if not (res.pos_err < 1e-6 and res.ori_err < 1e-6):
-            raise ValueError(
+            raise InvalidArgument(
                 f"pose {np.array2string(x, precision=4)} is not reachable within the joint limits "
                 f"(closest: {res.pos_err:.3g} m, {res.ori_err:.3g} rad away)"
             )
@@ -651,7 +651,7 @@ class ArmRobot(Plant):
                 joint names of :data:`ARM6_JOINTS`), or has a non-zero ``ee_offset``.
         """
         if self.axes != ARM6_AXES or self.joint_names != ARM6_JOINTS or np.any(self.ee_offset != 0.0):
-            raise ValueError(
+            raise InvalidArgument(
                 "arm6.xml models a 6-joint arm with axes z y y y z x, joints "
                 f"{', '.join(ARM6_JOINTS)} and no ee_offset; this arm has axes {' '.join(self.axes)}, "
                 f"joints {', '.join(self.joint_names)} and ee_offset {self.ee_offset.tolist()}"
