@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.errors import ShinroError
+from shinro_ctrl.errors import InvalidArgument, ShinroError
 
 __all__ = [
     "DEFAULT_FPS",
@@ -245,11 +245,11 @@ def frame_indices(
         plus the last state when the stride skips it.
     """
     if n_states < 1:
-        raise ValueError(f"n_states must be >= 1, got {n_states}")
+        raise InvalidArgument(f"n_states must be >= 1, got {n_states}")
     if not (math.isfinite(dt) and dt > 0 and math.isfinite(fps) and fps > 0):
-        raise ValueError(f"dt and fps must be positive, got dt={dt!r}, fps={fps!r}")
+        raise InvalidArgument(f"dt and fps must be positive, got dt={dt!r}, fps={fps!r}")
     if max_frames < 2:
-        raise ValueError(f"max_frames must be >= 2, got {max_frames}")
+        raise InvalidArgument(f"max_frames must be >= 2, got {max_frames}")
     ideal = 1.0 / (fps * dt)
     floor = max(1, math.ceil((n_states - 1) / (max_frames - 1)))
     stride = max(floor, round(ideal))
@@ -278,7 +278,7 @@ def write_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float) -> Pat
     from shinro_ctrl.files import atomic_write
 
     if not frames:
-        raise ValueError("no frames to write")
+        raise InvalidArgument("no frames to write")
     images = [Image.fromarray(np.ascontiguousarray(f)).quantize(colors=256, dither=Image.Dither.NONE) for f in frames]
     duration = max(10, 10 * round(100.0 / fps))  # [ms], a multiple of 10
     return atomic_write(
@@ -300,7 +300,7 @@ def write_mp4(frames: Sequence[np.ndarray], path: str | Path, fps: float, *, ffm
     if ffmpeg is None:
         raise VideoError("writing .mp4 needs ffmpeg: pip install imageio-ffmpeg (or apt-get install ffmpeg)")
     if not frames:
-        raise ValueError("no frames to write")
+        raise InvalidArgument("no frames to write")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     h, w = frames[0].shape[:2]
@@ -385,16 +385,20 @@ class _Progress:
 
 
 # ------------------------------------------------------------------ render
-def _render_plant(sim: Any) -> tuple[Any, Any]:
-    """A fresh plant like ``sim.plant`` attached to a MuJoCo model built for rendering only."""
+def _render_model(sim: Any) -> str | None:
+    """The MJCF model the scenario names (None: the plant's asset); raise if there is none."""
     scenario = sim.scenario
-    plant_cls = type(sim.plant)
     model = scenario.engine.model if scenario.engine is not None else None
-    if plant_cls.asset is None and model is None:
-        raise VideoError(f"{plant_cls.__name__} has no MuJoCo model (MJCF asset) to render; videos need one")
+    if type(sim.plant).asset is None and model is None:
+        raise VideoError(f"{type(sim.plant).__name__} has no MuJoCo model (MJCF asset) to render; videos need one")
+    return model
+
+
+def _render_plant(sim: Any, model: str | None) -> tuple[Any, Any]:
+    """A fresh plant like ``sim.plant`` attached to a MuJoCo model built for rendering only."""
     from shinro_ctrl.engine import MujocoEngine
 
-    plant = plant_cls.from_config(scenario.plant.params)
+    plant = type(sim.plant).from_config(sim.scenario.plant.params)
     engine = MujocoEngine.for_plant(plant, model=model)
     plant.physics_engine(engine)
     return plant, engine
@@ -455,6 +459,7 @@ def render_rollout(
             plant without an MJCF asset, or a state MuJoCo cannot show.
     """
     suffix = _check_format(path)
+    model = _render_model(sim)
     select_gl_backend()
     x = np.asarray(result.x, dtype=float)
     t = np.asarray(result.t, dtype=float)
@@ -463,7 +468,7 @@ def render_rollout(
         x.shape[0], dt, fps=fps, max_frames=max_frames, quantum=0.01 if suffix == ".gif" else None
     )
     play_fps = 1.0 / (stride * dt)
-    plant, engine = _render_plant(sim)
+    plant, engine = _render_plant(sim, model)
     states, times = x[idx], t[idx]
 
     start = time.perf_counter()
