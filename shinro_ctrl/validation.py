@@ -24,6 +24,7 @@ __all__ = [
     "check_positive",
     "closest",
     "did_you_mean",
+    "state_space",
     "unknown_keys",
     "weight_matrix",
 ]
@@ -149,3 +150,34 @@ def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False) -> n
     if lam_min < -1e-9 * scale:
         raise InvalidArgument(f"{name} must be positive semidefinite (smallest eigenvalue {lam_min:.3g})")
     return W
+
+
+def state_space(A: Any, B: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a linear pair: ``A`` square ``(n, n)``, ``B`` ``(n, m)`` (a ``(n,)`` vector means m = 1).
+
+    Returns:
+        ``(A, B)`` as float arrays.
+
+    Raises:
+        InvalidArgument: not numeric, wrong shapes, or empty.
+        NonFiniteError: NaN or inf.
+    """
+    try:
+        A_ = np.atleast_2d(np.asarray(A, dtype=float))
+        B_ = np.asarray(B, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidArgument("A and B must be numeric matrices") from None
+    if A_.ndim != 2 or A_.shape[0] != A_.shape[1]:
+        raise InvalidArgument(f"A: expected a square (n, n) matrix but found {A_.shape}")
+    n = A_.shape[0]
+    if B_.ndim == 1 and B_.shape == (n,):
+        B_ = B_.reshape(n, 1)
+    if B_.ndim != 2 or B_.shape[0] != n:
+        raise InvalidArgument(f"B: expected ({n}, m) but found {B_.shape}")
+    m = B_.shape[1]
+    if m == 0 or n == 0:
+        raise InvalidArgument(f"A and B must have at least one state and one input, found n={n}, m={m}")
+    for name, M in (("A", A_), ("B", B_)):
+        if not np.all(np.isfinite(M)):
+            raise NonFiniteError(f"{name} must be finite")
+    return A_, B_

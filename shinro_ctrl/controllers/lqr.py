@@ -8,7 +8,7 @@ import numpy as np
 
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument, NotStabilizable
-from shinro_ctrl.validation import as_matrix, as_vector, weight_matrix
+from shinro_ctrl.validation import as_vector, state_space, weight_matrix
 
 __all__ = ["LQR", "check_stabilizable"]
 
@@ -95,16 +95,8 @@ class LQR(Controller):
         feedforward: bool = False,
         state_names: Any = None,
     ):
-        A = np.asarray(A, dtype=float)
-        n = A.shape[0] if A.ndim == 2 else -1
-        A = as_matrix("A", A, (n, n)) if n > 0 else as_matrix("A", A, (1, 1))
-        n = A.shape[0]
-        B = np.asarray(B, dtype=float)
-        if B.ndim == 1:
-            B = B.reshape(n, 1) if B.shape == (n,) else B
-        m = B.shape[1] if B.ndim == 2 else -1
-        B = as_matrix("B", B, (n, max(m, 1)))
-        m = B.shape[1]
+        A, B = state_space(A, B)
+        n, m = B.shape
         self.A, self.B = A, B
         self.Q = weight_matrix("Q", Q, n)
         self.R = weight_matrix("R", R, m, definite=True)

@@ -60,7 +60,7 @@ import scipy.sparse as sp
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
 from shinro_ctrl.linearization import discretize
-from shinro_ctrl.validation import as_vector, check_positive, closest, unknown_keys
+from shinro_ctrl.validation import as_vector, check_positive, closest, state_space, unknown_keys
 
 __all__ = ["QP", "LinearMPC", "MPCSolution", "RowGroup"]
 
@@ -352,24 +352,8 @@ class LinearMPC(Controller):
         input_names: Any = None,
     ):
         # ------------------------------------------------------- validation
-        try:
-            A_ = np.atleast_2d(np.asarray(A, dtype=float))
-            B_ = np.asarray(B, dtype=float)
-        except (TypeError, ValueError):
-            raise InvalidArgument("A and B must be numeric matrices") from None
-        if A_.ndim != 2 or A_.shape[0] != A_.shape[1]:
-            raise InvalidArgument(f"A: expected a square (n, n) matrix but found {A_.shape}")
-        n = A_.shape[0]
-        if B_.ndim == 1 and B_.shape == (n,):
-            B_ = B_.reshape(n, 1)
-        if B_.ndim != 2 or B_.shape[0] != n:
-            raise InvalidArgument(f"B: expected ({n}, m) but found {B_.shape}")
-        m = B_.shape[1]
-        if m == 0 or n == 0:
-            raise InvalidArgument(f"A and B must have at least one state and one input, found n={n}, m={m}")
-        for name, M in (("A", A_), ("B", B_)):
-            if not np.all(np.isfinite(M)):
-                raise NonFiniteError(f"{name} must be finite")
+        A_, B_ = state_space(A, B)
+        n, m = B_.shape
         Q_ = _symmetric("Q", _square("Q", Q, n), definite=False)
         R_ = _symmetric("R", _square("R", R, m), definite=True)
         if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)):
