@@ -105,13 +105,16 @@ OTHER_CASES = {
     "negative_duration": (["run", "cartpole_lqr", "--duration", "-1"], "duration"),
     "design_wrong_kind": (["design", "mpc", "cartpole_lqr"], "not LinearMPC"),
     "regress_missing_dir": (["regress", "/no/such/dir"], "no regression folder"),
-    "sweep_lo_gt_hi": (["sweep", "cartpole_lqr", "--param", "plant.pole_mass=0.3:0.1", "--samples", "2"], "0.3"),
+    "sweep_lo_gt_hi": (
+        ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=0.3:0.1", "--samples", "2", "--out", "sw"],
+        "0.3",
+    ),
     "sweep_unknown_key": (
-        ["sweep", "cartpole_lqr", "--param", "plant.pole_mas=0.1:0.3", "--samples", "2"],
+        ["sweep", "cartpole_lqr", "--param", "plant.pole_mas=0.1:0.3", "--samples", "2", "--out", "sw"],
         "pole_mass",
     ),
     "sweep_bad_range": (
-        ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=abc", "--samples", "2"],
+        ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=abc", "--samples", "2", "--out", "sw"],
         "plant.pole_mass",
     ),
     "unknown_command": (["fly"], "invalid choice"),
