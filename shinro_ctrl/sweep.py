@@ -48,8 +48,9 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -276,10 +277,35 @@ def _build_nominal(doc: Mapping[str, Any], source: str | None, engine: str | Non
     return RobotSim(scenario, engine=engine)
 
 
+@contextmanager
+def _quiet_mujoco(nominal: Any) -> Iterator[None]:
+    """Silence MuJoCo's printed warnings (and MUJOCO_LOG.TXT) while a MuJoCo sweep runs.
+
+    A sweep expects diverging samples; the engine still detects each one from
+    ``data.warning`` and raises ``SimulationDiverged``, whose message goes in
+    the table, so the C library's own print adds only noise (hundreds of lines
+    over the progress bar). The previous handler is restored afterwards.
+    """
+    if nominal.engine is None:
+        yield
+        return
+    import mujoco
+
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda message: None)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
 def _run_job(job: _Job) -> list[_Outcome]:
     """Worker entry point: run a chunk of samples (module level, so it pickles by reference)."""
     nominal = _nominal_for(job)
-    return [_run_one(nominal, job.names, i, row, job.stable_tol) for i, row in zip(job.indices, job.rows, strict=True)]
+    with _quiet_mujoco(nominal):
+        return [
+            _run_one(nominal, job.names, i, row, job.stable_tol) for i, row in zip(job.indices, job.rows, strict=True)
+        ]
 
 
 # -------------------------------------------------------------------- result
@@ -317,6 +343,9 @@ class SweepResult:
         metric: The metric :meth:`plot` shows by default.
         elapsed_s: Wall time of the sweep [s].
         notes: Remarks about the run (e.g. why the batch rollout was not used).
+        timings: Batch rollout only: ``build_plants_s`` (constructing and
+            validating the perturbed plants), ``rollout_s`` (the vectorized
+            loop, metrics included), ``instances`` and ``steps``.
         files: Paths written (``csv``, ``json``, ``png``).
     """
 
@@ -333,6 +362,7 @@ class SweepResult:
     metric: str = "rms_error"
     elapsed_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
 
     @property
@@ -621,9 +651,10 @@ def _jobs(base: _Job, values: np.ndarray, n_tasks: int) -> list[_Job]:
 
 def _run_serial(nominal: Any, base: _Job, values: np.ndarray, bar: _Bar) -> list[_Outcome]:
     out = []
-    for i, row in enumerate(values):
-        out.append(_run_one(nominal, base.names, i, row, base.stable_tol))
-        bar.update(i + 1)
+    with _quiet_mujoco(nominal):
+        for i, row in enumerate(values):
+            out.append(_run_one(nominal, base.names, i, row, base.stable_tol))
+            bar.update(i + 1)
     return out
 
 
@@ -700,7 +731,9 @@ def _batch_reason(nominal: Any, names: Sequence[str]) -> str | None:
     return None
 
 
-def _run_batch(nominal: Any, names: Sequence[str], values: np.ndarray, stable_tol: float, bar: _Bar):
+def _run_batch(
+    nominal: Any, names: Sequence[str], values: np.ndarray, stable_tol: float, bar: _Bar, timings: dict[str, float]
+) -> list[_Outcome]:
     from shinro_ctrl.batch import lqr_batch_rollout
     from shinro_ctrl.plants import plant_class
 
@@ -708,6 +741,7 @@ def _run_batch(nominal: Any, names: Sequence[str], values: np.ndarray, stable_to
     cls = plant_class(scenario.plant.type)
     S = values.shape[0]
     outcomes: dict[int, _Outcome] = {}
+    t0 = time.perf_counter()
     ok: list[int] = []
     plist: list[dict[str, float]] = []
     # Build each perturbed plant, as the per-sample path does: the constructor validates the values
@@ -727,6 +761,8 @@ def _run_batch(nominal: Any, names: Sequence[str], values: np.ndarray, stable_to
                 continue
         ok.append(i)
         plist.append(plant.params())
+    timings["build_plants_s"] = time.perf_counter() - t0
+    timings["instances"] = len(ok)
     if ok:
         pnames = nominal.plant.param_names
         params = {p: np.array([d[p] for d in plist], dtype=float) for p in pnames}
@@ -743,6 +779,8 @@ def _run_batch(nominal: Any, names: Sequence[str], values: np.ndarray, stable_to
             settle_tol=scenario.sim.settle_tol,
             progress=lambda k, total: bar.update(int(S * k / total)),
         )
+        timings["rollout_s"] = roll.elapsed_s
+        timings["steps"] = steps
         label = f"{scenario.name} ({nominal.loop})"
         pname = type(nominal.plant).__name__
         for j, i in enumerate(ok):
@@ -857,10 +895,11 @@ def run_sweep(
 
     base = _Job(doc, source, engine, names, (), (), tol)
     bar = _Bar(values.shape[0], f"sweep {scenario.name}", progress)
+    timings: dict[str, float] = {}
     used_workers = 1 if chosen in ("serial", "batch") else workers
     try:
         if chosen == "batch":
-            outcomes = _run_batch(nominal, names, values, tol, bar)
+            outcomes = _run_batch(nominal, names, values, tol, bar, timings)
         elif chosen == "serial":
             outcomes = _run_serial(nominal, base, values, bar)
         elif chosen == "pool":
@@ -888,6 +927,7 @@ def run_sweep(
         stable_tol=tol,
         metric=metric,
         notes=notes,
+        timings=timings,
     )
     result.elapsed_s = time.perf_counter() - t_start
     if out is not None:
