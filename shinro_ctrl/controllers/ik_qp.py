@@ -20,9 +20,11 @@ bound ``s`` is ``max_step`` [rad] in :meth:`IKQP.solve` and
 One OSQP problem is set up at construction with a fixed sparsity pattern
 (the full upper triangle of ``P``, the identity ``A``) and updated in place
 every iteration; the kinematics, ``P``'s upper triangle and ``Jᵀ W`` come
-from one compiled CasADi function evaluated through its buffer. Every joint
-vector this module returns is clipped to the joint limits exactly (OSQP
-satisfies bounds only to about its tolerance).
+from one compiled CasADi function evaluated through its buffer. The QP is
+posed for ``Δq / ‖e‖`` (``c`` and the bounds divided by the error norm), so
+OSQP's tolerances are relative to the step and do not cap the IK precision.
+Every joint vector this module returns is clipped to the joint limits exactly
+(OSQP satisfies bounds only to about its tolerance).
 """
 
 from __future__ import annotations
@@ -205,7 +207,9 @@ class IKQP(Controller):
 
     Args:
         arm: The arm (``ArmRobot``); its joint limits and kinematics are read once here.
-        damping: ``λ >= 0``, Tikhonov term on ``Δq`` [m² or rad² per rad²].
+        damping: ``λ >= 0``, weight of the ``½ λ ‖Δq‖²`` term. The default 1e-4 keeps
+            convergence quick at near-singular targets (with 1e-3, 98.5 % instead of 100 %
+            of the workspace benchmark targets converge with 20 restarts).
         velocity_limit: Joint speed limit [rad/s], > 0, a scalar or ``(n,)`` (default π,
             the UR5's).
         dt: Control step [s] (default ``arm.dt``).
@@ -222,7 +226,8 @@ class IKQP(Controller):
             the controller then aims at ``r(t + dt)``, removing one step of delay.
 
     Raises:
-        ValueError: an invalid option (the message names it), including an unknown OSQP setting.
+        InvalidArgument: an invalid option (the message names it), including an unknown OSQP
+            setting. (``InvalidArgument`` is a ``ValueError``.)
     """
 
     def __init__(

@@ -108,8 +108,8 @@ class ArmRobot(Plant):
             such as an ``IKQP`` built for this arm); None selects the damped pseudoinverse.
 
     Raises:
-        ValueError: a wrong shape (the message names the argument), ``dt <= 0``, a limit
-            with ``min > max``, or an axis letter other than x, y, z.
+        InvalidArgument: a wrong shape (the message names the argument), ``dt <= 0``, a limit
+            with ``min > max``, or an axis letter other than x, y, z (a ``ValueError``).
         NonFiniteError: a limit or offset is NaN or infinite.
     """
 
@@ -478,7 +478,7 @@ class ArmRobot(Plant):
         """Place the arm at joints ``q (n,)`` [rad] (engine: at rest, actuators holding ``q``).
 
         Raises:
-            ValueError: wrong shape or outside the joint limits.
+            InvalidArgument: wrong shape or outside the joint limits.
         """
         q = self._joints(q)
         out = np.flatnonzero((q < self._lo) | (q > self._hi))
@@ -522,7 +522,7 @@ class ArmRobot(Plant):
             Joint angles ``(n,)`` [rad] after the step (measured in engine mode).
 
         Raises:
-            ValueError: ``u`` has the wrong shape.
+            InvalidArgument: ``u`` has the wrong shape.
             NonFiniteError: ``u`` holds NaN or inf.
         """
         u = self._input(u)
@@ -567,7 +567,7 @@ class ArmRobot(Plant):
         pseudoinverse with 500 iterations.
 
         Raises:
-            ValueError: wrong shape, or the pose is not reached to 1e-6 (unreachable).
+            InvalidArgument: wrong shape, or the pose is not reached to 1e-6 (unreachable).
         """
         x = as_vector("ArmRobot state", x, 6)
         T = pose_to_transform(x)
@@ -593,8 +593,8 @@ class ArmRobot(Plant):
         their FK pose.
 
         Raises:
-            KeyError: a joint or the end-effector body is missing from the model (the
-                message lists the valid names).
+            UnknownName: a joint or the end-effector body is missing from the model (the
+                message lists the valid names; a ``KeyError``).
         """
         if engine is None:
             self._engine = None
@@ -647,7 +647,7 @@ class ArmRobot(Plant):
         """Match ``assets/arm6.xml`` to this arm: link offsets (body positions), visuals, ``dt``.
 
         Raises:
-            ValueError: the arm is not the shipped 6-joint layout (axes ``z y y y z x`` and the
+            InvalidArgument: the arm is not the shipped 6-joint layout (axes ``z y y y z x`` and the
                 joint names of :data:`ARM6_JOINTS`), or has a non-zero ``ee_offset``.
         """
         if self.axes != ARM6_AXES or self.joint_names != ARM6_JOINTS or np.any(self.ee_offset != 0.0):
