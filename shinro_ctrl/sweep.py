@@ -277,6 +277,10 @@ def _build_nominal(doc: Mapping[str, Any], source: str | None, engine: str | Non
     return RobotSim(scenario, engine=engine)
 
 
+_QUIET_LOCK = threading.Lock()
+_QUIET_STATE: dict[str, Any] = {"depth": 0, "previous": None}
+
+
 @contextmanager
 def _quiet_mujoco(nominal: Any) -> Iterator[None]:
     """Silence MuJoCo's printed warnings (and MUJOCO_LOG.TXT) while a MuJoCo sweep runs.
@@ -284,19 +288,32 @@ def _quiet_mujoco(nominal: Any) -> Iterator[None]:
     A sweep expects diverging samples; the engine still detects each one from
     ``data.warning`` and raises ``SimulationDiverged``, whose message goes in
     the table, so the C library's own print adds only noise (hundreds of lines
-    over the progress bar). The previous handler is restored afterwards.
+    over the progress bar). The handler is process-global: the first of
+    nested or concurrent (Dask thread workers) users installs the silent one,
+    the last restores the previous handler.
     """
     if nominal.engine is None:
         yield
         return
     import mujoco
 
-    previous = mujoco.get_mju_user_warning()
-    mujoco.set_mju_user_warning(lambda message: None)
+    with _QUIET_LOCK:
+        if _QUIET_STATE["depth"] == 0:
+            _QUIET_STATE["previous"] = mujoco.get_mju_user_warning()
+            mujoco.set_mju_user_warning(_ignore_warning)
+        _QUIET_STATE["depth"] += 1
     try:
         yield
     finally:
-        mujoco.set_mju_user_warning(previous)
+        with _QUIET_LOCK:
+            _QUIET_STATE["depth"] -= 1
+            if _QUIET_STATE["depth"] == 0:
+                mujoco.set_mju_user_warning(_QUIET_STATE["previous"])
+                _QUIET_STATE["previous"] = None
+
+
+def _ignore_warning(message: str) -> None:
+    """A MuJoCo warning handler that drops the text (the engine reads ``data.warning``)."""
 
 
 def _run_job(job: _Job) -> list[_Outcome]:
@@ -472,10 +489,15 @@ class SweepResult:
         values = self.values
         P = len(self.ranges)
         fig, axes = plt.subplots(1, P, figsize=(5.2 * P, 4.2), squeeze=False, sharey=True)
-        finite_pos = y[np.isfinite(y) & (y > 0)]
-        floor = float(finite_pos.min()) if finite_pos.size else 1e-6
-        top = float(finite_pos.max()) * 3 if finite_pos.size else 1.0
-        y_plot = np.where(np.isfinite(y), np.maximum(y, floor), np.nan)
+        ok = np.isfinite(y) & (y > 0)
+        floor = float(y[ok].min()) if ok.any() else 1e-6
+        # Diverging runs reach absurd values; keep the axis about the stable ones (3 decades above them).
+        ceiling = (
+            float(y[ok & stable].max()) * 1e3 if (ok & stable).any() else (float(y[ok].max()) if ok.any() else 1.0)
+        )
+        clipped = bool((y[ok] > ceiling).any())
+        y_plot = np.where(np.isfinite(y), np.clip(y, floor, max(ceiling, floor)), np.nan)
+        top = max(ceiling, floor) * 3
         failed = ~np.isfinite(y)
         for j, key in enumerate(self.ranges):
             ax = axes[0, j]
@@ -501,9 +523,10 @@ class SweepResult:
                     clip_on=False,
                 )
             ax.set_yscale("log")
+            ax.set_ylim(floor / 2, top * 2)
             ax.set_xlabel(key)
             ax.grid(alpha=0.3, which="both")
-        axes[0, 0].set_ylabel(f"{metric} (log)")
+        axes[0, 0].set_ylabel(f"{metric} (log" + (f"; clipped at {ceiling:.3g})" if clipped else ")"))
         handles: dict[str, Any] = {}
         for ax in axes[0]:
             for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
@@ -620,9 +643,9 @@ class _Bar:
         self.last, self.shown = now, True
         frac = done / self.total
         elapsed = now - self.start
-        eta = elapsed * (1 - frac) / frac if frac > 0 else math.nan
+        eta = f"{elapsed * (1 - frac) / frac:5.1f} s" if frac > 0 else "    ? s"
         bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\r{self.label} [{bar:30s}] {done}/{self.total}  eta {eta:5.1f} s ")
+        sys.stderr.write(f"\r{self.label} [{bar:30s}] {done}/{self.total}  eta {eta} ")
         sys.stderr.flush()
 
     def close(self) -> None:
