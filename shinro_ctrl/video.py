@@ -66,12 +66,12 @@ __all__ = [
     "write_mp4",
 ]
 
-#: Target frame rate [frames per simulated second].
 DEFAULT_FPS = 30.0
-#: Largest number of frames of one video; longer runs get a lower frame rate.
+"""Target frame rate [frames per simulated second]."""
 MAX_FRAMES = 600
-#: Supported file suffixes.
+"""Largest number of frames of one video; longer runs get a lower frame rate."""
 FORMATS = (".gif", ".mp4")
+"""Supported file suffixes."""
 
 _LIBRARIES = {"osmesa": ("OSMesa", "libosmesa6"), "egl": ("EGL", "libegl1")}
 _GLFW_VALUES = ("", "glfw", "glx", "enable", "enabled", "on", "true", "1")
