@@ -21,7 +21,7 @@ test: $(STAMP)
 
 # API docs site (mkdocs-material + mkdocstrings) into site/; --strict fails on any warning.
 docs: $(STAMP)
-	$(BIN)/mkdocs build --strict
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 lint: $(STAMP)
 	$(BIN)/ruff check shinro_ctrl tests examples benchmarks
