@@ -717,7 +717,7 @@ def _run_dask(base: _Job, values: np.ndarray, scheduler: Any, bar: _Bar) -> tupl
     own = not isinstance(scheduler, Client)
     if own:
         try:
-            client = Client(scheduler, timeout="20s", set_as_default=False)
+            client = Client(scheduler, timeout="10s", set_as_default=False)
         except (OSError, TimeoutError) as exc:
             raise OSError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
     else:
