@@ -59,3 +59,10 @@ def test_mpc_previews_a_step_reference():
     before = res.t < 1.0
     # with preview the cart starts moving (away first, the non-minimum-phase way) before the step
     assert np.abs(res.u[before[:-1]]).max() > 0.05
+
+
+def test_reset_makes_runs_repeat_exactly():
+    sim = RobotSim.from_config("cartpole_mpc")
+    a = sim.run(duration=2.0)
+    b = sim.run(duration=2.0)  # run() resets the controller: OSQP's adaptive state must not leak
+    np.testing.assert_array_equal(a.u, b.u)

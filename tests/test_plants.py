@@ -172,3 +172,12 @@ def test_plant_class_resolves_aliases():
 def test_unknown_batch_parameter_is_named():
     with pytest.raises(ValueError, match="pole_mass"):
         CartPole().dynamics(np.zeros((2, 4)), np.zeros((2, 1)), params={"pole_mas": [1, 2]})
+
+
+def test_overflow_in_a_diverging_step_is_simulation_diverged():
+    from shinro_ctrl.errors import SimulationDiverged
+
+    plant = CartPole()
+    plant.set_state([0.0, 0.0, 1.0, 1e200])  # θ̇² overflows a Python float
+    with pytest.raises(SimulationDiverged, match="non-finite"):
+        plant.step(0.0)

@@ -90,3 +90,17 @@ def test_users_fixture_and_assertion(run_scenario, tmp_path):
     worse = run_scenario({**result.config, "controller": {**result.config["controller"], "R": [100.0]}}, duration=1.0)
     with pytest.raises(AssertionError, match="rms_error"):
         assert_matches_baseline(worse, path)
+
+
+def test_written_files_get_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    from shinro_ctrl.files import dump_json
+
+    mask = os.umask(0o022)
+    try:
+        path = dump_json(tmp_path / "m.json", {"a": 1})
+    finally:
+        os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644

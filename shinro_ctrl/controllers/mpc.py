@@ -435,6 +435,13 @@ class LinearMPC(Controller):
 
         # ------------------------------------------------------------- build
         self._build_structure()
+        self._setup_solver()
+        self._solved_since_setup = False
+        self.reset()
+
+    def _setup_solver(self) -> None:
+        """Create and set up the OSQP object (once; again only when :meth:`reset` needs a clean solver)."""
+        settings = self.osqp_settings
         self._solver = osqp.OSQP()
         try:
             self._solver.setup(self._P, self._q, self._A, self._l, self._u, **settings)
@@ -443,7 +450,6 @@ class LinearMPC(Controller):
         low = getattr(self._solver, "_solver", None)
         needed = ("update_data_vec", "warm_start", "solve", "info", "solution")
         self._low = low if low is not None and all(hasattr(low, a) for a in needed) else None
-        self.reset()
 
     # ================================================================ set-up
     @staticmethod
@@ -761,6 +767,11 @@ class LinearMPC(Controller):
         self._plan_x: np.ndarray | None = None
         self._plan_age = 0
         self.last: MPCSolution | None = None
+        if self._solved_since_setup:
+            # OSQP keeps internal state between solves (adaptive rho and its factorization), so a
+            # reset controller must start from a fresh solver to repeat a run exactly.
+            self._setup_solver()
+            self._solved_since_setup = False
 
     def __call__(self, x: Any, ref: Any = None, *, u_ref: Any = None) -> np.ndarray:
         """Solve the MPC problem at state ``x`` and return the first input.
@@ -810,6 +821,7 @@ class LinearMPC(Controller):
         if self._warm:
             self._zws[:n] = self._dx0
         low = self._low
+        self._solved_since_setup = True
         if low is not None:
             # Direct calls into OSQP's compiled solver (the public wrapper costs ~40 µs per call in
             # argument clamping and result packing). Our l/u already hold ±1e30, never ±inf.

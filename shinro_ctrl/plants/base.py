@@ -285,7 +285,10 @@ class Plant:
             self._engine.step()
             self.state = self._engine_read(self._engine)
         else:
-            x = self._integrate(self.state, u)
+            try:
+                x = self._integrate(self.state, u)
+            except (OverflowError, ZeroDivisionError):  # Python-float arithmetic of a diverging state
+                x = np.full(self.state_dim, np.nan)
             if not math.isfinite(sum(x.tolist())) and not np.all(np.isfinite(x)):
                 raise SimulationDiverged(
                     f"{type(self).__name__} state became non-finite after a step from "
