@@ -8,6 +8,7 @@ the metrics that regression baselines are made of.
 
 from __future__ import annotations
 
+import copy
 import math
 import sys
 import time
@@ -349,15 +350,7 @@ class RobotSim:
         if use_engine:
             if self.plant.asset is None and (scenario.engine is None or scenario.engine.model is None):
                 raise ConfigError(f"{src}: {scenario.plant.type} has no MuJoCo model; run it standalone")
-            from shinro_ctrl.engine import MujocoEngine
-
-            ecfg = scenario.engine
-            self.engine = MujocoEngine.for_plant(
-                self.plant,
-                substeps=ecfg.substeps if ecfg else 1,
-                model=ecfg.model if ecfg else None,
-            )
-            self.plant.physics_engine(self.engine)
+            self.engine = self._attach_engine(self.plant)
         options = dict(scenario.controller.options)
         ccls = controller_class(scenario.controller.type)
         try:
@@ -376,6 +369,35 @@ class RobotSim:
         self.reference = Reference(sim.reference, self.initial_state if _moves(sim.reference) else self.operating_point)
         names = sim.track or list(getattr(self.plant, "tracked_states", None) or self._default_tracked())
         self.tracked = [self.plant.state_names.index(s) for s in names]
+
+    def _attach_engine(self, plant: Any) -> Any:
+        """Build a MuJoCo engine matched to ``plant`` (the scenario's model and substeps) and attach it."""
+        from shinro_ctrl.engine import MujocoEngine
+
+        ecfg = self.scenario.engine
+        engine = MujocoEngine.for_plant(
+            plant, substeps=ecfg.substeps if ecfg else 1, model=ecfg.model if ecfg else None
+        )
+        plant.physics_engine(engine)
+        return engine
+
+    def with_plant(self, overrides: dict[str, Any]) -> RobotSim:
+        """A copy that runs this sim's controller and reference on a plant with changed parameters.
+
+        The plant is rebuilt from the scenario's ``[plant]`` table with
+        ``overrides`` (constructor name → value); in a MuJoCo loop it gets a
+        fresh matched engine. The controller object, reference, initial state
+        and settings are shared with this sim, which is not modified.
+
+        Raises:
+            ConfigError: an invalid value (say, a negative mass), naming the key.
+        """
+        from shinro_ctrl.plants import plant_class
+
+        sim = copy.copy(self)
+        sim.plant = plant_class(self.scenario.plant.type).from_config({**self.scenario.plant.params, **overrides})
+        sim.engine = self._attach_engine(sim.plant) if self.engine is not None else None
+        return sim
 
     @classmethod
     def from_config(cls, config: str | Path | dict[str, Any], *, engine: str | None = None) -> RobotSim:

@@ -189,20 +189,9 @@ def perturbed_sim(nominal: Any, overrides: Mapping[str, float]) -> Any:
         ConfigError: an invalid value (e.g. a negative mass), naming the key.
     """
     from shinro_ctrl.controllers import Controller, controller_class
-    from shinro_ctrl.plants import plant_class
 
     scenario: Scenario = nominal.scenario
-    plant = plant_class(scenario.plant.type).from_config({**scenario.plant.params, **overrides})
-    sim = copy.copy(nominal)
-    sim.plant = plant
-    if nominal.engine is not None:
-        from shinro_ctrl.engine import MujocoEngine
-
-        ecfg = scenario.engine
-        sim.engine = MujocoEngine.for_plant(
-            plant, substeps=ecfg.substeps if ecfg else 1, model=ecfg.model if ecfg else None
-        )
-        plant.physics_engine(sim.engine)
+    sim = nominal.with_plant(dict(overrides))
     if getattr(type(nominal.controller), "reset", Controller.reset) is not Controller.reset:
         ccls = controller_class(scenario.controller.type)
         sim.controller = ccls.from_plant(nominal.plant, **scenario.controller.options)
