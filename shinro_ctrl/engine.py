@@ -566,7 +566,7 @@ class MujocoEngine:
         arr[a : a + k] = v
 
     # ------------------------------------------- offscreen rendering (video.py)
-    def make_renderer(self, width: int = 320, height: int = 240) -> OffscreenRenderer:
+    def make_renderer(self, width: int = 320, height: int = 240, *, shadows: bool = False) -> OffscreenRenderer:
         """An offscreen renderer of this engine's model, showing its current data.
 
         MuJoCo picks its OpenGL backend from ``MUJOCO_GL`` when ``mujoco`` is
@@ -577,13 +577,16 @@ class MujocoEngine:
         Args:
             width: Image width [px], 16 to 8192.
             height: Image height [px], 16 to 8192.
+            shadows: Render the lights' shadows. Off by default: with software
+                rendering (OSMesa) shadows cost about ten times the rest of a
+                frame (60 ms against 5 ms for the cart-pole at 320 × 240).
 
         Raises:
             InvalidArgument: a size out of range.
             RuntimeError: no OpenGL context could be created (the message
                 names ``MUJOCO_GL`` and MuJoCo's reason).
         """
-        return OffscreenRenderer(self, width, height)
+        return OffscreenRenderer(self, width, height, shadows=shadows)
 
 
 # ------------------------------------------------------------------- loading
@@ -708,7 +711,7 @@ class OffscreenRenderer:
         fovy: Vertical field of view of the free camera [deg].
     """
 
-    def __init__(self, engine: MujocoEngine, width: int, height: int):
+    def __init__(self, engine: MujocoEngine, width: int, height: int, *, shadows: bool = False):
         for name, v in (("width", width), ("height", height)):
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or not 16 <= v <= 8192:
                 raise InvalidArgument(f"renderer {name} must be an integer in [16, 8192], got {v!r}")
@@ -726,6 +729,7 @@ class OffscreenRenderer:
             raise RuntimeError(
                 f"cannot create an offscreen OpenGL context (MUJOCO_GL={backend}): {_mujoco_message(exc)}"
             ) from exc
+        self._renderer.scene.flags[int(mujoco.mjtRndFlag.mjRND_SHADOW)] = bool(shadows)
         self._camera = mujoco.MjvCamera()
         mujoco.mjv_defaultFreeCamera(model, self._camera)
 
