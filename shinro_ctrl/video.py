@@ -21,8 +21,10 @@ only EGL is installed. With a display the default (``glfw``) is kept. Code
 that imports :mod:`shinro_ctrl.engine` before rendering on a headless machine
 should call :func:`select_gl_backend` first, or export ``MUJOCO_GL=osmesa``.
 
-Rendering a 320 × 240 frame with OSMesa takes about 60-80 ms on one core,
-so a 5 s run at 30 frames per second renders in about 10 s.
+Rendering a 320 × 240 frame with OSMesa takes 5-30 ms without shadows (the
+default; with shadows about ten times more), and a whole frame (replay,
+render, GIF encoding) 25-45 ms on a busy 2-core machine: a 5 s run at 30
+frames per second becomes a GIF in about 5 s.
 
 Example::
 
@@ -425,6 +427,7 @@ def render_rollout(
     max_frames: int = MAX_FRAMES,
     camera: str | None = None,
     label: bool = True,
+    shadows: bool = False,
     progress: bool | None = None,
     on_frame: Callable[[int, np.ndarray], None] | None = None,
 ) -> VideoInfo:
@@ -447,6 +450,7 @@ def render_rollout(
         max_frames: At most this many frames (long runs get a lower frame rate).
         camera: A camera of the MJCF model by name instead of the framed free camera.
         label: Print the simulated time in the top-left corner.
+        shadows: Render shadows (about ten times slower with OSMesa).
         progress: Progress bar on stderr (None: when stderr is a terminal and
             the render takes longer than a second).
         on_frame: Optional callback ``(k, image)`` for each rendered frame.
@@ -483,7 +487,7 @@ def render_rollout(
         if box is not None:
             lo, hi = np.minimum(lo, box[0]), np.maximum(hi, box[1])
     try:
-        renderer = engine.make_renderer(width, height)
+        renderer = engine.make_renderer(width, height, shadows=shadows)
     except RuntimeError as exc:
         raise VideoError(f"{exc}; for offscreen rendering: apt-get install libosmesa6 and MUJOCO_GL=osmesa") from exc
     frames: list[np.ndarray] = []
