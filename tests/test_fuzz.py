@@ -147,3 +147,35 @@ def test_linear_mpc_with_random_arguments_raises_only_our_errors(cartpole_model,
     except ShinroError:
         return
     assert u.shape == (1,) and np.all(np.isfinite(u)) and np.all(u <= mpc.u_max)
+
+
+# ------------------------------------------------------------ IK at the limits
+@pytest.fixture(scope="module")
+def arm_and_ik():
+    from shinro_ctrl.controllers import IKQP
+    from shinro_ctrl.plants import ArmRobot
+
+    arm = ArmRobot()
+    return arm, IKQP(arm)
+
+
+@FUZZ
+@given(
+    st.lists(st.floats(-5.0, 5.0), min_size=3, max_size=3),
+    st.lists(st.floats(-np.pi, np.pi), min_size=3, max_size=3),
+    st.integers(0, 2**31 - 1),
+)
+def test_random_ik_targets_never_violate_joint_limits(arm_and_ik, position, rpy, seed):
+    from shinro_ctrl.kinematics import euler_zyx_to_matrix
+
+    arm, ik = arm_and_ik
+    T = np.eye(4)
+    T[:3, :3] = euler_zyx_to_matrix(np.array(rpy))
+    T[:3, 3] = position  # mostly far outside the ~0.9 m reach
+    q0 = np.random.default_rng(seed).uniform(arm.joint_limits[:, 0], arm.joint_limits[:, 1])
+    result = ik.solve(T, q0, max_iters=30, restarts=1, seed=seed)
+    lo, hi = arm.joint_limits[:, 0], arm.joint_limits[:, 1]
+    assert np.all(result.q >= lo) and np.all(result.q <= hi)
+    assert np.all(np.isfinite(result.q))
+    if np.linalg.norm(position) > 2.0:
+        assert not result.converged

@@ -44,6 +44,7 @@ PLANT_ALIASES: dict[str, str] = {
     "double_pendulum": "DoublePendulum",
     "holonomic": "HolonomicMobileRobot",
     "quadrotor": "Quadrotor",
+    "arm6": "ArmRobot",
 }
 
 
