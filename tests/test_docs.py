@@ -115,12 +115,16 @@ def test_cli_page_documents_every_subcommand_and_option():
                 if opt not in ("-h", "--help"):
                     assert opt in section, f"docs/cli.md: `{name}` section does not mention {opt}"
     assert "--debug" in text
+    from shinro_ctrl.plants import PLANT_ALIASES
+
+    for alias in PLANT_ALIASES:
+        assert f"`{alias}`" in text, f"docs/cli.md does not list the plant alias {alias}"
 
 
 def test_scenarios_page_documents_every_table_key_and_reference_kind():
     from shinro_ctrl.config import ENGINE_KEYS, METRICS, REFERENCE_KINDS, SIM_KEYS, TABLES
     from shinro_ctrl.controllers import CONTROLLERS, controller_class, controller_keys
-    from shinro_ctrl.plants import PLANTS
+    from shinro_ctrl.plants import PLANT_ALIASES, PLANTS
 
     text = (DOCS / "scenarios.md").read_text(encoding="utf-8")
     for table in TABLES:
@@ -131,8 +135,11 @@ def test_scenarios_page_documents_every_table_key_and_reference_kind():
         assert f"| `{kind}` |" in text, kind
         for key in (*required, *optional):
             assert f"`{key}`" in text, f"reference kind {kind}: {key}"
+    aliases = {cls: alias for alias, cls in PLANT_ALIASES.items()}
     for name, cls in PLANTS.items():
         assert f"`{name}`" in text, name
+        if name in aliases:
+            assert f"`{name}` (`{aliases[name]}`)" in text, f"alias of {name}"
         for key in cls.config_keys():
             assert f"`{key}`" in text, f"[plant] {name}: {key}"
     for name in CONTROLLERS:
