@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum, Plant
+from shinro_ctrl.sim import bound_excess
 
 __all__ = ["BatchRollout", "batch_clip", "batch_unsupported_reason", "lqr_batch_rollout"]
 
@@ -132,21 +133,6 @@ class BatchRollout:
     elapsed_s: float
 
 
-def _excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
-    """Largest bound excess per row, exactly as ``compute_metrics`` measures it."""
-    out = np.zeros(values.shape[0])
-    for bound, sign in ((lo, -1.0), (hi, 1.0)):
-        if bound is None:
-            continue
-        b = np.asarray(bound, dtype=float)
-        finite = np.isfinite(b)
-        if not finite.any():
-            continue
-        over = sign * (values[:, finite] - b[finite]) - 1e-9 * (1.0 + np.abs(b[finite]))
-        out = np.maximum(out, np.maximum(over, 0.0).max(axis=1))
-    return out
-
-
 def lqr_batch_rollout(
     plant: Plant,
     controller: Any,
@@ -248,7 +234,7 @@ def lqr_batch_rollout(
             call_times[k] = clock() - c0
             np.maximum(u_abs_max, np.abs(U).max(axis=1), out=u_abs_max)
             # compute_metrics' violation at index k: input k and state k (for k >= 1).
-            viol = np.maximum(_excess(U, u_min, u_max), x_excess) if saturate else x_excess
+            viol = np.maximum(bound_excess(U, u_min, u_max), x_excess) if saturate else x_excess
             viol_count += viol > 0
             np.maximum(viol_max, viol, out=viol_max)
 
@@ -263,7 +249,7 @@ def lqr_batch_rollout(
                 alive &= ~bad
                 X[bad] = r
             if x_bounds:
-                x_excess = _excess(X, x_min, x_max)
+                x_excess = bound_excess(X, x_min, x_max)
             e = track_error(k + 1)
             if progress is not None and (k % every == 0 or k == steps - 1):
                 progress(k + 1, steps)

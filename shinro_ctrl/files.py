@@ -20,6 +20,11 @@ def atomic_write(path: str | Path, write: Callable[[Any], None], *, binary: bool
     half-written one.
     """
     path = Path(path)
+    if path.exists() and not path.is_file():
+        # A device or pipe (/dev/null, /dev/stdout): renaming over it would replace the device itself.
+        with open(path, "wb" if binary else "w", encoding=None if binary else "utf-8") as f:
+            write(f)
+        return path
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file the permissions open() would

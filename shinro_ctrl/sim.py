@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import copy
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,8 +20,9 @@ import numpy as np
 from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
 from shinro_ctrl.files import atomic_write, dump_json, dump_toml
+from shinro_ctrl.progress import Progress
 
-__all__ = ["Reference", "RobotSim", "SimResult", "compute_metrics", "format_metrics"]
+__all__ = ["Reference", "RobotSim", "SimResult", "bound_excess", "compute_metrics", "format_metrics"]
 
 
 # ------------------------------------------------------------------ references
@@ -118,6 +118,24 @@ class Reference:
 
 
 # --------------------------------------------------------------------- metrics
+def bound_excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
+    """Largest excess of each row of ``values (T, k)`` over the bounds ``lo``/``hi (k,)`` (0 when inside).
+
+    An excess counts only beyond a relative 1e-9 (solver rounding at an active bound).
+    """
+    out = np.zeros(values.shape[0])
+    for bound, sign in ((lo, -1.0), (hi, 1.0)):
+        if bound is None:
+            continue
+        b = np.asarray(bound, dtype=float)
+        finite = np.isfinite(b)
+        if not finite.any():
+            continue
+        over = sign * (values[:, finite] - b[finite]) - 1e-9 * (1.0 + np.abs(b[finite]))
+        out = np.maximum(out, np.maximum(over, 0.0).max(axis=1))
+    return out
+
+
 def compute_metrics(
     t: np.ndarray,
     x: np.ndarray,
@@ -155,22 +173,9 @@ def compute_metrics(
     else:
         settling = float(t[outside[-1] + 1])
 
-    def excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
-        out = np.zeros(values.shape[0])
-        for bound, sign in ((lo, -1.0), (hi, 1.0)):
-            if bound is None:
-                continue
-            b = np.asarray(bound, dtype=float)
-            finite = np.isfinite(b)
-            if not finite.any():
-                continue
-            over = sign * (values[:, finite] - b[finite]) - 1e-9 * (1.0 + np.abs(b[finite]))
-            out = np.maximum(out, np.maximum(over, 0.0).max(axis=1))
-        return out
-
     viol = np.zeros(len(t))
-    viol[:-1] = np.maximum(viol[:-1], excess(u, u_min, u_max))
-    viol[1:] = np.maximum(viol[1:], excess(x[1:], x_min, x_max))
+    viol[:-1] = np.maximum(viol[:-1], bound_excess(u, u_min, u_max))
+    viol[1:] = np.maximum(viol[1:], bound_excess(x[1:], x_min, x_max))
     if plant_violation is not None:
         viol = np.maximum(viol, plant_violation)
     return {
@@ -293,35 +298,6 @@ class SimResult:
         atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
         plt.close(fig)
         return path
-
-
-# ------------------------------------------------------------------- progress
-class _Progress:
-    """A one-line progress bar on stderr, shown once a run has taken ``delay`` seconds."""
-
-    def __init__(self, total: int, label: str, enabled: bool | None, delay: float = 2.0):
-        self.total, self.label = total, label
-        self.enabled = sys.stderr.isatty() if enabled is None else enabled
-        self.start = time.perf_counter()
-        self.delay, self.shown, self.last = delay, False, 0.0
-
-    def update(self, k: int) -> None:
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if now - self.start < self.delay or now - self.last < 0.2:
-            return
-        self.last, self.shown = now, True
-        frac = k / self.total
-        bar = "#" * int(30 * frac)
-        eta = (now - self.start) * (1 - frac) / max(frac, 1e-9)
-        sys.stderr.write(f"\r{self.label} [{bar:30s}] {100 * frac:5.1f}%  eta {eta:5.1f} s")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.shown:
-            sys.stderr.write(f"\r{self.label} [{'#' * 30}] 100.0%  {time.perf_counter() - self.start:.1f} s\n")
-            sys.stderr.flush()
 
 
 # ------------------------------------------------------------------------ sim
@@ -462,7 +438,7 @@ class RobotSim:
             plant.set_state(self.initial_state)
         x = plant.get_state()
         X[0] = x
-        bar = _Progress(steps, f"{self.scenario.name} ({self.loop})", progress)
+        bar = Progress(steps, f"{self.scenario.name} ({self.loop})", progress, unit="steps")
         clock = time.perf_counter
         # Controllers that look ahead (LQR feed-forward, MPC) get the next `preview` samples too.
         preview = int(getattr(ctrl, "preview", 0)) if ref.kind != "constant" else 0

@@ -45,7 +45,6 @@ import io
 import itertools
 import json
 import math
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -60,6 +59,7 @@ import numpy as np
 from shinro_ctrl.config import METRICS, Scenario, load_scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError, ShinroError
 from shinro_ctrl.files import atomic_write, dump_json
+from shinro_ctrl.progress import Progress
 from shinro_ctrl.validation import did_you_mean
 
 __all__ = [
@@ -608,44 +608,6 @@ def _shade_marginal(ax: Any, v: np.ndarray, stable: np.ndarray, rng: tuple[float
             label = None
 
 
-# ------------------------------------------------------------------ progress
-class _Bar:
-    """A one-line progress bar on stderr (or a callback)."""
-
-    def __init__(self, total: int, label: str, progress: bool | Callable[[int, int], None] | None):
-        self.total, self.label = max(total, 1), label
-        self.callback = progress if callable(progress) else None
-        self.enabled = self.callback is None and (sys.stderr.isatty() if progress is None else bool(progress))
-        self.start = time.perf_counter()
-        self.last = -1.0
-        self.shown = False
-
-    def update(self, done: int) -> None:
-        if self.callback is not None:
-            self.callback(done, self.total)
-            return
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if now - self.last < 0.2 and done < self.total:
-            return
-        self.last, self.shown = now, True
-        frac = done / self.total
-        elapsed = now - self.start
-        eta = f"{elapsed * (1 - frac) / frac:5.1f} s" if frac > 0 else "    ? s"
-        bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\r{self.label} [{bar:30s}] {done}/{self.total}  eta {eta} ")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.shown:
-            sys.stderr.write(f"\r{self.label} [{'#' * 30}] {self.total}/{self.total}  {self.elapsed():.1f} s\n")
-            sys.stderr.flush()
-
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.start
-
-
 # ----------------------------------------------------------------- executors
 def _chunks(indices: Sequence[int], size: int) -> list[Sequence[int]]:
     return [indices[i : i + size] for i in range(0, len(indices), size)]
@@ -661,7 +623,7 @@ def _jobs(base: _Job, values: np.ndarray, n_tasks: int) -> list[_Job]:
     return jobs
 
 
-def _run_serial(nominal: Any, base: _Job, values: np.ndarray, bar: _Bar) -> list[_Outcome]:
+def _run_serial(nominal: Any, base: _Job, values: np.ndarray, bar: Progress) -> list[_Outcome]:
     out = []
     with _quiet_mujoco(nominal):
         for i, row in enumerate(values):
@@ -680,7 +642,7 @@ _POOL_PRELOAD = [
 ]
 
 
-def _run_pool(base: _Job, values: np.ndarray, workers: int, bar: _Bar) -> list[_Outcome]:
+def _run_pool(base: _Job, values: np.ndarray, workers: int, bar: Progress) -> list[_Outcome]:
     import multiprocessing
 
     # forkserver: workers fork from a clean server process (safe when this process runs threads,
@@ -697,7 +659,7 @@ def _run_pool(base: _Job, values: np.ndarray, workers: int, bar: _Bar) -> list[_
     return out
 
 
-def _run_dask(base: _Job, values: np.ndarray, scheduler: Any, bar: _Bar) -> tuple[list[_Outcome], int]:
+def _run_dask(base: _Job, values: np.ndarray, scheduler: Any, bar: Progress) -> tuple[list[_Outcome], int]:
     try:
         from dask.distributed import Client
         from dask.distributed import as_completed as dask_completed
@@ -744,7 +706,7 @@ def _batch_reason(nominal: Any, names: Sequence[str]) -> str | None:
 
 
 def _run_batch(
-    nominal: Any, names: Sequence[str], values: np.ndarray, stable_tol: float, bar: _Bar, timings: dict[str, float]
+    nominal: Any, names: Sequence[str], values: np.ndarray, stable_tol: float, bar: Progress, timings: dict[str, float]
 ) -> list[_Outcome]:
     from shinro_ctrl.batch import lqr_batch_rollout
     from shinro_ctrl.plants import plant_class
@@ -906,7 +868,7 @@ def run_sweep(
         chosen = "serial"
 
     base = _Job(doc, source, engine, names, (), (), tol)
-    bar = _Bar(values.shape[0], f"sweep {scenario.name}", progress)
+    bar = Progress(values.shape[0], f"sweep {scenario.name}", progress, delay=0.0, unit="samples")
     timings: dict[str, float] = {}
     used_workers = 1 if chosen in ("serial", "batch") else workers
     try:

@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument, ShinroError
+from shinro_ctrl.progress import Progress
 
 __all__ = [
     "DEFAULT_FPS",
@@ -357,35 +358,6 @@ def _stamp(image: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(im)
 
 
-# ---------------------------------------------------------------- progress
-class _Progress:
-    """A one-line progress bar on stderr, shown when a render takes more than ``delay`` seconds."""
-
-    def __init__(self, total: int, label: str, enabled: bool | None, delay: float = 1.0):
-        self.total, self.label = total, label
-        self.enabled = sys.stderr.isatty() if enabled is None else enabled
-        self.start = time.perf_counter()
-        self.delay, self.shown, self.last = delay, False, 0.0
-
-    def update(self, k: int) -> None:
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if now - self.start < self.delay or now - self.last < 0.2:
-            return
-        self.last, self.shown = now, True
-        frac = k / self.total
-        eta = (now - self.start) * (1 - frac) / max(frac, 1e-9)
-        sys.stderr.write(f"\r{self.label} [{'#' * int(30 * frac):30s}] {k}/{self.total} frames  eta {eta:5.1f} s")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.shown:
-            elapsed = time.perf_counter() - self.start
-            sys.stderr.write(f"\r{self.label} [{'#' * 30}] {self.total}/{self.total} frames  {elapsed:.1f} s\n")
-            sys.stderr.flush()
-
-
 # ------------------------------------------------------------------ render
 def _render_model(sim: Any) -> str | None:
     """The MJCF model the scenario names (None: the plant's asset); raise if there is none."""
@@ -491,7 +463,7 @@ def render_rollout(
     except RuntimeError as exc:
         raise VideoError(f"{exc}; for offscreen rendering: apt-get install libosmesa6 and MUJOCO_GL=osmesa") from exc
     frames: list[np.ndarray] = []
-    bar = _Progress(len(snapshots), f"video {Path(path).name}", progress)
+    bar = Progress(len(snapshots), f"video {Path(path).name}", progress, delay=1.0, unit="frames")
     try:
         if camera is None and np.all(np.isfinite(lo)):
             model = engine.model

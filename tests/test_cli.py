@@ -64,8 +64,8 @@ def test_linearize_eps_sweep_and_crosscheck_plots(tmp_path):
     assert (tmp_path / "c.png").read_bytes()[:4] == b"\x89PNG"
 
 
-def test_run_with_engine_override():
-    res = run_cli("run", "cartpole_lqr", "--engine", "mujoco", "--duration", "0.5", "--plot", "/dev/null")
+def test_run_with_engine_override(tmp_path):
+    res = run_cli("run", "cartpole_lqr", "--engine", "mujoco", "--duration", "0.5", "--plot", str(tmp_path / "p.png"))
     assert res.returncode == 0, res.stderr
     assert "(mujoco)" in res.stdout
 

@@ -104,3 +104,19 @@ def test_written_files_get_ordinary_permissions(tmp_path):
     finally:
         os.umask(mask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o644
+
+
+def test_atomic_write_to_a_device_writes_through(tmp_path):
+    import os
+
+    from shinro_ctrl.files import atomic_write
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    fd = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader, so the writer does not block
+    try:
+        atomic_write(fifo, lambda f: f.write("hello"))
+        assert os.read(fd, 100) == b"hello"
+    finally:
+        os.close(fd)
+    assert not fifo.is_file() and fifo.exists()  # still a pipe, not replaced by a regular file
