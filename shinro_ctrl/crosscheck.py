@@ -114,16 +114,18 @@ def mujoco_continuous_jacobians(
     """
     m = engine.model
     nv, nu = m.nv, m.nu
-    if m.nq != nv or m.na != 0:
+    if m.na != 0 or (z0 is not None and m.nq != nv):
         raise InvalidArgument(
-            f"crosscheck needs nq == nv and no activations; the model has nq={m.nq}, nv={nv}, na={m.na}"
+            f"crosscheck needs no activations, and nq == nv when z0 is given; "
+            f"the model has nq={m.nq}, nv={nv}, na={m.na}"
         )
     if engine.integrator != "mjINT_EULER" or not engine.explicit_damping:
         raise InvalidArgument(
             f"crosscheck needs the Euler integrator with mjDSBL_EULERDAMP (as MujocoEngine.for_plant sets); "
             f"the model uses {engine.integrator} with explicit damping {engine.explicit_damping}"
         )
-    engine.set_state_vector(z0)
+    if z0 is not None:
+        engine.set_state_vector(z0)
     engine.set_ctrl(u0)
     A_d, B_d = engine.transition_jacobians(eps)
     h = float(m.opt.timestep)
@@ -160,9 +162,18 @@ def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6)
     x0 = as_vector("x0", xe if x0 is None else x0, plant.state_dim).copy()
     u0 = as_vector("u0", ue if u0 is None else u0, plant.input_dim).copy()
     try:
-        T, _ = plant.engine_state_map()
+        T, _ = plant.engine_state_map(x0)
     except NotImplementedError as exc:
         raise InvalidArgument(f"{type(plant).__name__} has no MuJoCo state map to cross-check against") from exc
+    # With a state-dependent coordinate map x = g(z), A_x = T A_z T⁻¹ + (dT/dt) T⁻¹: the comparison is
+    # exact only where T does not change along the motion (any equilibrium; zero body rates for a free body).
+    T_ahead, _ = plant.engine_state_map(x0 + 1e-6 * plant.dynamics(x0, u0))  # T a microsecond later
+    if np.abs(T_ahead - T).max() > 1e-12 * max(1.0, np.abs(T).max()):
+        raise InvalidArgument(
+            f"{type(plant).__name__}: MuJoCo's coordinates differ from the plant's by a map that changes along the "
+            "motion at this point, so the linearizations are not comparable; choose an operating point where it "
+            "does not (an equilibrium, or zero angular rates)"
+        )
 
     A_e, B_e = plant.linearize(x0, u0, method="exact")  # first call compiles
     t_exact = _median_time(lambda: plant.linearize(x0, u0, method="exact"))
@@ -172,11 +183,11 @@ def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6)
     t0 = time.perf_counter()
     engine = MujocoEngine.for_plant(plant)
     t_build = time.perf_counter() - t0
-    z0 = np.linalg.solve(T, x0)
+    plant._engine_write(engine, x0)  # the plant's own conversion (quaternions, relative hinges)
     T_inv = np.linalg.inv(T)
 
     def mujoco_jacobians() -> tuple[np.ndarray, np.ndarray]:
-        A_z, B_z = mujoco_continuous_jacobians(engine, z0, u0, eps=eps)
+        A_z, B_z = mujoco_continuous_jacobians(engine, None, u0, eps=eps)
         return T @ A_z @ T_inv, T @ B_z
 
     A_m, B_m = mujoco_jacobians()

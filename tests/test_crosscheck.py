@@ -115,3 +115,27 @@ def test_continuous_recovery_rejects_other_integrators():
     engine = MujocoEngine(xml)
     with pytest.raises(ValueError, match="Euler"):
         mujoco_continuous_jacobians(engine, np.zeros(2), np.zeros(1))
+
+
+@pytest.mark.parametrize(
+    "x0,u0",
+    [
+        (None, None),  # hover
+        ([0.1, 0.2, 0.3, 0.3, -0.2, 0.5, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0], [5.0, 0.01, 0.0, 0.0]),  # tilted, moving
+    ],
+    ids=["hover", "tilted"],
+)
+def test_quadrotor_free_joint_crosscheck(x0, u0):
+    from shinro_ctrl.plants import Quadrotor
+
+    res = crosscheck(Quadrotor(), x0, u0)
+    assert res.mujoco_max_rel_error < 1e-6
+
+
+def test_quadrotor_crosscheck_refuses_points_where_the_coordinate_map_moves():
+    from shinro_ctrl.errors import InvalidArgument
+    from shinro_ctrl.plants import Quadrotor
+
+    x0 = [0, 0, 0, 0.3, -0.2, 0.5, 0, 0, 0, 0.2, 0.1, 0]  # body rates turn the Euler-angle map
+    with pytest.raises(InvalidArgument, match="not comparable"):
+        crosscheck(Quadrotor(), x0, [5.0, 0, 0, 0])

@@ -332,7 +332,7 @@ class Plant:
         """How the plant's MJCF asset must be edited to match its parameters."""
         raise NotImplementedError(f"{type(self).__name__} has no matched MuJoCo model")
 
-    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """How the plant's state relates to MuJoCo's ``z = [qpos..., qvel...]``.
 
         Returns:

@@ -114,7 +114,7 @@ class CartPole(Plant):
             geom_fromto={"pole_rod": (0.0, 0.0, 0.0, 0.0, 0.0, self.l)},
         )
 
-    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [slider, hinge, slider_dot, hinge_dot]``.
 
         See :meth:`Plant.engine_state_map`.

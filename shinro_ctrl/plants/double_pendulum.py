@@ -131,7 +131,7 @@ class DoublePendulum(Plant):
             },
         )
 
-    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [hinge_1, hinge_2, hinge_1_dot, hinge_2_dot]``.
 
         See :meth:`Plant.engine_state_map`.

@@ -89,7 +89,7 @@ class InvertedPendulum(Plant):
             geom_fromto={"rod": (0.0, 0.0, 0.0, 0.0, 0.0, self.l)},
         )
 
-    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [hinge, hinge_dot]``.
 
         See :meth:`Plant.engine_state_map`.

@@ -287,16 +287,22 @@ class Quadrotor(Plant):
             geom_fromto=fromto,
         )
 
-    def engine_state_map(self) -> tuple[np.ndarray, np.ndarray]:
-        """``x = T @ z`` near hover, with MuJoCo's ``z = [pos, rotation tangent, v, ω]``.
+    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+        """``δx = T @ δz`` at ``x0``, with MuJoCo's tangent ``z = [pos, rotation tangent, v, ω]``.
 
         ``mjd_transitionFD`` differentiates the free joint's orientation in
         its local tangent (a body-frame rotation vector ``δr``) and its
-        velocity as ``[world linear, body angular]``. The Euler angles relate
-        as ``δη = W(φ, θ) δr``, and ``W(0, 0) = I``: at every hover (any yaw)
-        the plant's state and MuJoCo's coincide to first order, ``T = I``.
+        velocity as ``[world linear, body angular]``, as the plant's state
+        does. The Euler angles relate as ``δη = W(φ, θ) δr`` (the same map as
+        the Euler rates from body rates), so ``T = diag(I, W, I, I)``; at any
+        level attitude (hover, any yaw) ``W = I``. Default ``x0``: hover.
         """
-        return np.eye(12), np.arange(12)
+        T = np.eye(12)
+        if x0 is not None:
+            roll, pitch = float(x0[3]), float(x0[4])
+            sr, cr, tp, cp = math.sin(roll), math.cos(roll), math.tan(pitch), math.cos(pitch)
+            T[3:6, 3:6] = [[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]]
+        return T, np.arange(12)
 
     def _engine_read(self, engine) -> np.ndarray:
         qpos = engine.get_joint_qpos(self.free_joint)
