@@ -8,21 +8,25 @@ a matched MuJoCo model.
 
 from shinro_ctrl.errors import (
     ConfigError,
+    InvalidArgument,
     MPCInfeasible,
     NonFiniteError,
     NotStabilizable,
     ShinroError,
     SimulationDiverged,
+    UnknownName,
 )
 
 __version__ = "0.1.0"
 
 __all__ = [
     "ConfigError",
+    "InvalidArgument",
     "MPCInfeasible",
     "NonFiniteError",
     "NotStabilizable",
     "ShinroError",
     "SimulationDiverged",
+    "UnknownName",
     "__version__",
 ]

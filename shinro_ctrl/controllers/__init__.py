@@ -16,7 +16,7 @@ from shinro_ctrl.controllers.lqr import LQR
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.validation import did_you_mean
 
-__all__ = ["CONTROLLERS", "LQR", "Controller", "controller_class", "controller_keys"]
+__all__ = ["CONTROLLERS", "IKQP", "LQR", "Controller", "LinearMPC", "controller_class", "controller_keys"]
 
 # Class name -> module; imported lazily so a missing optional piece never breaks LQR.
 _MODULES = {"LQR": "lqr", "LinearMPC": "mpc", "IKQP": "ik_qp"}
