@@ -66,3 +66,25 @@ def test_reset_makes_runs_repeat_exactly():
     a = sim.run(duration=2.0)
     b = sim.run(duration=2.0)  # run() resets the controller: OSQP's adaptive state must not leak
     np.testing.assert_array_equal(a.u, b.u)
+
+
+def test_osqp_settings_come_from_the_scenario():
+    from shinro_ctrl.errors import ShinroError
+
+    doc = {
+        "plant": {"type": "CartPole", "dt": 0.02},
+        "controller": {
+            "type": "LinearMPC",
+            "horizon": 20,
+            "Q": [10, 1, 100, 1],
+            "R": [0.1],
+            "osqp_settings": {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iter": 2000, "polishing": True},
+        },
+        "sim": {"duration": 0.2, "initial_state": [0, 0, 0.1, 0]},
+    }
+    sim = RobotSim.from_config(doc)
+    assert sim.controller.osqp_settings["eps_abs"] == 1e-6 and sim.controller.osqp_settings["polishing"] is True
+    sim.run()
+    doc["controller"]["osqp_settings"] = {"eps_absolute": 1e-6}
+    with pytest.raises(ShinroError, match="did you mean 'eps_abs'"):
+        RobotSim.from_config(doc)
