@@ -9,7 +9,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["asset_path", "config_path", "list_assets", "list_configs", "regression_dir"]
+__all__ = [
+    "asset_path",
+    "config_path",
+    "list_assets",
+    "list_configs",
+    "regression_dir",
+    "shipped_asset",
+    "shipped_config",
+]
 
 _PKG = Path(__file__).resolve().parent
 
@@ -25,6 +33,11 @@ def _find(kind: str, name: str | Path, suffix: str) -> Path:
     p = Path(name)
     if p.is_file():
         return p.resolve()
+    return _find_shipped(kind, name, suffix)
+
+
+def _find_shipped(kind: str, name: str | Path, suffix: str) -> Path:
+    p = Path(name)
     root = _root(kind)
     candidates = [root / p] if p.suffix else [root / p, root / p.with_suffix(suffix)]
     for candidate in candidates:
@@ -56,6 +69,24 @@ def asset_path(name: str | Path) -> Path:
         FileNotFoundError: listing the shipped assets.
     """
     return _find("assets", name, ".xml")
+
+
+def shipped_config(name: str | Path) -> Path:
+    """A scenario shipped with the package, never a same-named file in the current directory.
+
+    Raises:
+        FileNotFoundError: listing the shipped scenarios.
+    """
+    return _find_shipped("configs", name, ".toml")
+
+
+def shipped_asset(name: str | Path) -> Path:
+    """An MJCF model shipped with the package (a plant's own asset), never a file in the current directory.
+
+    Raises:
+        FileNotFoundError: listing the shipped assets.
+    """
+    return _find_shipped("assets", name, ".xml")
 
 
 def regression_dir() -> Path:
