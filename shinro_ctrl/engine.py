@@ -14,6 +14,18 @@ silent failure modes into exceptions:
   failure raises :class:`~shinro_ctrl.errors.SimulationDiverged` naming the
   warning and the simulation time.
 
+MuJoCo's own warning text: left alone, MuJoCo prints each warning (``WARNING:
+Nan, Inf or huge value in QACC at DOF 0. The simulation is unstable. ...``) to
+stdout from C and appends it to ``MUJOCO_LOG.TXT`` in the current directory.
+The first :class:`MujocoEngine` created in a process installs, once, a
+process-wide handler with ``mujoco.set_mju_user_warning`` that records the
+message (per thread, the last few) instead: nothing is printed and no log file
+is written, and the :class:`~shinro_ctrl.errors.SimulationDiverged` raised for
+that step quotes MuJoCo's text after our own description. (MuJoCo issues the
+text only the first time a warning fires for an ``MjData``; the counters, and
+so the exception, fire every time.) Code that installs its own handler
+afterwards replaces ours; :func:`install_warning_handler` puts ours back.
+
 :meth:`MujocoEngine.for_plant` loads a plant's MJCF asset and rewrites it
 through ``MjSpec`` with the plant's parameters (point masses, lengths,
 damping, gravity, timestep), so the simulated and the analytic models match
@@ -31,6 +43,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -40,10 +53,10 @@ import numpy as np
 
 from shinro_ctrl.backend import NumpyBackend
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, SimulationDiverged, UnknownName
-from shinro_ctrl.resources import asset_path, list_assets
+from shinro_ctrl.resources import asset_path, list_assets, shipped_asset
 from shinro_ctrl.validation import closest
 
-__all__ = ["TINY_INERTIA", "MujocoEngine"]
+__all__ = ["TINY_INERTIA", "MujocoEngine", "install_warning_handler", "take_warning_messages"]
 
 #: Diagonal inertia [kg m²] given to the point masses of an ``MjcfPatch``:
 #: MuJoCo needs a positive inertia; this one is negligible against ``m l²``.
@@ -76,6 +89,42 @@ _DOF_WARNINGS = {
 }
 _RESET_WARNINGS = _DOF_WARNINGS
 
+# ------------------------------------------------------ MuJoCo's warning text
+_WARNING_LOCK = threading.Lock()
+_HANDLER = {"installed": False}
+_RECENT = threading.local()
+_KEEP_MESSAGES = 8
+
+
+def _record_warning(message: str) -> None:
+    """MuJoCo user-warning handler: keep the text (per thread) instead of printing and logging it."""
+    msgs = getattr(_RECENT, "messages", None)
+    if msgs is None:
+        msgs = _RECENT.messages = []
+    msgs.append(" ".join(str(message).split()))
+    del msgs[:-_KEEP_MESSAGES]
+
+
+def install_warning_handler() -> None:
+    """Route MuJoCo's warnings to the engine (no print to stdout, no ``MUJOCO_LOG.TXT``).
+
+    Called by the first :class:`MujocoEngine`; calling it again re-installs
+    the handler (for example after other code replaced it). Process-wide.
+    """
+    with _WARNING_LOCK:
+        mujoco.set_mju_user_warning(_record_warning)
+        _HANDLER["installed"] = True
+
+
+def take_warning_messages() -> list[str]:
+    """MuJoCo warning messages recorded in this thread since the last call (oldest first), then forget them."""
+    msgs = getattr(_RECENT, "messages", None)
+    if not msgs:
+        return []
+    out = list(msgs)
+    msgs.clear()
+    return out
+
 
 class MujocoEngine:
     """A MuJoCo model and its data, with named and checked access.
@@ -97,9 +146,11 @@ class MujocoEngine:
             order (``body_names[0]`` is ``"world"``).
 
     Raises:
-        FileNotFoundError: the model file does not exist (the message holds
-            the path and the shipped assets).
-        ValueError: the XML is invalid or does not compile (MuJoCo's message).
+        FileNotFoundError: the model file does not exist or is a directory
+            (the message holds the path and the shipped assets).
+        InvalidArgument: an empty path, an argument that is not a path or a
+            string, or XML that is invalid or does not compile (MuJoCo's
+            message); a ``ValueError``.
     """
 
     def __init__(self, path_or_xml: str | Path, *, substeps: int = 1):
@@ -130,7 +181,10 @@ class MujocoEngine:
             substeps: ``mj_step`` calls per :meth:`step`; the engine's
                 :attr:`dt` equals ``plant.dt`` whatever this value.
             model: Optional MJCF path or shipped asset name replacing the
-                plant's own asset (it must use the same names).
+                plant's own asset (it must use the same names); a path is
+                tried first, then the shipped assets. Without it the plant's
+                own asset is taken from the package's assets folder only, so
+                a same-named file in the current directory never shadows it.
 
         Raises:
             KeyError: the patch names a body, joint or geom the model lacks.
@@ -139,12 +193,14 @@ class MujocoEngine:
         """
         substeps = _check_substeps(substeps)
         patch = plant.mjcf_patch()
-        spec, source = _load_spec(patch.asset if model is None else model)
+        spec, source = _load_spec(patch.asset, shipped=True) if model is None else _load_spec(model)
         _apply_patch(spec, patch, substeps)
         return cls.from_model(_compile(spec, source), substeps=substeps, source=source)
 
     # ------------------------------------------------------------------ set-up
     def _setup(self, model: mujoco.MjModel, substeps: int, source: str) -> None:
+        if not _HANDLER["installed"]:
+            install_warning_handler()
         self.model = model
         self.data = mujoco.MjData(model)
         self.substeps = _check_substeps(substeps)
@@ -184,6 +240,7 @@ class MujocoEngine:
         mujoco.mj_forward(m, self.data)
         self._kin_stale = False
         self._warn_seen = self._warn.tobytes()
+        take_warning_messages()
 
     # ------------------------------------------------------------- properties
     @property
@@ -219,7 +276,8 @@ class MujocoEngine:
         Raises:
             SimulationDiverged: MuJoCo raised a warning during the step (it
                 then resets the state itself) or ``qpos`` / ``qvel`` became
-                non-finite. The message names the warning and the time.
+                non-finite. The message names the warning and the time, and
+                quotes MuJoCo's own warning text when it issued one.
         """
         m, d = self.model, self.data
         t0 = d.time
@@ -236,6 +294,7 @@ class MujocoEngine:
         mujoco.mj_resetData(self.model, self.data)
         self.forward()
         self._warn_seen = self._warn.tobytes()
+        take_warning_messages()
 
     def _diverged(self, t0: float) -> None:
         m = self.model
@@ -243,12 +302,14 @@ class MujocoEngine:
         now = self._warn.copy()
         self._warn_seen = now.tobytes()
         span = f"during the step from t = {t0:.6g} s to {t0 + self.dt:.6g} s"
+        said = take_warning_messages()
+        quoted = "; MuJoCo: " + " / ".join(f'"{msg}"' for msg in dict.fromkeys(said)) if said else ""
         raised = [i for i in range(now.shape[0]) if now[i] > seen[i]]
         if not raised:
             raise SimulationDiverged(
                 f"MuJoCo simulation diverged {span}: non-finite state, "
                 f"qpos = {np.array2string(self._qpos, precision=4)}, "
-                f"qvel = {np.array2string(self._qvel, precision=4)}"
+                f"qvel = {np.array2string(self._qvel, precision=4)}{quoted}"
             )
         parts = []
         for i in raised:
@@ -265,7 +326,7 @@ class MujocoEngine:
             if any(i in _RESET_WARNINGS for i in raised)
             else ""
         )
-        raise SimulationDiverged(f"MuJoCo simulation diverged {span}: {', '.join(parts)}{reset}")
+        raise SimulationDiverged(f"MuJoCo simulation diverged {span}: {', '.join(parts)}{reset}{quoted}")
 
     # ------------------------------------------------------------ named access
     def get_joint_qpos(self, name: str) -> float | np.ndarray:
@@ -276,7 +337,7 @@ class MujocoEngine:
         """
         try:
             return self._qpos.item(self._qadr[name])
-        except KeyError:
+        except (KeyError, TypeError):
             j = self._joint_id(name)
             a = int(self.model.jnt_qposadr[j])
             return self._qpos[a : a + _NQ[int(self.model.jnt_type[j])]].copy()
@@ -289,7 +350,7 @@ class MujocoEngine:
         """
         try:
             return self._qvel.item(self._vadr[name])
-        except KeyError:
+        except (KeyError, TypeError):
             j = self._joint_id(name)
             a = int(self.model.jnt_dofadr[j])
             return self._qvel[a : a + _NV[int(self.model.jnt_type[j])]].copy()
@@ -302,14 +363,16 @@ class MujocoEngine:
 
         Raises:
             KeyError: unknown joint (the message lists the joints).
+            InvalidArgument: ``value`` is not a real number (or, for a ball or
+                free joint, a block of the right shape).
             NonFiniteError: ``value`` holds NaN or inf.
         """
         try:
             adr = self._qadr[name]
-        except KeyError:
+        except (KeyError, TypeError):
             self._set_block(name, value, self._qpos, self.model.jnt_qposadr, _NQ, "qpos")
         else:
-            v = float(value)
+            v = _real(value, f"joint '{name}' position")
             if not math.isfinite(v):
                 raise NonFiniteError(f"joint '{name}' position must be finite, got {v}")
             self._qpos[adr] = v
@@ -320,14 +383,16 @@ class MujocoEngine:
 
         Raises:
             KeyError: unknown joint (the message lists the joints).
+            InvalidArgument: ``value`` is not a real number (or, for a ball or
+                free joint, a block of the right shape).
             NonFiniteError: ``value`` holds NaN or inf.
         """
         try:
             adr = self._vadr[name]
-        except KeyError:
+        except (KeyError, TypeError):
             self._set_block(name, value, self._qvel, self.model.jnt_dofadr, _NV, "qvel")
             return
-        v = float(value)
+        v = _real(value, f"joint '{name}' velocity")
         if not math.isfinite(v):
             raise NonFiniteError(f"joint '{name}' velocity must be finite, got {v}")
         self._qvel[adr] = v
@@ -341,13 +406,20 @@ class MujocoEngine:
 
         Raises:
             KeyError: unknown actuator (the message lists the actuators).
+            InvalidArgument: ``value`` is not one real number (a list, a
+                string, ...).
             NonFiniteError: ``value`` is NaN or inf (``data.ctrl`` is left unchanged).
         """
         try:
             i = self._act[actuator_name]
-        except KeyError:
+        except (KeyError, TypeError):
             raise _unknown("actuator", actuator_name, self._act) from None
-        v = float(value)
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise InvalidArgument(
+                f"control of actuator '{actuator_name}' must be one real number, got {value!r}"
+            ) from None
         if not math.isfinite(v):
             raise NonFiniteError(f"control of actuator '{actuator_name}' must be finite, got {v}")
         self._ctrl[i] = v
@@ -555,7 +627,12 @@ class MujocoEngine:
         j = self._joint_id(name)
         jtype = int(self.model.jnt_type[j])
         k = sizes[jtype]
-        v = np.asarray(value, dtype=float).reshape(-1)
+        try:
+            v = np.asarray(value, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise InvalidArgument(
+                f"{_JOINT_TYPES[jtype]} joint '{name}' {what}: expected {k} real numbers, got {value!r}"
+            ) from None
         if v.shape != (k,):
             raise InvalidArgument(
                 f"{_JOINT_TYPES[jtype]} joint '{name}' {what}: expected shape ({k},) but found {v.shape}"
@@ -596,6 +673,13 @@ def _check_substeps(substeps: Any) -> int:
     return int(substeps)
 
 
+def _real(value: Any, what: str) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise InvalidArgument(f"{what} must be one real number, got {value!r}") from None
+
+
 def _unknown(kind: str, name: Any, names: Iterable[str]) -> UnknownName:
     names = sorted(names)
     near = closest(str(name), names)
@@ -610,21 +694,50 @@ def _mujoco_message(exc: Exception) -> str:
     return lines[0] + (f" ({lines[1]})" if len(lines) > 1 and lines[1].startswith("Element") else "")
 
 
-def _load_spec(path_or_xml: str | Path) -> tuple[mujoco.MjSpec, str]:
-    """Parse an MJCF path, shipped asset name or XML string into an ``MjSpec``."""
+def _shipped_list() -> str:
+    try:
+        return ", ".join(list_assets()) or "none"
+    except FileNotFoundError:
+        return "none"
+
+
+def _load_spec(path_or_xml: str | Path, *, shipped: bool = False) -> tuple[mujoco.MjSpec, str]:
+    """Parse an MJCF path, shipped asset name or XML string into an ``MjSpec``.
+
+    With ``shipped``, ``path_or_xml`` is the name of an asset shipped with the
+    package (a plant's own model), looked up in the package's assets folder
+    only: a same-named file in the current directory does not shadow it.
+    """
     if isinstance(path_or_xml, str) and path_or_xml.lstrip().startswith("<"):
         try:
             return mujoco.MjSpec.from_string(path_or_xml), "<xml string>"
         except ValueError as exc:
             raise InvalidArgument(f"invalid MJCF XML string: {_mujoco_message(exc)}") from exc
+    if not isinstance(path_or_xml, str | os.PathLike) or isinstance(path_or_xml, bytes):
+        raise InvalidArgument(
+            "MuJoCo model must be an MJCF file path, a shipped asset name (such as 'cartpole.xml') or an "
+            f"MJCF XML string, got {type(path_or_xml).__name__} {path_or_xml!r}"
+        )
+    if not os.fspath(path_or_xml).strip():
+        raise InvalidArgument(
+            "MuJoCo model path is empty: give an MJCF file path, a shipped asset name (such as 'cartpole.xml') "
+            f"or an MJCF XML string (shipped assets: {_shipped_list()})"
+        )
     try:
-        path = asset_path(path_or_xml)
+        path = shipped_asset(path_or_xml) if shipped else asset_path(path_or_xml)
     except FileNotFoundError:
-        try:
-            shipped = ", ".join(list_assets()) or "none"
-        except FileNotFoundError:
-            shipped = "none"
-        raise FileNotFoundError(f"MuJoCo model file not found: '{path_or_xml}' (shipped assets: {shipped})") from None
+        if shipped:
+            raise FileNotFoundError(
+                f"shipped MuJoCo asset not found: '{path_or_xml}' (shipped assets: {_shipped_list()})"
+            ) from None
+        if Path(path_or_xml).is_dir():
+            raise FileNotFoundError(
+                f"MuJoCo model path '{path_or_xml}' is a directory, not an MJCF file "
+                f"(shipped assets: {_shipped_list()})"
+            ) from None
+        raise FileNotFoundError(
+            f"MuJoCo model file not found: '{path_or_xml}' (shipped assets: {_shipped_list()})"
+        ) from None
     try:
         return mujoco.MjSpec.from_file(str(path)), str(path)
     except ValueError as exc:

@@ -16,7 +16,10 @@ is below ``stable_tol``, by default ``10 × [sim] settle_tol``. A sample that
 raises (``SimulationDiverged``, ``MPCInfeasible``, ``NonFiniteError``, any
 ``ShinroError``, an invalid parameter such as a negative mass, a numeric
 overflow) is recorded with its message and marked unstable; it never aborts
-the sweep.
+the sweep. A diverging MuJoCo sample prints nothing: the engine records
+MuJoCo's warning text instead of letting the C library print it (see
+:mod:`shinro_ctrl.engine`), and the ``SimulationDiverged`` message, which
+quotes it, goes in the table.
 
 Executors (``method``):
 
@@ -47,9 +50,8 @@ import json
 import math
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -266,52 +268,10 @@ def _build_nominal(doc: Mapping[str, Any], source: str | None, engine: str | Non
     return RobotSim(scenario, engine=engine)
 
 
-_QUIET_LOCK = threading.Lock()
-_QUIET_STATE: dict[str, Any] = {"depth": 0, "previous": None}
-
-
-@contextmanager
-def _quiet_mujoco(nominal: Any) -> Iterator[None]:
-    """Silence MuJoCo's printed warnings (and MUJOCO_LOG.TXT) while a MuJoCo sweep runs.
-
-    A sweep expects diverging samples; the engine still detects each one from
-    ``data.warning`` and raises ``SimulationDiverged``, whose message goes in
-    the table, so the C library's own print adds only noise (hundreds of lines
-    over the progress bar). The handler is process-global: the first of
-    nested or concurrent (Dask thread workers) users installs the silent one,
-    the last restores the previous handler.
-    """
-    if nominal.engine is None:
-        yield
-        return
-    import mujoco
-
-    with _QUIET_LOCK:
-        if _QUIET_STATE["depth"] == 0:
-            _QUIET_STATE["previous"] = mujoco.get_mju_user_warning()
-            mujoco.set_mju_user_warning(_ignore_warning)
-        _QUIET_STATE["depth"] += 1
-    try:
-        yield
-    finally:
-        with _QUIET_LOCK:
-            _QUIET_STATE["depth"] -= 1
-            if _QUIET_STATE["depth"] == 0:
-                mujoco.set_mju_user_warning(_QUIET_STATE["previous"])
-                _QUIET_STATE["previous"] = None
-
-
-def _ignore_warning(message: str) -> None:
-    """A MuJoCo warning handler that drops the text (the engine reads ``data.warning``)."""
-
-
 def _run_job(job: _Job) -> list[_Outcome]:
     """Worker entry point: run a chunk of samples (module level, so it pickles by reference)."""
     nominal = _nominal_for(job)
-    with _quiet_mujoco(nominal):
-        return [
-            _run_one(nominal, job.names, i, row, job.stable_tol) for i, row in zip(job.indices, job.rows, strict=True)
-        ]
+    return [_run_one(nominal, job.names, i, row, job.stable_tol) for i, row in zip(job.indices, job.rows, strict=True)]
 
 
 # -------------------------------------------------------------------- result
@@ -625,10 +585,9 @@ def _jobs(base: _Job, values: np.ndarray, n_tasks: int) -> list[_Job]:
 
 def _run_serial(nominal: Any, base: _Job, values: np.ndarray, bar: Progress) -> list[_Outcome]:
     out = []
-    with _quiet_mujoco(nominal):
-        for i, row in enumerate(values):
-            out.append(_run_one(nominal, base.names, i, row, base.stable_tol))
-            bar.update(i + 1)
+    for i, row in enumerate(values):
+        out.append(_run_one(nominal, base.names, i, row, base.stable_tol))
+        bar.update(i + 1)
     return out
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import math
 import re
@@ -11,9 +12,9 @@ import numpy as np
 import pytest
 
 from shinro_ctrl.engine import TINY_INERTIA, MujocoEngine
-from shinro_ctrl.errors import NonFiniteError, SimulationDiverged
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, SimulationDiverged, UnknownName
 from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum
-from shinro_ctrl.resources import asset_path
+from shinro_ctrl.resources import asset_path, shipped_asset
 
 from .conftest import PENDULUM_FAMILY
 
@@ -139,6 +140,32 @@ def test_missing_file_names_the_path(tmp_path):
         MujocoEngine(missing)
 
 
+def test_bad_model_arguments_raise_our_errors(tmp_path):
+    for empty in ("", "   "):
+        with pytest.raises(InvalidArgument, match=r"path is empty.*shipped assets: .*cartpole\.xml"):
+            MujocoEngine(empty)
+    with pytest.raises(InvalidArgument, match=r"must be an MJCF file path.*got int 3"):
+        MujocoEngine(3)
+    with pytest.raises(FileNotFoundError, match=r"is a directory, not an MJCF file.*shipped assets"):
+        MujocoEngine(tmp_path)
+    with pytest.raises(FileNotFoundError, match="is a directory"):
+        MujocoEngine(str(tmp_path))
+
+
+def test_for_plant_loads_the_shipped_asset_not_a_file_in_the_cwd(tmp_path, monkeypatch):
+    # A user's cartpole.xml in the current directory must not replace the plant's own model.
+    (tmp_path / "cartpole.xml").write_text("<mujoco><worldbody><body name='bogus'/></worldbody></mujoco>")
+    monkeypatch.chdir(tmp_path)
+    engine = MujocoEngine.for_plant(CartPole())
+    assert engine.joint_names == ("slider", "hinge")
+    assert engine.source == str(shipped_asset("cartpole.xml")) and "bogus" not in engine.body_names
+    assert tmp_path not in shipped_asset("cartpole.xml").parents
+    # An explicit model= still means "this path first": the user's file is taken (and fails the patch).
+    with pytest.raises(KeyError, match="unknown body 'cart'"):
+        MujocoEngine.for_plant(CartPole(), model="cartpole.xml")
+    assert MujocoEngine("cartpole.xml").body_names == ("world", "bogus")
+
+
 def test_invalid_xml_raises_value_error_with_mujoco_message(tmp_path):
     with pytest.raises(ValueError, match="invalid keyword"):
         MujocoEngine("<mujoco><worldbody><body><joint type='spiral'/></body></worldbody></mujoco>")
@@ -202,6 +229,29 @@ def test_joint_access_roundtrip_and_limits():
         engine.set_joint_qpos("root", [0.0, 0.0, 0.0])
 
 
+def test_bad_control_and_joint_values_raise_invalid_argument():
+    engine = MujocoEngine.for_plant(CartPole())
+    engine.set_joint_ctrl("slider", 0.5)
+    for bad in ([1, 2], "a", None, 1j):
+        with pytest.raises(InvalidArgument, match="control of actuator 'slider' must be one real number"):
+            engine.set_joint_ctrl("slider", bad)
+        with pytest.raises(InvalidArgument, match="joint 'hinge' position must be one real number"):
+            engine.set_joint_qpos("hinge", bad)
+        with pytest.raises(InvalidArgument, match="joint 'slider' velocity must be one real number"):
+            engine.set_joint_vel("slider", bad)
+    assert engine.data.ctrl[0] == 0.5
+    for call in (
+        lambda: engine.set_joint_ctrl(["slider"], 0.0),
+        lambda: engine.get_joint_qpos(["hinge"]),
+        lambda: engine.set_joint_vel({}, 0.0),
+    ):
+        with pytest.raises(UnknownName, match="slider"):
+            call()
+    free = MujocoEngine(FREE_BODY_XML)
+    with pytest.raises(InvalidArgument, match="free joint 'root' qpos: expected 7 real numbers"):
+        free.set_joint_qpos("root", "abcdefg")
+
+
 def test_actuator_reachable_by_joint_name():
     engine = MujocoEngine.for_plant(DoublePendulum())
     engine.set_joint_ctrl("hinge_2", 0.25)
@@ -236,6 +286,32 @@ def test_huge_control_raises_simulation_diverged():
     with pytest.raises(SimulationDiverged, match=r"mjWARN_BADCTRL.*'slider'") as info:
         plant.step(1e30)
     assert "t = 0.01" in str(info.value)
+
+
+def _flush_c_stdio() -> None:
+    """Flush C's stdio buffers (MuJoCo prints with printf; a pipe is block-buffered)."""
+    ctypes.CDLL(None).fflush(None)
+
+
+def test_divergence_quotes_mujoco_and_prints_nothing(tmp_path, monkeypatch, capfd):
+    # MuJoCo's C warning goes into the exception, not to stdout/stderr, and no MUJOCO_LOG.TXT is written.
+    monkeypatch.chdir(tmp_path)
+    capfd.readouterr()
+    plant = CartPole()
+    attached(plant)
+    with pytest.raises(SimulationDiverged) as info:
+        plant.step(1e30)
+    text = str(info.value)
+    assert "mjWARN_BADCTRL" in text
+    assert 'MuJoCo: "Nan, Inf or huge value in CTRL at ACTUATOR 0' in text
+    engine = MujocoEngine.for_plant(CartPole(cart_mass=1e-6, pole_mass=1e-6))
+    engine.set_joint_ctrl("slider", 1e6)
+    with pytest.raises(SimulationDiverged, match=r"mjWARN_BADQACC.*MuJoCo: \"Nan, Inf or huge value in QACC at DOF 0"):
+        engine.step()
+    _flush_c_stdio()
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_bad_acceleration_raises_and_engine_recovers():
