@@ -51,6 +51,8 @@ def parse_number(text: str) -> float:
     sign = -1.0 if m.group(1) == "-" else 1.0
     factor = float(m.group(2)) if m.group(2) not in ("", ".") else 1.0
     div = float(m.group(3)) if m.group(3) else 1.0
+    if div == 0.0:
+        raise InvalidArgument(f"not a number: '{text}' (division by zero)")
     return sign * factor * math.pi / div
 
 
@@ -101,7 +103,14 @@ def cmd_linearize(args: argparse.Namespace) -> int:
     if args.eps_sweep:
         from shinro_ctrl.reports import eps_sweep, plot_eps_sweep
 
-        sweep = eps_sweep(plant, xe, ue)
+        xs, us = xe, ue
+        if args.x0 is None and args.u0 is None:
+            # At an equilibrium f(x0) = 0 and FD has no rounding error to show: sweep beside it instead.
+            xs = xe + 0.1 * np.arange(1, plant.state_dim + 1) / plant.state_dim
+            us = ue + 0.1
+            print(f"\n(no --x0 given: the sweep uses x0 = {np.round(xs, 4).tolist()}, u0 = {np.round(us, 4).tolist()},")
+            print(" off the equilibrium, where f(x0) = 0 would hide FD's rounding error)")
+        sweep = eps_sweep(plant, xs, us)
         print()
         print("FD error against a complex-step reference, by step size:")
         for e, err in zip(sweep.eps[::4], sweep.fd_error[::4], strict=True):
@@ -142,9 +151,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         from shinro_ctrl.video import prepare_video
 
         prepare_video(args.video)
+    from shinro_ctrl.resources import shipped_config
     from shinro_ctrl.sim import RobotSim, format_metrics
 
-    sim = RobotSim.from_config(args.config or DEFAULT_SCENARIO, engine=args.engine)
+    # The embedded default is the shipped file, never a same-named one in the current directory.
+    sim = RobotSim.from_config(args.config or shipped_config(DEFAULT_SCENARIO), engine=args.engine)
     label = f"{sim.scenario.name} ({sim.loop})"
     print(f"running {label}: {type(sim.plant).__name__} + {type(sim.controller).__name__}, ", end="")
     print(f"{args.duration if args.duration is not None else sim.scenario.sim.duration:g} s at dt = {sim.plant.dt:g} s")
@@ -206,12 +217,14 @@ def cmd_regress(args: argparse.Namespace) -> int:
 
     report = run_regression(args.dir, update=args.update)
     print(format_report(report))
-    if args.update or report.passed:
+    if report.passed or (args.update and not report.errors):
         return 0
     for c in report.failures:
         print(f"regression: {c.scenario}: {c.metric} = {c.now:.6g}, baseline {c.baseline}", file=sys.stderr)
     for label in report.missing:
         print(f"regression: {label}: no baseline", file=sys.stderr)
+    for label, message in report.errors.items():
+        print(f"regression: {label}: {message}", file=sys.stderr)
     return 1
 
 
@@ -325,6 +338,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``shinro-ctrl``; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
+    if debug:  # accepted anywhere on the line, before or after the subcommand
+        argv = ["--debug", *(a for a in argv if a != "--debug")]
     try:
         parser = build_parser()
         args = parser.parse_args(argv)

@@ -279,12 +279,14 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
         sim.duration = ctx.number("sim", "duration", st["duration"], positive=True)
     if "initial_state" in st:
         sim.initial_state = ctx.vector("sim", "initial_state", st["initial_state"], n)
-        bounds = getattr(probe, "state_bounds", None)
-        if bounds is not None:
-            lo, hi = bounds
-            for i, v in enumerate(sim.initial_state):
-                if not lo[i] <= v <= hi[i]:
-                    raise ctx.error("sim", f"'initial_state' component {i} = {v} is outside the plant's state_bounds")
+        lo, hi = probe.state_limits()
+        for i, v in enumerate(sim.initial_state):
+            if not lo[i] <= v <= hi[i]:
+                raise ctx.error(
+                    "sim",
+                    f"'initial_state' {probe.state_names[i]} = {v:g} is outside the plant's limits "
+                    f"[{lo[i]:g}, {hi[i]:g}] (state_bounds / track_limits)",
+                )
     if "reference" in st:
         sim.reference = _parse_reference(ctx, st["reference"], n)
     if "track" in st:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shinro_ctrl.errors import ConfigError
+from shinro_ctrl.errors import ConfigError, ShinroError
 
 __all__ = [
     "DEFAULT_TOLERANCES",
@@ -77,6 +77,7 @@ class RegressionReport:
 
     checks: list[MetricCheck] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
+    errors: dict[str, str] = field(default_factory=dict)
     updated: list[str] = field(default_factory=list)
     scenarios: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
@@ -87,7 +88,7 @@ class RegressionReport:
 
     @property
     def passed(self) -> bool:
-        return not self.failures and not self.missing
+        return not self.failures and not self.missing and not self.errors
 
 
 def baseline_path(scenario_path: str | Path) -> Path:
@@ -203,7 +204,11 @@ def run_regression(
         sim = RobotSim.from_config(path)
         label = f"{path.stem} ({sim.loop})"
         report.scenarios.append(label)
-        result = sim.run(progress=progress)
+        try:
+            result = sim.run(progress=progress)
+        except ShinroError as exc:  # a run that diverges or turns infeasible is a regression, not an abort
+            report.errors[label] = f"{type(exc).__name__}: {str(exc).splitlines()[0]}"
+            continue
         base = baseline_path(path)
         if update:
             write_baseline(base, result)
@@ -239,9 +244,11 @@ def format_report(report: RegressionReport) -> str:
         lines = []
     for label in report.missing:
         lines.append(f"{label}: no baseline (run 'shinro-ctrl regress --update' to record one)")
+    for label, message in report.errors.items():
+        lines.append(f"{label}: FAILED to run: {message}")
     for label in report.updated:
         lines.append(f"{label}: baseline written")
     n = len(report.scenarios)
-    verdict = "updated" if report.updated else ("passed" if report.passed else "FAILED")
+    verdict = "FAILED" if report.errors else "updated" if report.updated else ("passed" if report.passed else "FAILED")
     lines.append(f"{n} scenario runs in {report.wall_time_s:.1f} s: {verdict}")
     return "\n".join(lines)

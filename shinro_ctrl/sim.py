@@ -22,6 +22,8 @@ from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
 from shinro_ctrl.files import atomic_write, dump_json, dump_toml
 from shinro_ctrl.progress import Progress
 
+MAX_STEPS = 10_000_000  # trajectories are kept in memory: 10 M steps of a 12-state plant is about 2 GB
+
 __all__ = ["Reference", "RobotSim", "SimResult", "bound_excess", "compute_metrics", "format_metrics"]
 
 
@@ -422,6 +424,11 @@ class RobotSim:
         dt = plant.dt
         steps = max(1, round(duration / dt))
         n, m = plant.state_dim, plant.input_dim
+        if steps > MAX_STEPS:
+            raise InvalidArgument(
+                f"duration {duration:g} s at dt = {dt:g} s is {steps:,} steps; a run keeps every step in memory "
+                f"and is limited to {MAX_STEPS:,} (split it, or use a larger dt)"
+            )
         t = np.arange(steps + 1) * dt
         X = np.empty((steps + 1, n))
         U = np.empty((steps, m))
@@ -493,12 +500,12 @@ class RobotSim:
             solve_times=solve,
             scenario=self.scenario.name,
             loop=self.loop,
-            config=self.resolved_config(),
+            config=self.resolved_config(duration),
             **bounds,
         )
 
-    def resolved_config(self) -> dict[str, Any]:
-        """The scenario with defaults filled in (what was actually run)."""
+    def resolved_config(self, duration: float | None = None) -> dict[str, Any]:
+        """The scenario with defaults filled in (what was run; ``duration`` if it was overridden)."""
         s = self.scenario
         plant_tbl = {"type": s.plant.type, **self.plant.params()}
         for k, v in s.plant.params.items():
@@ -512,7 +519,7 @@ class RobotSim:
             doc["engine"] = eng
         doc["controller"] = {"type": s.controller.type, **s.controller.options}
         sim = {
-            "duration": s.sim.duration,
+            "duration": s.sim.duration if duration is None else duration,
             "initial_state": self.initial_state.tolist(),
             "reference": s.sim.reference,
             "track": [self.plant.state_names[i] for i in self.tracked],

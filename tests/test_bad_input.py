@@ -42,7 +42,7 @@ BAD_SCENARIOS: dict[str, tuple[str, str]] = {
     "initial_state_outside_bounds": (
         '[plant]\ntype = "InvertedPendulum"\nstate_bounds = { min = [-1, -5], max = [1, 5] }\n'
         '[controller]\ntype = "LQR"\nQ = [1, 1]\nR = [1]\n[sim]\ninitial_state = [2.0, 0.0]\n',
-        "outside the plant's state_bounds",
+        "outside the plant's limits",
     ),
 }
 

@@ -143,3 +143,32 @@ def test_bad_configs_through_the_real_command(case, tmp_path):
 def test_missing_config_file_exits_2():
     res = run_cli("run", "no_such_scenario.toml")
     assert res.returncode == 2 and "no config named" in res.stderr and "cartpole_lqr.toml" in res.stderr
+
+
+def test_default_scenario_ignores_a_same_named_file_in_cwd(tmp_path):
+    (tmp_path / "cartpole_lqr.toml").write_text(
+        '[plant]\ntype = "InvertedPendulum"\n[controller]\ntype = "LQR"\nQ=[1,1]\nR=[1]\n'
+    )
+    res = subprocess.run(
+        [sys.executable, "-m", "shinro_ctrl.cli", "run", "--duration", "0.2", "--plot", "p.png"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+    )
+    assert res.returncode == 0, res.stderr
+    assert "CartPole + LQR" in res.stdout
+
+
+def test_pi_over_zero_and_debug_after_the_subcommand(capsys):
+    assert main(["linearize", "pendulum", "--x0", "pi/0,0"]) == 2
+    assert "division by zero" in capsys.readouterr().err
+    with pytest.raises(Exception, match="did you mean"):
+        main(["linearize", "cartpol", "--debug"])  # --debug anywhere: the real exception propagates
+
+
+def test_eps_sweep_at_the_default_point_moves_off_the_equilibrium(capsys):
+    assert main(["linearize", "cartpole", "--eps-sweep"]) == 0
+    out = capsys.readouterr().out
+    best = float(out.split("best eps = ")[1].split(";")[0])
+    assert "off the equilibrium" in out and 1e-8 < best < 1e-3

@@ -84,3 +84,20 @@ def test_shipped_configs_are_found_by_name_and_all_parse():
     assert "cartpole_lqr.toml" in names
     for name in names:
         load_scenario(name)
+
+
+def test_initial_state_must_respect_track_limits():
+    doc = with_("plant", track_limits=[-1.0, 1.0])
+    doc["sim"]["initial_state"] = [2.0, 0.0, 0.0, 0.0]
+    with pytest.raises(ConfigError, match=r"x = 2 is outside the plant's limits \[-1, 1\]"):
+        parse_scenario(doc)
+
+
+def test_set_state_outside_declared_limits_is_refused():
+    from shinro_ctrl.errors import InvalidArgument
+    from shinro_ctrl.plants import CartPole, InvertedPendulum
+
+    with pytest.raises(InvalidArgument, match="outside the plant's limits"):
+        CartPole(track_limits=(-1, 1)).set_state([5.0, 0, 0, 0])
+    with pytest.raises(InvalidArgument, match="theta_dot"):
+        InvertedPendulum(state_bounds=([-1, -1], [1, 1])).set_state([0.0, 3.0])

@@ -111,3 +111,10 @@ def test_symmetry_check_is_relative():
     # A large, symmetric-up-to-rounding Q must be accepted.
     Q = np.array([[1e8, 3e7 + 1e-3], [3e7, 1e8]])
     LQR(np.eye(2) * 1.1, np.eye(2), Q, [1, 1])
+
+
+def test_nan_state_is_refused_not_propagated():
+    ctrl = LQR.from_plant(CartPole(), [10, 1, 100, 1], [0.1], u_min=[-5], u_max=[5])
+    for bad in ([np.nan, 0, 0, 0], np.array([0, np.inf, 0, 0])):
+        with pytest.raises(NonFiniteError):
+            ctrl(bad)

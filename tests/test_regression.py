@@ -120,3 +120,20 @@ def test_atomic_write_to_a_device_writes_through(tmp_path):
     finally:
         os.close(fd)
     assert not fifo.is_file() and fifo.exists()  # still a pipe, not replaced by a regular file
+
+
+def test_a_scenario_that_fails_to_run_is_a_failed_row_not_an_abort(tmp_path):
+    shutil.copy(regression_dir() / "cartpole_lqr.toml", tmp_path / "a_good.toml")
+    shutil.copy(regression_dir() / "cartpole_lqr.baseline.json", tmp_path / "a_good.baseline.json")
+    # hard |x| <= 1 cm with |F| <= 3 N from 0.3 rad cannot be met: MPCInfeasible while running
+    (tmp_path / "b_infeasible.toml").write_text(
+        '[plant]\ntype = "CartPole"\ndt = 0.02\n[controller]\ntype = "LinearMPC"\nhorizon = 20\n'
+        "Q = [10, 1, 100, 1]\nR = [0.1]\nu_min = [-3.0]\nu_max = [3.0]\n"
+        "x_min = [-0.01, -inf, -inf, -inf]\nx_max = [0.01, inf, inf, inf]\n"
+        "[sim]\nduration = 1.0\ninitial_state = [0.0, 0.0, 0.3, 0.0]\n"
+    )
+    report = run_regression(tmp_path)
+    assert "MPCInfeasible" in report.errors["b_infeasible (standalone)"] and not report.passed
+    assert {c.scenario for c in report.checks} == {"a_good (standalone)"}
+    res = run_cli("regress", str(tmp_path))
+    assert res.returncode == 1 and "b_infeasible" in res.stderr and "FAILED to run" in res.stdout

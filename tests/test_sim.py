@@ -119,7 +119,7 @@ def test_save_and_plot(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["metrics"]["rms_error"] == pytest.approx(res.metrics["rms_error"])
     resolved = parse_scenario(__import__("tomllib").loads((out / "scenario.toml").read_text()))
-    assert resolved.plant.type == "InvertedPendulum" and resolved.sim.duration == 3.0
+    assert resolved.plant.type == "InvertedPendulum" and resolved.sim.duration == 0.5  # the duration actually run
     png = res.plot(tmp_path / "run.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
 
@@ -158,3 +158,15 @@ def test_lqr_feedforward_matters_on_a_moving_reference():
 def test_quadrotor_hover_recovers(name):
     res = RobotSim.from_config(name).run()
     assert res.metrics["final_error"] < 1e-2 and res.metrics["settling_time"] < 6.0
+
+
+def test_absurd_duration_is_refused_before_allocating():
+    from shinro_ctrl.errors import InvalidArgument
+
+    with pytest.raises(InvalidArgument, match="limited to"):
+        RobotSim.from_config("pendulum_lqr").run(duration=1e9)
+
+
+def test_saved_config_records_the_duration_actually_run(tmp_path):
+    res = RobotSim.from_config("pendulum_lqr").run(duration=0.3)
+    assert res.config["sim"]["duration"] == 0.3

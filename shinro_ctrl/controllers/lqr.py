@@ -188,8 +188,7 @@ class LQR(Controller):
                 ``feedforward`` row 1 gives the feed-forward input).
                 Default: the operating point.
         """
-        if type(x) is not np.ndarray or x.shape != (self.state_dim,):
-            x = as_vector("x", x, self.state_dim)
+        x = as_vector("x", x, self.state_dim)  # fast path for a finite (n,) array
         if ref is None:
             u = self._x0_u - self.K @ x
         else:

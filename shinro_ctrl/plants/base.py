@@ -201,7 +201,7 @@ class Plant:
         return as_vector("x0", x0, self.state_dim), as_vector("u0", u0, self.input_dim)
 
     def linearize(
-        self, x0: Any = None, u0: Any = None, method: str = "exact", eps: float = 1e-6
+        self, x0: Any = None, u0: Any = None, *, method: str = "exact", eps: float = 1e-6
     ) -> tuple[np.ndarray, np.ndarray]:
         """Continuous-time Jacobians ``(A_c (n, n), B_c (n, m))`` at ``(x0, u0)``.
 
@@ -226,6 +226,7 @@ class Plant:
         self,
         x0: Any = None,
         u0: Any = None,
+        *,
         method: str = "exact",
         discretization: str = "euler",
         eps: float = 1e-6,
@@ -237,7 +238,7 @@ class Plant:
         return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization)
 
     def get_model(
-        self, x0: Any = None, u0: Any = None, method: str = "exact", discretization: str = "euler"
+        self, x0: Any = None, u0: Any = None, *, method: str = "exact", discretization: str = "euler"
     ) -> tuple[np.ndarray, np.ndarray]:
         """Discrete ``(A (n, n), B (n, m))`` at ``dt`` around ``(x0, u0)``."""
         lm = self.linear_model(x0, u0, method=method, discretization=discretization)
@@ -261,6 +262,10 @@ class Plant:
     def _clip_state(self, x: np.ndarray) -> np.ndarray:
         """Hook for documented state clipping (state bounds, track limits)."""
         return x
+
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """Declared limits ``(lo (n,), hi (n,))`` of the state (±inf where none), e.g. ``state_bounds``."""
+        return np.full(self.state_dim, -np.inf), np.full(self.state_dim, np.inf)
 
     def step(self, u: Any) -> np.ndarray:
         """Advance one step of ``dt`` with input ``u`` held.
@@ -304,8 +309,22 @@ class Plant:
         return self.state.copy()
 
     def set_state(self, x: Any) -> None:
-        """Set the state ``(n,)`` (and the engine's, when one is attached)."""
+        """Set the state ``(n,)`` (and the engine's, when one is attached).
+
+        Raises:
+            InvalidArgument: wrong shape, or outside the plant's declared limits
+                (see :meth:`state_limits`).
+            NonFiniteError: NaN or inf.
+        """
         x = as_vector(f"{type(self).__name__} state", x, self.state_dim)
+        lo, hi = self.state_limits()
+        outside = np.flatnonzero((x < lo) | (x > hi))
+        if outside.size:
+            i = int(outside[0])
+            raise InvalidArgument(
+                f"{type(self).__name__} state: {self.state_names[i]} = {x[i]:g} is outside the plant's "
+                f"limits [{lo[i]:g}, {hi[i]:g}]"
+            )
         self.state = x.copy()
         if self._engine is not None:
             self._engine_write(self._engine, x)

@@ -103,6 +103,12 @@ class CartPole(Plant):
             x[0] = min(max(x[0], self.track_limits[0]), self.track_limits[1])
         return x
 
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = super().state_limits()
+        if self.track_limits is not None:
+            lo[0], hi[0] = self.track_limits
+        return lo, hi
+
     # engine mode: joints "slider" + "hinge", motor actuator "slider"
     def mjcf_patch(self) -> MjcfPatch:
         return MjcfPatch(

@@ -117,6 +117,11 @@ class DoublePendulum(Plant):
             return x
         return np.clip(x, *self.state_bounds)
 
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.state_bounds is None:
+            return super().state_limits()
+        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
+
     # engine mode: hinges "hinge_1" (absolute) and "hinge_2" (relative), motors "torque_1"/"torque_2"
     def mjcf_patch(self) -> MjcfPatch:
         return MjcfPatch(

@@ -78,6 +78,11 @@ class InvertedPendulum(Plant):
             return x
         return np.clip(x, *self.state_bounds)
 
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.state_bounds is None:
+            return super().state_limits()
+        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
+
     # engine mode: hinge "hinge", motor actuator "hinge"
     def mjcf_patch(self) -> MjcfPatch:
         return MjcfPatch(
