@@ -181,3 +181,10 @@ def test_overflow_in_a_diverging_step_is_simulation_diverged():
     plant.set_state([0.0, 0.0, 1.0, 1e200])  # θ̇² overflows a Python float
     with pytest.raises(SimulationDiverged, match="non-finite"):
         plant.step(0.0)
+
+
+def test_physics_engine_rejects_what_is_not_an_engine():
+    from shinro_ctrl.errors import InvalidArgument
+
+    with pytest.raises(InvalidArgument, match="expects a MujocoEngine"):
+        CartPole().physics_engine("x")

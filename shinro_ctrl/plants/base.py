@@ -343,9 +343,18 @@ class Plant:
         """
         if engine is not None and self.asset is None:
             raise InvalidArgument(f"{type(self).__name__} has no MuJoCo model to attach an engine to")
+        self._check_engine(engine)
         self._engine = engine
         if engine is not None:
             self.state = self._engine_read(engine)
+
+    def _check_engine(self, engine: Any) -> None:
+        """Raise InvalidArgument unless ``engine`` is None or behaves like a MujocoEngine."""
+        needed = ("step", "forward", "get_joint_qpos", "get_joint_vel", "set_joint_ctrl")
+        if engine is not None and not all(callable(getattr(engine, a, None)) for a in needed):
+            raise InvalidArgument(
+                f"{type(self).__name__}.physics_engine expects a MujocoEngine (or None), got {type(engine).__name__}"
+            )
 
     def mjcf_patch(self) -> MjcfPatch:
         """How the plant's MJCF asset must be edited to match its parameters."""
