@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
@@ -82,6 +84,14 @@ def test_defaults_work(arm):
 def test_invalid_options_name_themselves(arm, kw, word):
     with pytest.raises(ValueError, match=word):
         IKQP(arm, **kw)
+
+
+def test_bad_osqp_setting_value_raises_invalid_argument_silently(arm, capfd):
+    capfd.readouterr()
+    with pytest.raises(InvalidArgument, match="osqp_settings: eps_abs must be nonnegative"):
+        IKQP(arm, osqp_settings={"eps_abs": -1})
+    ctypes.CDLL(None).fflush(None)
+    assert capfd.readouterr() == ("", "")
 
 
 def test_invalid_targets_and_joints(ik):

@@ -11,6 +11,7 @@ checks can run with a MuJoCo engine attached to the plant.
 
 from __future__ import annotations
 
+import ctypes
 import re
 from typing import Any
 
@@ -22,7 +23,7 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from shinro_ctrl.controllers.mpc import QP, LinearMPC, MPCSolution
-from shinro_ctrl.errors import MPCInfeasible, NonFiniteError, NotStabilizable, ShinroError
+from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable, ShinroError
 from shinro_ctrl.plants import CartPole
 
 INF = np.inf
@@ -461,6 +462,23 @@ def test_constructor_validation(cartpole, change, error, pattern):
     pos = [args.pop(k) for k in ("A", "B", "Q", "R", "horizon")]
     with pytest.raises(error, match=pattern):
         LinearMPC(*pos, **args)
+
+
+@pytest.mark.parametrize(
+    ("settings", "reason"),
+    [({"eps_abs": -1.0}, "eps_abs must be nonnegative"), ({"max_iter": 0}, "max_iter must be positive")],
+)
+def test_bad_osqp_setting_values_raise_invalid_argument_silently(cartpole, capfd, settings, reason):
+    # OSQP's C library prints "ERROR in validate_settings: ..." to stdout; that text belongs in our exception.
+    _, A, B = cartpole
+    capfd.readouterr()
+    with pytest.raises(InvalidArgument, match=rf"OSQP rejected the MPC problem or its osqp_settings: {reason}"):
+        LinearMPC(A, B, Q_CP, R_CP, 10, osqp_settings=settings)
+    ctypes.CDLL(None).fflush(None)
+    assert capfd.readouterr() == ("", "")
+    LinearMPC(A, B, Q_CP, R_CP, 10, osqp_settings={"verbose": True})  # other output still gets through
+    ctypes.CDLL(None).fflush(None)
+    assert "OSQP" in capfd.readouterr().out
 
 
 def test_dare_failure_is_not_stabilizable():

@@ -39,6 +39,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from shinro_ctrl.controllers._osqp import setup_solver
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.kinematics import (
@@ -142,12 +143,16 @@ class _BoxQP:
             raise InvalidArgument(f"P upper triangle: expected {self.nnz} values but found {P_upper.shape}")
         P = sp.csc_matrix((P_upper.copy(), pattern.indices, pattern.indptr), shape=(n, n))
         self.solver = osqp.OSQP()
-        try:
-            self.solver.setup(
-                P=P, q=np.zeros(n), A=sp.identity(n, format="csc"), l=-np.ones(n), u=np.ones(n), **settings
-            )
-        except ValueError as exc:
-            raise InvalidArgument(f"osqp_settings: {exc}") from exc
+        setup_solver(
+            self.solver,
+            "IK problem or its osqp_settings",
+            P=P,
+            q=np.zeros(n),
+            A=sp.identity(n, format="csc"),
+            l=-np.ones(n),
+            u=np.ones(n),
+            **settings,
+        )
         raw = getattr(self.solver, "_solver", None)
         names = ("update_data_vec", "update_data_mat", "solve", "solution", "info")
         self._raw = raw if raw is not None and all(hasattr(raw, a) for a in names) else None

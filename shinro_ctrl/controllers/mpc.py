@@ -57,6 +57,7 @@ import osqp
 import scipy.linalg
 import scipy.sparse as sp
 
+from shinro_ctrl.controllers._osqp import setup_solver
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
 from shinro_ctrl.linearization import discretize
@@ -443,10 +444,9 @@ class LinearMPC(Controller):
         """Create and set up the OSQP object (once; again only when :meth:`reset` needs a clean solver)."""
         settings = self.osqp_settings
         self._solver = osqp.OSQP()
-        try:
-            self._solver.setup(self._P, self._q, self._A, self._l, self._u, **settings)
-        except (ValueError, TypeError, osqp.OSQPException) as exc:
-            raise InvalidArgument(f"OSQP rejected the MPC problem or its settings {settings}: {exc!r}") from exc
+        setup_solver(
+            self._solver, "MPC problem or its osqp_settings", self._P, self._q, self._A, self._l, self._u, **settings
+        )
         low = getattr(self._solver, "_solver", None)
         needed = ("update_data_vec", "warm_start", "solve", "info", "solution")
         self._low = low if low is not None and all(hasattr(low, a) for a in needed) else None
