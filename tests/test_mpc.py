@@ -481,6 +481,26 @@ def test_bad_osqp_setting_values_raise_invalid_argument_silently(cartpole, capfd
     assert "OSQP" in capfd.readouterr().out
 
 
+@pytest.mark.parametrize("horizon", [10**5, 10**8, 10**9])
+def test_oversized_horizon_is_rejected_before_building(cartpole, horizon):
+    # 10**8 used to get the process OOM-killed and 10**9 raised MemoryError.
+    plant, _, _ = cartpole
+    with pytest.raises(InvalidArgument) as info:
+        LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=horizon, u_min=-3.0, u_max=3.0)
+    text = str(info.value)
+    assert f"horizon {horizon:,}" in text and "the limit is 2,000,000" in text
+    assert f"{(horizon + 1) * 4 + horizon:,} decision variables" in text
+
+
+@pytest.mark.parametrize("soft", [False, True])
+def test_size_estimate_bounds_the_built_qp(cartpole, soft):
+    _, A, B = cartpole
+    mpc = LinearMPC(A, B, Q_CP, R_CP, 25, u_min=-3, u_max=3, du_max=0.5, soft=soft, **cart_bounds(0.6))
+    nvar, nnz = mpc._qp_size()
+    assert nvar == mpc.n_var
+    assert mpc._P.nnz + mpc._A.nnz <= nnz <= mpc._P.nnz + mpc._A.nnz + 4 * 5 // 2
+
+
 def test_dare_failure_is_not_stabilizable():
     A = np.diag([1.5, 0.5])
     B = np.array([[0.0], [1.0]])  # the unstable mode is unreachable

@@ -92,6 +92,13 @@ DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
 
 _SOLVED = "solved"
 
+#: Largest QP :class:`LinearMPC` builds: decision variables, and nonzeros of
+#: ``P`` and ``A_con`` together. Two million nonzeros already take OSQP about
+#: a gigabyte (factorization fill-in included) and seconds per solve; a
+#: horizon beyond this is almost always a typo (``10**8`` used to exhaust
+#: the memory and get the process killed).
+MAX_QP_SIZE = 2_000_000
+
 
 class QP(NamedTuple):
     """The QP ``min ½ zᵀ P z + qᵀ z  s.t.  l ≤ A z ≤ u`` in OSQP's form.
@@ -311,8 +318,9 @@ class LinearMPC(Controller):
 
     Raises:
         ValueError: wrong shapes (``expected (n, m) but found (p, q)``),
-            asymmetric or indefinite weights, ``horizon < 1``, crossed bounds,
-            unknown OSQP settings.
+            asymmetric or indefinite weights, ``horizon < 1``, a horizon whose
+            QP exceeds :data:`MAX_QP_SIZE` variables or nonzeros, crossed
+            bounds, unknown or invalid OSQP settings.
         NonFiniteError: NaN or inf where a finite number is needed.
         NotStabilizable: ``terminal_cost="dare"`` but the DARE has no
             stabilizing solution.
@@ -404,6 +412,7 @@ class LinearMPC(Controller):
         self.fallback = fallback
         self.state_names = self._names("state_names", state_names, n, "x")
         self.input_names = self._names("input_names", input_names, m, "u")
+        self._check_size()
 
         # ----------------------------------------------------- terminal cost
         self.K: np.ndarray | None = None
@@ -452,6 +461,33 @@ class LinearMPC(Controller):
         self._low = low if low is not None and all(hasattr(low, a) for a in needed) else None
 
     # ================================================================ set-up
+    def _qp_size(self) -> tuple[int, int]:
+        """``(decision variables, nonzeros of P and A_con)`` of the QP :meth:`_build_structure` makes.
+
+        Exact for the variables; for the nonzeros an upper bound (the terminal
+        cost counted dense), computed with Python integers (no overflow).
+        """
+        n, m, N = self.n, self.m, self.N
+        w = int(np.count_nonzero(np.isfinite(self.x_min) | np.isfinite(self.x_max)))
+        mu = int(np.count_nonzero(np.isfinite(self.u_min) | np.isfinite(self.u_max)))
+        r = 0 if self.du_max is None else int(np.count_nonzero(np.isfinite(self.du_max)))
+        ns = N * w if self.soft else 0
+        nvar = (N + 1) * n + N * m + ns
+        nz_Q, nz_R = (int(np.count_nonzero(np.triu(M))) for M in (self.Q, self.R))
+        nz_A, nz_B = int(np.count_nonzero(self.A)), int(np.count_nonzero(self.B))
+        nnz_P = N * nz_Q + n * (n + 1) // 2 + N * nz_R + ns
+        nnz_A = n + N * (nz_A + n + nz_B) + N * mu + (2 * N - 1) * r + (N * 4 * w + ns if self.soft else N * w)
+        return nvar, nnz_P + nnz_A
+
+    def _check_size(self) -> None:
+        nvar, nnz = self._qp_size()
+        if nvar > MAX_QP_SIZE or nnz > MAX_QP_SIZE:
+            raise InvalidArgument(
+                f"horizon {self.N:,} makes an MPC QP too large to build: {nvar:,} decision variables and up to "
+                f"{nnz:,} nonzeros (n = {self.n} states, m = {self.m} inputs); the limit is {MAX_QP_SIZE:,} of "
+                "each. Use a shorter horizon (or a larger dt for the same preview time)"
+            )
+
     @staticmethod
     def _names(arg: str, names: Any, size: int, prefix: str) -> tuple[str, ...]:
         if names is None:
