@@ -355,6 +355,22 @@ def test_from_config_engine_limits_from_mjcf(cfg, engine_arm):
         ArmRobot.from_config({**cfg, "joint_names": ["nope", *cfg["joint_names"][1:]]}, engine=engine)
 
 
+@pytest.mark.parametrize("config", [{}, {"dt": 0.002}, {"type": "ArmRobot", "num_dof": 6}])
+def test_from_config_engine_without_geometry_is_the_shipped_arm(config):
+    # With an engine and no geometry, the limits come from the MJCF and the rest from the shipped arm.
+    shipped = ArmRobot()
+    engine = MujocoEngine.for_plant(shipped)
+    arm = ArmRobot.from_config(config, engine=engine)
+    assert arm.engine is engine
+    assert arm.joint_names == shipped.joint_names and arm.axes == shipped.axes
+    np.testing.assert_array_equal(arm.joint_offsets, shipped.joint_offsets)
+    for name, (lo, hi) in zip(arm.joint_names, arm.joint_limits, strict=True):
+        assert engine.get_joint_limits(name) == (lo, hi)
+    np.testing.assert_array_equal(arm.joint_limits, shipped.joint_limits)
+    with pytest.raises(ConfigError, match="num_dof = 5 needs joint_limits"):
+        ArmRobot.from_config({"num_dof": 5}, engine=engine)
+
+
 # ---------------------------------------------------------------- engine mode
 def test_engine_attach_reads_state(engine_arm):
     np.testing.assert_allclose(engine_arm.get_state(), engine_arm.ee_pose(np.zeros(6)), atol=1e-9)

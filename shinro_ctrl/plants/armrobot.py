@@ -668,6 +668,9 @@ class ArmRobot(Plant):
         Omitted keys take the constructor defaults (no geometry: the shipped arm). With an
         engine, omitted ``joint_limits`` come from the MJCF joint ranges
         (``engine.get_joint_limits``); limits given in the config as well must agree with them.
+        With an engine and neither ``joint_offsets`` nor ``rot_axes`` (e.g. ``{}`` or
+        ``{"dt": 0.002}``), the geometry and joint names are the shipped arm's
+        (:func:`shipped_arm6`) and only the limits come from the model.
 
         Raises:
             ConfigError: unknown key, invalid value (e.g. ``joint_offsets`` without
@@ -678,9 +681,16 @@ class ArmRobot(Plant):
         if engine is None:
             return super().from_config(cfg)
         num = cfg.get("num_dof", 6)
+        custom = any(k in cfg for k in ("joint_offsets", "rot_axes"))
+        if not custom and isinstance(num, int | np.integer) and not isinstance(num, bool) and num == 6:
+            # No geometry: the shipped arm's (as standalone), with the limits read from the MJCF below.
+            shipped = shipped_arm6()
+            for key in ("joint_offsets", "rot_axes", "joint_names"):
+                cfg.setdefault(key, shipped[key])
+        elif not custom:
+            return super().from_config(cfg, engine=engine)  # incomplete geometry: the constructor says what is missing
         names = cfg.get("joint_names")
         if names is None and isinstance(num, int):
-            custom = any(k in cfg for k in ("joint_offsets", "rot_axes"))
             names = [f"joint_{i}" for i in range(num)] if custom else list(ARM6_JOINTS)
         try:
             limits = np.array([engine.get_joint_limits(n) for n in (names or [])], dtype=float)
