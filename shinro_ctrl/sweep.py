@@ -36,6 +36,16 @@ Executors (``method``):
 * ``"auto"`` (default): ``dask`` when a scheduler is given, else ``batch``
   when it applies, else ``pool`` (``serial`` for one worker).
 
+Determinism: the table (:meth:`SweepResult.table`, ``sweep.csv`` and the
+``rows`` of ``sweep.json``) holds only what the seed decides: the parameters,
+the metrics of :data:`TABLE_METRICS`, the verdict and the error text. The
+same scenario, ranges and seed give the same table, byte for byte, whatever
+the executor or worker count (the batch rollout agrees to rounding). Wall-clock
+measurements are kept out of it: each sample's ``solve_time_median_s`` (see
+:data:`WALL_CLOCK_METRICS`) is in :attr:`SweepRow.timing`, and in
+``sweep.json`` under ``"timings"`` (``"per_sample"``, by index), beside the
+sweep's own ``elapsed_s``.
+
 Output (``out``): ``sweep.csv``, ``sweep.json`` and ``sweep.png``, written
 atomically.
 """
@@ -66,6 +76,8 @@ from shinro_ctrl.validation import did_you_mean
 
 __all__ = [
     "METHODS",
+    "TABLE_METRICS",
+    "WALL_CLOCK_METRICS",
     "SweepResult",
     "SweepRow",
     "draw_samples",
@@ -79,6 +91,10 @@ __all__ = [
 METHODS = ("auto", "pool", "dask", "batch", "serial")
 STABLE_TOL_FACTOR = 10.0
 MAX_ROWS = 10_000_000
+#: Metrics measured with a clock: they vary from run to run, so they stay out of the table.
+WALL_CLOCK_METRICS = ("solve_time_median_s",)
+#: The metrics of the table (every metric of :data:`shinro_ctrl.config.METRICS` but the wall-clock ones).
+TABLE_METRICS = tuple(m for m in METRICS if m not in WALL_CLOCK_METRICS)
 #: Exceptions a sample may raise that mark it unstable (anything else is a bug and propagates).
 SAMPLE_ERRORS: tuple[type[BaseException], ...] = (ShinroError, ValueError, ArithmeticError, RuntimeError)
 
@@ -213,12 +229,16 @@ def _verdict(metrics: Mapping[str, float], finite: bool, stable_tol: float) -> b
     return bool(finite and math.isfinite(fe) and fe < stable_tol)
 
 
-# One sample's outcome as it travels back from a worker: (index, metrics, stable, error).
-_Outcome = tuple[int, dict[str, float], bool, str | None]
+# One sample's outcome as it travels back from a worker: (index, metrics, stable, error, timing).
+_Outcome = tuple[int, dict[str, float], bool, str | None, dict[str, float]]
 
 
 def _nan_metrics() -> dict[str, float]:
-    return dict.fromkeys(METRICS, math.nan)
+    return dict.fromkeys(TABLE_METRICS, math.nan)
+
+
+def _nan_timing() -> dict[str, float]:
+    return dict.fromkeys(WALL_CLOCK_METRICS, math.nan)
 
 
 def _run_one(nominal: Any, names: Sequence[str], index: int, values: Sequence[float], stable_tol: float) -> _Outcome:
@@ -227,10 +247,11 @@ def _run_one(nominal: Any, names: Sequence[str], index: int, values: Sequence[fl
         with np.errstate(all="ignore"):
             result = perturbed_sim(nominal, overrides).run(progress=False)
     except SAMPLE_ERRORS as exc:
-        return index, _nan_metrics(), False, _error_text(exc)
+        return index, _nan_metrics(), False, _error_text(exc), _nan_timing()
     finite = bool(np.all(np.isfinite(result.x)))
-    metrics = {k: result.metrics.get(k, math.nan) for k in METRICS}
-    return index, metrics, _verdict(metrics, finite, stable_tol), None
+    metrics = {k: result.metrics.get(k, math.nan) for k in TABLE_METRICS}
+    timing = {k: float(result.metrics.get(k, math.nan)) for k in WALL_CLOCK_METRICS}
+    return index, metrics, _verdict(metrics, finite, stable_tol), None, timing
 
 
 @dataclass(frozen=True)
@@ -282,9 +303,12 @@ class SweepRow:
     Attributes:
         index: Sample number (row of the drawn parameter array).
         params: Swept key (``plant.pole_mass``) → value.
-        metrics: Every metric of :func:`shinro_ctrl.sim.compute_metrics` (NaN when the run failed).
+        metrics: The :data:`TABLE_METRICS` of :func:`shinro_ctrl.sim.compute_metrics`
+            (NaN when the run failed): deterministic, the same whatever the executor.
         stable: The verdict (see the module docstring).
         error: ``"<ExceptionType>: <message>"`` when the run raised, else None.
+        timing: The :data:`WALL_CLOCK_METRICS` of the run (NaN when it failed): measured
+            with a clock, so not part of the table.
     """
 
     index: int
@@ -292,6 +316,7 @@ class SweepRow:
     metrics: dict[str, float]
     stable: bool
     error: str | None = None
+    timing: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -309,9 +334,12 @@ class SweepResult:
         metric: The metric :meth:`plot` shows by default.
         elapsed_s: Wall time of the sweep [s].
         notes: Remarks about the run (e.g. why the batch rollout was not used).
-        timings: Batch rollout only: ``build_plants_s`` (constructing and
-            validating the perturbed plants), ``rollout_s`` (the vectorized
-            loop, metrics included), ``instances`` and ``steps``.
+        timings: Wall-clock figures of the sweep (not part of the table):
+            ``solve_time_median_s``, the median over the samples that ran of
+            their median controller call; with the batch rollout also
+            ``build_plants_s`` (constructing and validating the perturbed
+            plants), ``rollout_s`` (the vectorized loop, metrics included),
+            ``instances`` and ``steps``.
         files: Paths written (``csv``, ``json``, ``png``).
     """
 
@@ -349,22 +377,24 @@ class SweepResult:
         return np.array([r.stable for r in self.rows], dtype=bool)
 
     def metric_values(self, name: str) -> np.ndarray:
-        """One metric over the samples ``(S,)`` (NaN where the run failed)."""
+        """One metric over the samples ``(S,)`` (NaN where the run failed); a wall-clock one from ``timing``."""
         if name not in METRICS:
             raise ConfigError(f"unknown metric {name!r}{did_you_mean(name, METRICS)}")
+        if name in WALL_CLOCK_METRICS:
+            return np.array([r.timing.get(name, math.nan) for r in self.rows], dtype=float)
         return np.array([r.metrics.get(name, math.nan) for r in self.rows], dtype=float)
 
     def columns(self) -> list[str]:
-        """CSV header: ``index``, the swept keys, every metric, ``stable``, ``error``."""
-        return ["index", *self.ranges, *METRICS, "stable", "error"]
+        """CSV header: ``index``, the swept keys, the :data:`TABLE_METRICS`, ``stable``, ``error``."""
+        return ["index", *self.ranges, *TABLE_METRICS, "stable", "error"]
 
     def table(self) -> list[dict[str, Any]]:
-        """The rows as flat dicts keyed by :meth:`columns`."""
+        """The rows as flat dicts keyed by :meth:`columns` (no wall-clock values: see the module doc)."""
         return [
             {
                 "index": r.index,
                 **{k: r.params[k] for k in self.ranges},
-                **{k: r.metrics.get(k, math.nan) for k in METRICS},
+                **{k: r.metrics.get(k, math.nan) for k in TABLE_METRICS},
                 "stable": r.stable,
                 "error": r.error,
             }
@@ -392,7 +422,12 @@ class SweepResult:
         return atomic_write(path, lambda f: f.write(text))
 
     def to_dict(self) -> dict[str, Any]:
-        """Settings and rows as plain data (what :meth:`to_json` writes)."""
+        """Settings, rows and timings as plain data (what :meth:`to_json` writes).
+
+        ``rows`` is the deterministic table; ``elapsed_s`` and ``timings`` (the
+        sweep's :attr:`timings` plus ``per_sample``: each wall-clock metric as a
+        list by sample index) are clock readings.
+        """
         return {
             "scenario": self.scenario,
             "loop": self.loop,
@@ -406,6 +441,10 @@ class SweepResult:
             "stable_tol": self.stable_tol,
             "n_stable": int(self.stable.sum()),
             "elapsed_s": self.elapsed_s,
+            "timings": {
+                **self.timings,
+                "per_sample": {k: [r.timing.get(k, math.nan) for r in self.rows] for k in WALL_CLOCK_METRICS},
+            },
             "notes": list(self.notes),
             "rows": [
                 {"index": r.index, "params": r.params, "metrics": r.metrics, "stable": r.stable, "error": r.error}
@@ -690,7 +729,7 @@ def _run_batch(
             try:
                 plant = cls.from_config(kwargs)
             except SAMPLE_ERRORS as exc:
-                outcomes[i] = (i, _nan_metrics(), False, _error_text(exc))
+                outcomes[i] = (i, _nan_metrics(), False, _error_text(exc), _nan_timing())
                 continue
         ok.append(i)
         plist.append(plant.params())
@@ -723,11 +762,12 @@ def _run_batch(
                     f"SimulationDiverged: {label} at t = {roll.t[k]:.4g} s: "
                     f"{pname} state became non-finite (batch rollout)"
                 )
-                outcomes[i] = (i, _nan_metrics(), False, err)
+                outcomes[i] = (i, _nan_metrics(), False, err, _nan_timing())
                 continue
-            metrics = {m: float(roll.metrics[m][j]) for m in METRICS}
+            metrics = {m: float(roll.metrics[m][j]) for m in TABLE_METRICS}
             metrics["constraint_violations"] = int(metrics["constraint_violations"])
-            outcomes[i] = (i, metrics, _verdict(metrics, True, stable_tol), None)
+            timing = {m: float(roll.metrics[m][j]) for m in WALL_CLOCK_METRICS}
+            outcomes[i] = (i, metrics, _verdict(metrics, True, stable_tol), None, timing)
     bar.update(S)
     return [outcomes[i] for i in range(S)]
 
@@ -844,9 +884,12 @@ def run_sweep(
 
     outcomes.sort(key=lambda o: o[0])
     rows = [
-        SweepRow(i, {k: float(values[i, j]) for j, k in enumerate(ranges)}, metrics, stable, error)
-        for i, metrics, stable, error in outcomes
+        SweepRow(i, {k: float(values[i, j]) for j, k in enumerate(ranges)}, metrics, stable, error, timing)
+        for i, metrics, stable, error, timing in outcomes
     ]
+    for key in WALL_CLOCK_METRICS:
+        measured = [r.timing[key] for r in rows if math.isfinite(r.timing.get(key, math.nan))]
+        timings[key] = float(np.median(measured)) if measured else math.nan
     result = SweepResult(
         scenario=scenario.name,
         loop=nominal.loop,

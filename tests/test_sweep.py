@@ -16,13 +16,20 @@ from shinro_ctrl.batch import batch_unsupported_reason, lqr_batch_rollout
 from shinro_ctrl.config import METRICS
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.sim import RobotSim
-from shinro_ctrl.sweep import draw_samples, parse_param, parse_params, perturbed_sim, run_sweep
+from shinro_ctrl.sweep import (
+    TABLE_METRICS,
+    WALL_CLOCK_METRICS,
+    draw_samples,
+    parse_param,
+    parse_params,
+    perturbed_sim,
+    run_sweep,
+)
 
 CARTPOLE = "cartpole_lqr"
 # Around the nominal (cart 0.5 kg, pole 0.1 kg at 0.5 m): heavy carts and long poles defeat the fixed LQR
 # (a slow growing oscillation, or a divergence out of the float range).
 RANGES = {"plant.cart_mass": (0.2, 4.0), "plant.pole_length": (0.2, 1.4)}
-TIMING = "solve_time_median_s"  # the one wall-clock column
 
 
 def _same(a: float, b: float, rtol: float) -> bool:
@@ -33,14 +40,19 @@ def _same(a: float, b: float, rtol: float) -> bool:
     return abs(a - b) <= rtol * max(abs(a), abs(b)) + 1e-300
 
 
+def _csv(result, tmp_path, name: str) -> str:
+    return result.to_csv(tmp_path / f"{name}.csv").read_text()
+
+
 def assert_tables_close(a, b, *, rtol: float) -> None:
-    """Same parameters, verdicts and errors; metrics within ``rtol`` (failed runs: both NaN).
+    """Same parameters, verdicts and errors; every table metric within ``rtol`` (failed runs: both NaN).
 
     With ``rtol == 0`` the tables must be identical, error messages included;
     otherwise (batch rollout against the per-sample loop) only the presence
     of an error must agree, since the two paths word a divergence differently.
     """
     assert len(a.rows) == len(b.rows)
+    assert a.columns() == b.columns()
     for ra, rb in zip(a.rows, b.rows, strict=True):
         assert ra.index == rb.index
         assert ra.params == rb.params
@@ -48,9 +60,9 @@ def assert_tables_close(a, b, *, rtol: float) -> None:
         if rtol == 0:
             assert ra.error == rb.error
         assert (ra.error is None) == (rb.error is None), (ra.error, rb.error)
-        for m in METRICS:
-            if m != TIMING:
-                assert _same(ra.metrics[m], rb.metrics[m], rtol), (ra.index, m, ra.metrics[m], rb.metrics[m])
+        assert set(ra.metrics) == set(rb.metrics) == set(TABLE_METRICS)
+        for m in TABLE_METRICS:
+            assert _same(ra.metrics[m], rb.metrics[m], rtol), (ra.index, m, ra.metrics[m], rb.metrics[m])
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +130,7 @@ def test_bad_specs_raise_config_error():
 
 
 # --------------------------------------------------------------- executors
-def test_pool_dask_serial_and_batch_give_the_same_table(dask_cluster):
+def test_pool_dask_serial_and_batch_give_the_same_table(dask_cluster, tmp_path):
     kw = {"samples": 12, "seed": 3, "duration": 3.0}
     serial = run_sweep(CARTPOLE, RANGES, method="serial", **kw)
     pool = run_sweep(CARTPOLE, RANGES, method="pool", workers=2, **kw)
@@ -130,9 +142,16 @@ def test_pool_dask_serial_and_batch_give_the_same_table(dask_cluster):
     assert 0 < serial.stable.sum() < len(serial.rows)
     assert any(r.error for r in serial.rows)
     assert any(not r.stable and r.error is None for r in serial.rows)
-    # Per-sample executors run the same code on the same rows: identical tables.
+    # Per-sample executors run the same code on the same rows: identical tables, the CSV files byte for byte.
     assert_tables_close(pool, serial, rtol=0)
     assert_tables_close(dask, serial, rtol=0)
+    assert _csv(pool, tmp_path, "pool") == _csv(serial, tmp_path, "serial") == _csv(dask, tmp_path, "dask")
+    assert json.dumps(pool.to_dict()["rows"]) == json.dumps(serial.to_dict()["rows"])
+    # Wall-clock timing is kept beside the table, per sample and as the sweep's median.
+    ran = [r for r in serial.rows if r.error is None]
+    assert all(r.timing["solve_time_median_s"] > 0 for r in ran)
+    assert all("solve_time_median_s" not in r.metrics for r in serial.rows)
+    assert serial.timings["solve_time_median_s"] > 0
     # The vectorized rollout agrees to floating-point tolerance.
     assert_tables_close(batch, serial, rtol=1e-9)
 
@@ -242,7 +261,8 @@ def test_files_csv_json_png(tmp_path):
     with open(tmp_path / "sweep.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 10
-    assert list(rows[0]) == ["index", *RANGES, *METRICS, "stable", "error"]
+    assert list(rows[0]) == ["index", *RANGES, *TABLE_METRICS, "stable", "error"]
+    assert set(TABLE_METRICS) | set(WALL_CLOCK_METRICS) == set(METRICS) and "solve_time_median_s" not in rows[0]
     for row, r in zip(rows, res.rows, strict=True):
         assert float(row["plant.cart_mass"]) == r.params["plant.cart_mass"]  # repr round-trips
         assert row["stable"] == ("yes" if r.stable else "no")
@@ -251,6 +271,11 @@ def test_files_csv_json_png(tmp_path):
     assert doc["seed"] == 5 and doc["method"] == "batch" and len(doc["rows"]) == 10
     assert doc["ranges"] == {k: list(v) for k, v in RANGES.items()}
     assert "final_error <" in doc["stable_rule"]
+    assert all(set(r["metrics"]) == set(TABLE_METRICS) for r in doc["rows"])
+    per_sample = doc["timings"]["per_sample"]["solve_time_median_s"]
+    expected = [r.timing["solve_time_median_s"] for r in res.rows]
+    assert per_sample == [None if math.isnan(v) else v for v in expected]  # JSON null for a failed run
+    np.testing.assert_array_equal(res.metric_values("solve_time_median_s"), expected)
     assert (tmp_path / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     one = run_sweep(CARTPOLE, {"plant.pole_length": (0.2, 1.4)}, samples=8, grid=True, duration=2.0)
     assert one.plot(tmp_path / "one.png").stat().st_size > 0
@@ -305,6 +330,5 @@ def test_controllers_with_memory_do_not_carry_state_between_samples():
         v = row.params["plant.cart_mass"]
         alone = run_sweep("cartpole_mpc", {"plant.cart_mass": (v, v)}, samples=1, **kw)
         assert alone.rows[0].error == row.error
-        for m in METRICS:
-            if m != TIMING:
-                assert _same(alone.rows[0].metrics[m], row.metrics[m], 0.0), m
+        for m in TABLE_METRICS:
+            assert _same(alone.rows[0].metrics[m], row.metrics[m], 0.0), m
