@@ -26,6 +26,25 @@ def test_mpc_scenarios_hold_hard_bounds_and_stabilize(name):
     assert res.metrics["final_error"] < 0.02
 
 
+def test_quadrotor_mpc_thrust_bound_binds_and_holds():
+    sim = RobotSim.from_config("quadrotor_mpc_mujoco")
+    res = sim.run()
+    plant = sim.plant
+    assert res.loop == "mujoco"
+    T = res.u[:, 0]
+    top = 2.0 * plant.params()["mass"] * plant.params()["gravity"]
+    assert sim.controller.u_min[0] == 0.0 and sim.controller.u_max[0] == pytest.approx(top)
+    assert np.all(T >= 0.0) and np.all(T <= sim.controller.u_max[0])  # exactly, at every step
+    assert np.all(np.abs(res.u[:, 1:]) <= sim.controller.u_max[1:])
+    at_top = np.isclose(T, top, rtol=1e-3, atol=0.0)
+    at_zero = np.abs(T) <= 1e-3 * top
+    assert at_top.any() or at_zero.any()  # a thrust bound is reached during the step
+    assert at_top.sum() >= 5  # for more than a marginal instant
+    assert res.metrics["constraint_violations"] == 0
+    settle_tol = sim.scenario.sim.settle_tol
+    assert res.metrics["settling_time"] < 3.0 and res.metrics["final_error"] < settle_tol
+
+
 def test_cartpole_state_bound_tight_but_held_in_both_loops():
     peaks = [np.abs(RobotSim.from_config(n).run().x[:, 0]).max() for n in ("cartpole_mpc", "cartpole_mpc_mujoco")]
     assert all(0.45 < p <= 0.6 + 1e-6 for p in peaks)
