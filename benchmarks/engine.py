@@ -1,13 +1,15 @@
-"""Closed-loop steps per second: cart-pole + a fixed LQR gain, standalone and in MuJoCo.
+"""Closed-loop steps per second: cart-pole + the project's LQR, standalone and in MuJoCo.
 
-The loop is the plain Python a user writes (``u = -K @ x; x = plant.step(u)``),
-so the figures include every per-step cost: input validation, the plant's
+The loop is the plain Python a user writes with the library's own controller
+(``lqr = LQR.from_plant(plant, Q, R)``, then ``x = plant.step(lqr(x))``), so
+the figures include every per-step cost: the controller call (its input
+validation and ``u = u0 - K (x - x0)``), the plant's input validation, its
 integration or the engine's ``mj_step`` plus its divergence checks, and the
-state read-back. The gain comes from ``scipy.linalg.solve_discrete_are`` on
-``plant.get_model()`` (no dependency on ``shinro_ctrl.controllers``).
+state read-back.
 
 Goals: >= 50,000 steps/s standalone and >= 20,000 steps/s in MuJoCo.
-A breakdown of the MuJoCo step shows where the time goes.
+A per-call breakdown shows where the time goes; the bare ``-K @ x`` row is
+the floor a controller call could reach (a gain product with no checks).
 
 Run: ``python benchmarks/engine.py [--steps N] [--repeats R]``.
 """
@@ -23,39 +25,32 @@ from collections.abc import Callable
 
 import mujoco
 import numpy as np
-import scipy.linalg
 
+from shinro_ctrl.controllers import LQR
 from shinro_ctrl.engine import MujocoEngine
 from shinro_ctrl.plants import CartPole
 
 GOAL_STANDALONE = 50_000
 GOAL_MUJOCO = 20_000
 X0 = np.array([0.0, 0.0, 0.1, 0.0])
+Q_CP = [10.0, 1.0, 100.0, 1.0]
+R_CP = [0.1]
 
 
-def lqr_gain(plant: CartPole) -> np.ndarray:
-    """Discrete LQR gain ``K (1, 4)`` at the upright equilibrium."""
-    A, B = plant.get_model()
-    Q, R = np.diag([10.0, 1.0, 100.0, 1.0]), np.array([[0.1]])
-    P = scipy.linalg.solve_discrete_are(A, B, Q, R)
-    return np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
-
-
-def closed_loop_rate(plant: CartPole, K: np.ndarray, steps: int) -> tuple[float, np.ndarray]:
-    """Steps per second of ``steps`` closed-loop steps from ``X0``, and the final state."""
+def closed_loop_rate(plant: CartPole, ctrl: LQR, steps: int) -> tuple[float, np.ndarray]:
+    """Steps per second of ``steps`` closed-loop steps ``x = plant.step(ctrl(x))`` from ``X0``, and the final state."""
     plant.set_state(X0)
     x = plant.get_state()
     step = plant.step
-    negK = -K
     t0 = time.perf_counter()
     for _ in range(steps):
-        x = step(negK @ x)
+        x = step(ctrl(x))
     return steps / (time.perf_counter() - t0), x
 
 
-def rates(plant: CartPole, K: np.ndarray, steps: int, repeats: int) -> tuple[float, float, np.ndarray]:
+def rates(plant: CartPole, ctrl: LQR, steps: int, repeats: int) -> tuple[float, float, np.ndarray]:
     """Median and best steps/s over ``repeats`` runs, and the last final state."""
-    results = [closed_loop_rate(plant, K, steps) for _ in range(repeats)]
+    results = [closed_loop_rate(plant, ctrl, steps) for _ in range(repeats)]
     r = [rate for rate, _ in results]
     return float(np.median(r)), float(max(r)), results[-1][1]
 
@@ -71,11 +66,11 @@ def per_call_us(fn: Callable[[], object], number: int = 2_000, repeats: int = 7)
     return float(min(samples))
 
 
-def profile_standalone(plant: CartPole, K: np.ndarray, steps: int) -> None:
+def profile_standalone(plant: CartPole, ctrl: LQR, steps: int) -> None:
     """Print where a standalone closed-loop step spends its time (cProfile, by own time)."""
     profiler = cProfile.Profile()
     profiler.enable()
-    closed_loop_rate(plant, K, steps)
+    closed_loop_rate(plant, ctrl, steps)
     profiler.disable()
     out = io.StringIO()
     pstats.Stats(profiler, stream=out).sort_stats("tottime").print_stats(10)
@@ -91,15 +86,16 @@ def main() -> None:
     args = parser.parse_args()
 
     standalone = CartPole()
-    K = lqr_gain(standalone)
+    lqr = LQR.from_plant(standalone, Q_CP, R_CP)
+    K = lqr.K
     simulated = CartPole()
     engine = MujocoEngine.for_plant(simulated)
     simulated.physics_engine(engine)
 
-    med_sa, best_sa, x_sa = rates(standalone, K, args.steps, args.repeats)
-    med_mj, best_mj, x_mj = rates(simulated, K, args.steps, args.repeats)
+    med_sa, best_sa, x_sa = rates(standalone, lqr, args.steps, args.repeats)
+    med_mj, best_mj, x_mj = rates(simulated, lqr, args.steps, args.repeats)
 
-    print(f"cart-pole + LQR, {args.steps} steps x {args.repeats} repeats, dt = {standalone.dt} s")
+    print(f"cart-pole + LQR.from_plant, {args.steps} steps x {args.repeats} repeats, dt = {standalone.dt} s")
     print(f"{'loop':12s} {'median/s':>10s} {'best/s':>10s} {'µs/step':>9s} {'goal':>8s}        final |theta|")
     for name, med, best, goal, x in (
         ("standalone", med_sa, best_sa, GOAL_STANDALONE, x_sa),
@@ -119,7 +115,8 @@ def main() -> None:
         "plant._engine_read (4 named reads)": lambda: simulated._engine_read(engine),
         "plant.step (engine attached)": lambda: simulated.step(u),
         "standalone plant.step": lambda: standalone.step(u),
-        "u = -K @ x": lambda: -K @ x,
+        "lqr(x) (LQR.__call__)": lambda: lqr(x),
+        "u = -K @ x (bare product, no checks)": lambda: -K @ x,
     }
     print("\nper-call costs (best of 7):")
     for name, fn in parts.items():
@@ -127,7 +124,7 @@ def main() -> None:
         standalone.set_state(X0)
         print(f"  {name:36s} {per_call_us(fn):6.2f} µs")
     if args.profile or med_sa < GOAL_STANDALONE:
-        profile_standalone(standalone, K, args.steps)
+        profile_standalone(standalone, lqr, args.steps)
 
 
 if __name__ == "__main__":
