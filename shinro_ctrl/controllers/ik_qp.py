@@ -65,6 +65,7 @@ DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
     "adaptive_rho": True,
 }
 
+_SOLVED = int(osqp.SolverStatus.OSQP_SOLVED)
 _USABLE = {
     int(osqp.SolverStatus.OSQP_SOLVED),
     int(osqp.SolverStatus.OSQP_SOLVED_INACCURATE),
@@ -256,7 +257,7 @@ class IKQP(Controller):
         k = self.k = 6 if task == "pose" else 3
         self.damping = check_nonnegative("damping", damping)
         self.dt = check_positive("dt", arm.dt if dt is None else dt)
-        self.max_step = check_positive("max_step", max_step)
+        self.max_step = max_step  # validated by the property (which also sets the step-bound arrays)
         if np.ndim(velocity_limit) == 0:
             vlim = np.full(n, check_positive("velocity_limit", velocity_limit))
         else:
@@ -310,17 +311,32 @@ class IKQP(Controller):
         self._function = f
 
         self._e = np.zeros(6)
-        self._c = np.zeros(n)
-        self._l = np.zeros(n)
-        self._u = np.zeros(n)
+        self._ek = self._e[:k]  # the task rows of e (a view)
+        self._et = (0.0,) * 6  # e as Python floats (the last _error)
+        self._clu = np.zeros((3, n))  # QP vectors c, l, u as rows of one buffer (scaled in one call)
+        self._c, self._l, self._u = self._clu
+        self._evaluated: np.ndarray | None = None  # the array whose kinematics the buffers hold
         self._evaluate(np.clip(np.zeros(n), self.lo, self.hi))
         settings = dict(DEFAULT_OSQP_SETTINGS)
         settings.update(osqp_settings or {})
         self._qp = _BoxQP(n, self._Hu, settings)
+        self._raw = self._qp._raw
         self.last: IKStep | None = None
         self.preview = 1
         self.u_min = None
         self.u_max = None
+
+    @property
+    def max_step(self) -> float:
+        """Largest joint change per :meth:`solve` iteration [rad], > 0."""
+        return self._max_step
+
+    @max_step.setter
+    def max_step(self, value: float) -> None:
+        self._max_step = check_positive("max_step", value)
+        # The step bounds as (n,) arrays: a Python scalar operand costs a ufunc call ~0.5 µs more.
+        self._s_solve = np.full(self.n, self._max_step)
+        self._neg_s_solve = -self._s_solve
 
     @classmethod
     def from_plant(
@@ -357,41 +373,60 @@ class IKQP(Controller):
 
     # ------------------------------------------------------------- internals
     def _evaluate(self, q: np.ndarray) -> None:
-        """Fill p, R, J, upper(P), JᵀW at ``q`` (buffers owned by this object)."""
+        """Fill p, R, J, upper(P), JᵀW at ``q`` (buffers owned by this object).
+
+        ``q`` is remembered (by identity) as the evaluated point; the arrays this module
+        evaluates are never modified afterwards.
+        """
         self._qb[:] = q
         self._eval()
+        self._evaluated = q
 
-    def _error(self, pt: np.ndarray, Rt: np.ndarray) -> tuple[float, float]:
-        """Fill the task error ``e`` from the last evaluation; return (pos_err, ori_err)."""
-        p = self._p
-        ex, ey, ez = pt[0] - p[0], pt[1] - p[1], pt[2] - p[2]
+    def _error(self, pt: Any, Rt: np.ndarray) -> tuple[float, float]:
+        """Fill the task error ``e`` (and ``_et``, its Python floats) from the last evaluation.
+
+        Returns ``(pos_err, ori_err)``. ``pt`` is the target position (3 floats: a list is
+        fastest), ``Rt`` the target rotation ``(3, 3)``.
+        """
+        px, py, pz = self._p.tolist()
+        ex, ey, ez = pt[0] - px, pt[1] - py, pt[2] - pz
         np.matmul(Rt, self._R.T, out=self._M)
         wx, wy, wz = so3_log_flat(self._M.ravel().tolist())
-        self._e[:] = (ex, ey, ez, wx, wy, wz)
+        et = self._et = (ex, ey, ez, wx, wy, wz)
+        self._e[:] = et
         return math.sqrt(ex * ex + ey * ey + ez * ez), math.sqrt(wx * wx + wy * wy + wz * wz)
 
     def _qp_step(
-        self, q: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, s: Any, scale: float
+        self, q: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, s: np.ndarray, neg_s: np.ndarray, scale: float
     ) -> tuple[np.ndarray, int]:
         """Solve the QP at the last evaluation; return new joints (a fresh array inside the box) and the status.
 
         The QP is posed for ``z = Δq / scale`` with ``scale`` the task error norm: ``c`` and
         the bounds are divided by it, so the solution is of order one and OSQP's absolute
         tolerance acts as a relative one (otherwise steps below ``eps_abs`` come out as noise
-        and the iteration stalls near that size).
+        and the iteration stalls near that size). ``s`` and ``neg_s`` are the step bound and
+        its negative as ``(n,)`` arrays. This is the hot path: every operand is an array
+        (a Python scalar costs a ufunc call about 0.5 µs more) and OSQP's compiled solver is
+        called directly when available.
         """
         c, l, u = self._c, self._l, self._u
-        inv = 1.0 / scale
-        np.dot(self._negJtW, self._e[: self.k], out=c)
-        c *= inv
+        np.dot(self._negJtW, self._ek, out=c)
         np.subtract(box_lo, q, out=l)
-        np.maximum(l, -s, out=l)
-        l *= inv
+        np.maximum(l, neg_s, out=l)
         np.subtract(box_hi, q, out=u)
         np.minimum(u, s, out=u)
-        u *= inv
-        x, status, _ = self._qp.solve(self._Hu, c, l, u)
-        if status not in _USABLE or not math.isfinite(float(x.sum())):
+        self._clu *= 1.0 / scale
+        raw = self._raw
+        if raw is not None:
+            raw.update_data_vec(c, l, u)
+            raw.update_data_mat(self._Hu, None, None, None)
+            raw.solve()
+            status = int(raw.info.status_val)
+            x = raw.solution.x
+        else:
+            x, status, _ = self._qp.solve(self._Hu, c, l, u)
+        # "solved" means converged residuals, hence a finite x: only other statuses need the check.
+        if status != _SOLVED and (status not in _USABLE or not math.isfinite(x.sum())):
             # A box QP with P ≻ 0 is always feasible; should OSQP still fail, fall back on the
             # box projection of the unconstrained minimizer so the iteration can go on.
             x = np.linalg.lstsq(self._dense_P(), -c, rcond=None)[0]
@@ -479,13 +514,17 @@ class IKQP(Controller):
         """
         q = self._joints(q, "q")
         pt, Rt = self._target(target)
-        s = self.max_step if max_step is None else np.asarray(max_step, dtype=float)
+        if max_step is None:
+            s, neg_s = self._s_solve, self._neg_s_solve
+        else:
+            s = np.broadcast_to(np.asarray(max_step, dtype=float), (self.n,))
+            neg_s = -s
         self._evaluate(q)
-        pos_err, ori_err = self._error(pt, Rt)
+        pos_err, ori_err = self._error(pt.tolist(), Rt)
         scale = math.hypot(pos_err, ori_err) if self.k == 6 else pos_err
         if scale == 0.0:
             return np.zeros(self.n)
-        q_new, _ = self._qp_step(q, self.lo, self.hi, s, scale)
+        q_new, _ = self._qp_step(q, self.lo, self.hi, s, neg_s, scale)
         return _bounded_difference(q, q_new, s)
 
     def solve(
@@ -529,6 +568,7 @@ class IKQP(Controller):
             raise InvalidArgument(f"restarts must be a non-negative integer, got {restarts!r}")
         tol = check_positive("tol", tol)
         self._qp.reset()  # the same call gives the same answer, whatever was solved before
+        pt = pt.tolist()
         best, total = self._attempt(q0, pt, Rt, max_iters, tol)
         attempts = 1
         rng = None
@@ -540,18 +580,17 @@ class IKQP(Controller):
             if res[1] or res[4] < best[4]:
                 best = res
         q, converged, pos_err, ori_err, _ = best
-        if not np.array_equal(q, self._qb):
+        if q is not self._evaluated:  # a restart was run after the best attempt
             self._evaluate(q)
         return IKResult(q, converged, total, pos_err, ori_err, self._J[: self.k].copy(), attempts)
 
     def _attempt(
-        self, q: np.ndarray, pt: np.ndarray, Rt: np.ndarray, max_iters: int, tol: float
+        self, q: np.ndarray, pt: Any, Rt: np.ndarray, max_iters: int, tol: float
     ) -> tuple[tuple[np.ndarray, bool, float, float, float], int]:
         """One local solve; returns ``((q, converged, pos_err, ori_err, cost), iterations)``."""
-        lo, hi, s = self.lo, self.hi, self.max_step
+        lo, hi, s, neg_s = self.lo, self.hi, self._s_solve, self._neg_s_solve
         w0, w1, w2 = self.weights[:3].tolist()
         w3, w4, w5 = self.weights[3:].tolist() if self.k == 6 else (0.0, 0.0, 0.0)
-        e = self._e
         pose = self.k == 6
         best_cost = math.inf
         stalled = 0
@@ -561,7 +600,7 @@ class IKQP(Controller):
             pos_err, ori_err = self._error(pt, Rt)
             if pos_err < tol and (ori_err < tol or not pose):
                 return (q, True, pos_err, ori_err, 0.0), it
-            e0, e1, e2, e3, e4, e5 = e.tolist()
+            e0, e1, e2, e3, e4, e5 = self._et
             cost = w0 * e0 * e0 + w1 * e1 * e1 + w2 * e2 * e2 + w3 * e3 * e3 + w4 * e4 * e4 + w5 * e5 * e5
             if cost < best_cost * (1.0 - 1e-6):
                 best_cost, stalled = cost, 0
@@ -570,7 +609,7 @@ class IKQP(Controller):
             if it >= max_iters or stalled >= 10:
                 return (q, False, pos_err, ori_err, cost), it
             scale = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + (e3 * e3 + e4 * e4 + e5 * e5 if pose else 0.0))
-            q, _ = self._qp_step(q, lo, hi, s, scale)
+            q, _ = self._qp_step(q, lo, hi, s, neg_s, scale)
             it += 1
 
     # -------------------------------------------------------------- control
@@ -592,7 +631,9 @@ class IKQP(Controller):
         q0 = self._joints(q, "q")
         pt, Rt = self._target(target)
         iters = self.control_iters if iters is None else int(iters)
+        pt = pt.tolist()
         vdt = self.velocity_limit * self.dt
+        neg_vdt = -vdt
         box_lo = np.maximum(self.lo, q0 - vdt)
         box_hi = np.minimum(self.hi, q0 + vdt)
         q = q0
@@ -604,7 +645,7 @@ class IKQP(Controller):
             if it >= iters or self._converged(pos_err, ori_err, tol):
                 break
             scale = math.hypot(pos_err, ori_err) if self.k == 6 else pos_err
-            q, status = self._qp_step(q, box_lo, box_hi, vdt, scale)
+            q, status = self._qp_step(q, box_lo, box_hi, vdt, neg_vdt, scale)
             it += 1
         name = osqp.SolverStatus(status).name if status >= 0 else "not run"
         self.last = IKStep(q.copy(), q - q0, it, pos_err, ori_err, name, time.perf_counter() - t0)
