@@ -35,3 +35,19 @@ def state_bounds(value: Any, n: int, default_lo: list[float], default_hi: list[f
     if np.any(np.isnan(lo)) or np.any(np.isnan(hi)) or np.any(lo > hi):
         raise InvalidArgument("state_bounds: every min must be <= its max")
     return lo, hi
+
+
+class StateBoundsMixin:
+    """For plants with an optional ``state_bounds = (lo (n,), hi (n,))``: clip to it and declare it as limits."""
+
+    state_bounds: tuple[np.ndarray, np.ndarray] | None
+
+    def _clip_state(self, x: np.ndarray) -> np.ndarray:
+        if self.state_bounds is None:
+            return x
+        return np.clip(x, *self.state_bounds)
+
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.state_bounds is None:
+            return super().state_limits()  # type: ignore[misc]
+        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
