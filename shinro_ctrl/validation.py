@@ -19,6 +19,8 @@ from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 __all__ = [
     "as_matrix",
     "as_vector",
+    "bound_pair",
+    "bound_vector",
     "check_finite",
     "check_nonnegative",
     "check_positive",
@@ -181,3 +183,43 @@ def state_space(A: Any, B: Any) -> tuple[np.ndarray, np.ndarray]:
         if not np.all(np.isfinite(M)):
             raise NonFiniteError(f"{name} must be finite")
     return A_, B_
+
+
+def bound_vector(name: str, value: Any, size: int, default: float) -> np.ndarray:
+    """A bound vector ``(size,)``: None gives ``default``, a scalar broadcasts; ±inf allowed, NaN not.
+
+    Raises:
+        InvalidArgument: not numeric or the wrong shape.
+        NonFiniteError: NaN.
+    """
+    if value is None:
+        return np.full(size, default)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidArgument(f"{name} must be numeric with shape ({size},), got {value!r}") from None
+    if arr.ndim == 0:
+        arr = np.full(size, float(arr))
+    if arr.shape != (size,):
+        raise InvalidArgument(f"{name}: expected ({size},) but found {arr.shape}")
+    if np.any(np.isnan(arr)):
+        raise NonFiniteError(f"{name} must not contain NaN, got {np.array2string(arr, precision=4)}")
+    return arr
+
+
+def bound_pair(lo_name: str, hi_name: str, lo: Any, hi: Any, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds ``(size,)`` (None = unbounded) with ``lo <= hi`` and each finite on its own side.
+
+    Raises:
+        InvalidArgument: wrong shape, ``lo > hi``, ``lo = +inf`` or ``hi = -inf`` (naming the index).
+        NonFiniteError: NaN.
+    """
+    lo_arr = bound_vector(lo_name, lo, size, -np.inf)
+    hi_arr = bound_vector(hi_name, hi, size, np.inf)
+    bad = np.flatnonzero(~(lo_arr <= hi_arr) | (lo_arr == np.inf) | (hi_arr == -np.inf))
+    if bad.size:
+        i = int(bad[0])
+        raise InvalidArgument(
+            f"{lo_name} must be <= {hi_name} (and finite on its side); index {i}: {lo_arr[i]} > {hi_arr[i]}"
+        )
+    return lo_arr, hi_arr

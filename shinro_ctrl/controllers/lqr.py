@@ -8,7 +8,7 @@ import numpy as np
 
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument, NotStabilizable
-from shinro_ctrl.validation import as_vector, state_space, weight_matrix
+from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
 
 __all__ = ["LQR", "check_stabilizable"]
 
@@ -103,10 +103,7 @@ class LQR(Controller):
         self.discrete = bool(discrete)
         self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
         self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
-        self.u_min = np.full(m, -np.inf) if u_min is None else as_vector("u_min", u_min, m, finite=False)
-        self.u_max = np.full(m, np.inf) if u_max is None else as_vector("u_max", u_max, m, finite=False)
-        if np.any(np.isnan(self.u_min)) or np.any(np.isnan(self.u_max)) or np.any(self.u_min > self.u_max):
-            raise InvalidArgument("u_min must be <= u_max elementwise")
+        self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
         check_stabilizable(A, B, discrete=self.discrete, names=state_names)
         import control  # deferred: importing python-control costs about a second

@@ -61,7 +61,15 @@ from shinro_ctrl.controllers._osqp import setup_solver
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
 from shinro_ctrl.linearization import discretize
-from shinro_ctrl.validation import as_vector, check_positive, closest, state_space, unknown_keys
+from shinro_ctrl.validation import (
+    as_vector,
+    bound_pair,
+    bound_vector,
+    check_positive,
+    closest,
+    state_space,
+    unknown_keys,
+)
 
 __all__ = ["QP", "LinearMPC", "MPCSolution", "RowGroup"]
 
@@ -228,23 +236,6 @@ def _symmetric(name: str, M: np.ndarray, *, definite: bool, rtol: float = 1e-9) 
     return M
 
 
-def _bound(name: str, value: Any, size: int, default: float) -> np.ndarray:
-    """A bound vector ``(size,)``: a scalar broadcasts; ±inf allowed, NaN not."""
-    if value is None:
-        return np.full(size, default)
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidArgument(f"{name} must be numeric with shape ({size},), got {value!r}") from None
-    if arr.ndim == 0:
-        arr = np.full(size, float(arr))
-    if arr.shape != (size,):
-        raise InvalidArgument(f"{name}: expected ({size},) but found {arr.shape}")
-    if np.any(np.isnan(arr)):
-        raise NonFiniteError(f"{name} must not contain NaN, got {np.array2string(arr, precision=4)}")
-    return arr
-
-
 def _fmt(v: np.ndarray) -> str:
     return np.array2string(np.asarray(v), precision=4, suppress_small=True)
 
@@ -379,24 +370,12 @@ class LinearMPC(Controller):
         self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
         self.offset = np.zeros(n) if offset is None else as_vector("offset", offset, n)
         self.dt = None if dt is None else check_positive("dt", dt)
-        self.u_min = _bound("u_min", u_min, m, -np.inf)
-        self.u_max = _bound("u_max", u_max, m, np.inf)
-        self.x_min = _bound("x_min", x_min, n, -np.inf)
-        self.x_max = _bound("x_max", x_max, n, np.inf)
-        for lo_name, hi_name, lo, hi in (
-            ("u_min", "u_max", self.u_min, self.u_max),
-            ("x_min", "x_max", self.x_min, self.x_max),
-        ):
-            bad = np.flatnonzero(~(lo <= hi) | (lo == np.inf) | (hi == -np.inf))
-            if bad.size:
-                i = int(bad[0])
-                raise InvalidArgument(
-                    f"{lo_name} must be <= {hi_name} (and finite on its side); index {i}: {lo[i]} > {hi[i]}"
-                )
+        self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
+        self.x_min, self.x_max = bound_pair("x_min", "x_max", x_min, x_max, n)
         if du_max is None:
             self.du_max = None
         else:
-            self.du_max = _bound("du_max", du_max, m, np.inf)
+            self.du_max = bound_vector("du_max", du_max, m, np.inf)
             if np.any(self.du_max <= 0):
                 raise InvalidArgument(f"du_max must be > 0, got {_fmt(self.du_max)}")
         self.soft = bool(soft)
