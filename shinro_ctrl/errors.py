@@ -15,6 +15,7 @@ __all__ = [
     "MPCInfeasible",
     "NonFiniteError",
     "NotStabilizable",
+    "PlanningFailed",
     "ShinroError",
     "SimulationDiverged",
     "UnknownName",
@@ -54,3 +55,7 @@ class MPCInfeasible(ShinroError, RuntimeError):
 
 class SimulationDiverged(ShinroError, RuntimeError):
     """A simulation produced non-finite values or a physics-engine warning."""
+
+
+class PlanningFailed(ShinroError, RuntimeError):
+    """A trajectory optimization did not converge; the message names the solver status and the worst constraint."""

@@ -1,0 +1,55 @@
+"""The :class:`Estimator` interface: what the closed loop asks for the state.
+
+The loop never hands the plant's true state to a controller. At every step it
+passes the measurement ``y`` (the measured outputs, with sensor noise) and the
+input ``u`` applied over the previous step to :meth:`Estimator.update`, and
+feeds the controller the returned estimate ``x_hat``. :class:`FullState` is
+the identity (every state measured, no filtering): the default, so a scenario
+without an ``[estimator]`` table behaves as full-state feedback.
+
+A subclass writes :meth:`reset` and :meth:`update`; its ``measured`` indices
+tell the loop which states make up ``y`` (``y = C x`` with ``C`` the rows of
+the identity at ``measured``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Estimator"]
+
+
+class Estimator(ABC):
+    """A state estimator ``x_hat = update(y, u)``.
+
+    Attributes:
+        n: Number of states.
+        measured: Indices ``(p,)`` of the measured states, in the order of ``y``.
+        stateful: True when the estimate depends on past calls (filters);
+            the loop calls :meth:`reset` before every run regardless.
+    """
+
+    n: int
+    measured: tuple[int, ...]
+    stateful: bool = True
+
+    @classmethod
+    def from_plant(cls, plant: Any, **options: Any) -> Estimator:
+        """Build the estimator for ``plant``; the keywords are the ``[estimator]`` table's keys."""
+        raise NotImplementedError(f"{cls.__name__} has no from_plant factory")
+
+    @abstractmethod
+    def reset(self, x0_hat: Any, P0: Any = None) -> None:
+        """Start from the estimate ``x0_hat (n,)`` (and covariance ``P0 (n, n)`` where the filter has one)."""
+
+    @abstractmethod
+    def update(self, y: Any, u: Any) -> np.ndarray:
+        """Take the measurement ``y (p,)`` and the input ``u (m,)`` held over the last step; return ``x_hat (n,)``.
+
+        ``u`` is the input applied between the previous measurement and this
+        one (zero-order hold); on the first call after :meth:`reset` it is
+        the operating-point input, and filters skip their prediction.
+        """
