@@ -19,7 +19,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Estimator"]
+__all__ = ["ESTIMATORS", "Estimator"]
+
+#: Every concrete estimator class by name, filled where each is defined (see ``Estimator.__init_subclass__``).
+ESTIMATORS: dict[str, type[Estimator]] = {}
 
 
 class Estimator(ABC):
@@ -35,6 +38,11 @@ class Estimator(ABC):
     n: int
     measured: tuple[int, ...]
     stateful: bool = True
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if not cls.__name__.startswith("_"):
+            ESTIMATORS[cls.__name__] = cls
 
     @classmethod
     def from_plant(cls, plant: Any, **options: Any) -> Estimator:
