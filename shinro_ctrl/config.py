@@ -173,6 +173,189 @@ class _Ctx:
             raise self.error(table, f"'{key}' must have {n} values, got {len(out)}")
         return out
 
+    def check_types(self, table: str, mapping: Mapping[str, Any], annotations: Mapping[str, Any]) -> None:
+        """Check every value of ``mapping`` strictly against its key's type annotation (see :func:`check_value`)."""
+        for key, value in mapping.items():
+            if key == "type" and table in ("plant", "controller", "estimator"):
+                annotation: Any = "str"
+            else:
+                annotation = annotations.get(key, "")
+            problem = check_value(value, annotation, key)
+            if problem:
+                raise self.error(table, problem)
+
+
+# ------------------------------------------------------------ strict value types
+# One checker for every table: a key's TOML value must match the type annotation of the Python argument or
+# dataclass field it fills ("bool", "int", "float", "str", "list[float]", "Sequence[str]", "Mapping[...]",
+# "Any" = numbers or arrays/tables of numbers, unions with "|"). A new table parsed through
+# ``_Ctx.check_types`` with its dataclass's ``table_annotations`` gets strict types for free.
+MAX_NESTING = 4  # arrays of arrays deeper than this are never a scenario value
+MAX_ELEMENTS = 100_000  # numbers in one array value
+SIZE_LIMITS: dict[str, int] = {
+    # integer keys that size work or memory, with their limit (the error says it)
+    "substeps": 1_000,
+    "num_dof": 64,
+    "num_wheels": 64,
+    "control_iters": 1_000,
+    "horizon": 100_000,
+}
+_TOML_TYPE = {bool: "boolean", int: "integer", float: "float", str: "string", list: "array", dict: "table"}
+
+
+def toml_type(value: Any) -> str:
+    """The TOML name of a loaded value's type (``string``, ``boolean``, ``array``, ``date-time`` …)."""
+    for t, name in _TOML_TYPE.items():
+        if type(value) is t:
+            return name
+    if isinstance(value, Mapping):
+        return "table"
+    return "date-time" if type(value).__module__ == "datetime" else type(value).__name__
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _numeric_problem(value: Any, key: str, depth: int = 0) -> str | None:
+    """None if ``value`` is a number, a rectangular array of numbers or a table of such; else the problem."""
+    if _is_number(value):
+        return None
+    if depth >= MAX_NESTING:
+        return f"'{key}' is nested more than {MAX_NESTING} levels deep"
+    if isinstance(value, list):
+        if len(value) > MAX_ELEMENTS:
+            return f"'{key}' has {len(value)} elements; the limit is {MAX_ELEMENTS}"
+        for v in value:
+            problem = _numeric_problem(v, key, depth + 1)
+            if problem:
+                return problem
+            if isinstance(v, Mapping):
+                return f"'{key}' must hold numbers or arrays of numbers, got a table {_shown(v)}"
+        kinds = {isinstance(v, list) for v in value}
+        if len(kinds) > 1:
+            return f"'{key}' mixes numbers and arrays: {_shown(value)}"
+        if kinds == {True}:
+            lengths = {len(v) for v in value}
+            if len(lengths) > 1:
+                return f"'{key}' is ragged: its rows have {sorted(lengths)} elements; all rows need the same length"
+        return None
+    if isinstance(value, Mapping):
+        for k, v in value.items():
+            problem = _numeric_problem(v, f"{key}.{k}", depth + 1)
+            if problem:
+                return problem
+        return None
+    return f"'{key}' must be a number or an array of numbers, got {toml_type(value)} {_shown(value)}"
+
+
+def _atom_accepts(atom: str, value: Any, key: str) -> str | None:
+    """None when ``value`` fits the annotation atom, else the expectation in words (or a precise problem)."""
+    base = atom.split("[", 1)[0].strip().rsplit(".", 1)[-1]
+    inner = atom[len(atom.split("[", 1)[0]) :].strip("[] ")
+    if base == "bool":
+        return None if isinstance(value, bool) else "a boolean (true or false, unquoted)"
+    if base == "int":
+        return None if isinstance(value, int) and not isinstance(value, bool) else "an integer"
+    if base == "float":
+        return None if _is_number(value) else "a number"
+    if base == "str":
+        return None if isinstance(value, str) else "a string"
+    if base in ("list", "Sequence", "tuple"):
+        item = inner.split(",")[0].strip()
+        if not isinstance(value, list):
+            return f"an array of {'strings' if item == 'str' else 'numbers'}"
+        if item == "str":
+            return None if all(isinstance(v, str) for v in value) else "an array of strings"
+        problem = _numeric_problem(value, key)
+        return problem or None
+    if base in ("dict", "Mapping"):
+        if not isinstance(value, Mapping):
+            return "a table such as { key = value }"
+        for k, v in value.items():
+            if isinstance(v, list | Mapping) and _numeric_problem(v, f"{key}.{k}"):
+                problem = _numeric_problem(v, f"{key}.{k}")
+                return problem
+        return None
+    if base == "Any":
+        return _numeric_problem(value, key)
+    # an annotation this checker does not know: only the structural bounds apply
+    if isinstance(value, list | Mapping):
+        return _structure_problem(value, key)
+    return None
+
+
+def _structure_problem(value: Any, key: str, depth: int = 0) -> str | None:
+    if depth > MAX_NESTING:
+        return f"'{key}' is nested more than {MAX_NESTING} levels deep"
+    if isinstance(value, list):
+        if len(value) > MAX_ELEMENTS:
+            return f"'{key}' has {len(value)} elements; the limit is {MAX_ELEMENTS}"
+        return next((p for v in value if (p := _structure_problem(v, key, depth + 1))), None)
+    if isinstance(value, Mapping):
+        return next((p for k, v in value.items() if (p := _structure_problem(v, f"{key}.{k}", depth + 1))), None)
+    return None
+
+
+def check_value(value: Any, annotation: Any, key: str) -> str | None:
+    """Check one TOML value strictly against a type annotation.
+
+    Args:
+        value: The loaded TOML value.
+        annotation: A type annotation, as a string (``"float | None"``) or a type; ``""`` for unknown.
+        key: The key, for the message.
+
+    Returns:
+        None when the value fits, else the message (naming the key, the expected and the found type).
+        A string never passes for a number or a boolean, a boolean never for a number, a float never for
+        an integer; arrays must be rectangular and at most :data:`MAX_NESTING` deep; integer sizes listed in
+        :data:`SIZE_LIMITS` are bounded.
+    """
+    text = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", str(annotation))
+    text = text.replace("typing.", "").replace("collections.abc.", "")
+    atoms = [a.strip() for a in text.split("|") if a.strip() and a.strip() != "None"]
+    if not atoms:
+        return _structure_problem(value, key)
+    expected = []
+    for atom in atoms:
+        problem = _atom_accepts(atom, value, key)
+        if problem is None:
+            break
+        expected.append(problem)
+    else:
+        if len(expected) == 1 and expected[0].startswith("'"):
+            return expected[0]  # a precise problem (ragged, nested, a string inside an array)
+        words = " or ".join(dict.fromkeys(e for e in expected if not e.startswith("'"))) or expected[0]
+        if words.startswith("'"):
+            return words
+        return f"'{key}' must be {words}, got {toml_type(value)} {_shown(value)}"
+    limit = SIZE_LIMITS.get(key)
+    if limit is not None and _is_number(value) and value > limit:
+        return f"'{key}' = {value!r} exceeds the limit of {limit:,}"
+    return None
+
+
+def signature_annotations(func: Any, skip: int = 0) -> dict[str, Any]:
+    """Parameter name → annotation of ``func`` (after the first ``skip`` parameters), for :meth:`_Ctx.check_types`."""
+    import inspect
+
+    params = list(inspect.signature(func).parameters.values())[skip:]
+    return {p.name: p.annotation for p in params if p.annotation is not inspect.Parameter.empty}
+
+
+def table_annotations(cls: type) -> dict[str, Any]:
+    """Field name → annotation of a config dataclass, for :meth:`_Ctx.check_types`."""
+    from dataclasses import fields
+
+    return {f.name: f.type for f in fields(cls)}
+
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and parse a scenario file.
@@ -195,6 +378,8 @@ def load_scenario(path: str | Path) -> Scenario:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: malformed TOML: arrays or tables nested too deeply") from None
     return parse_scenario(doc, source=str(p), path=p)
 
 
@@ -226,6 +411,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     except ConfigError as exc:
         raise ctx.error("plant", str(exc)) from None
     ctx.check_keys("plant", pt, ("type", *cls.config_keys()))
+    ctx.check_types("plant", pt, signature_annotations(cls.__init__, 1))
     params = {k: v for k, v in pt.items() if k != "type"}
     try:
         probe = cls.from_config(params)
@@ -239,6 +425,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     if "engine" in doc:
         et = dict(doc["engine"])
         ctx.check_keys("engine", et, ENGINE_KEYS)
+        ctx.check_types("engine", et, table_annotations(EngineConfig))
         etype = et.get("type", "mujoco")
         if etype not in ("mujoco", "standalone"):
             raise ctx.error("engine", f"'type' must be 'mujoco' or 'standalone', got {etype!r}")
@@ -266,6 +453,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     except ConfigError as exc:
         raise ctx.error("controller", str(exc)) from None
     ctx.check_keys("controller", ct, ("type", *controller_keys(ccls)))
+    ctx.check_types("controller", ct, signature_annotations(ccls.from_plant, 1))
     for key in ("x0", "u0"):
         if key in ct:
             ctx.vector("controller", key, ct[key], n if key == "x0" else probe.input_dim)
@@ -274,6 +462,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     # [sim]
     st = dict(doc.get("sim", {}))
     ctx.check_keys("sim", st, SIM_KEYS)
+    ctx.check_types("sim", st, table_annotations(SimConfig))
     sim = SimConfig()
     if "duration" in st:
         sim.duration = ctx.number("sim", "duration", st["duration"], positive=True)
@@ -304,8 +493,8 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
         if any(v < 0 for v in sim.measurement_noise):
             raise ctx.error("sim", "'measurement_noise' standard deviations must be >= 0")
     if "seed" in st:
-        if isinstance(st["seed"], bool) or not isinstance(st["seed"], int):
-            raise ctx.error("sim", f"'seed' must be an integer, got {st['seed']!r}")
+        if isinstance(st["seed"], bool) or not isinstance(st["seed"], int) or st["seed"] < 0:
+            raise ctx.error("sim", f"'seed' must be a non-negative integer, got {st['seed']!r}")
         sim.seed = st["seed"]
 
     # [regression]
@@ -327,6 +516,8 @@ def _parse_reference(ctx: _Ctx, ref: Any, n: int) -> dict[str, Any]:
         raise ctx.error("sim", f"'reference' must be a table such as {{ kind = \"constant\" }}, got {ref!r}")
     ref = dict(ref)
     kind = ref.get("kind", "constant")
+    if not isinstance(kind, str):
+        raise ctx.error("sim.reference", f"'kind' must be a string such as \"step\", got {toml_type(kind)} {kind!r}")
     if kind not in REFERENCE_KINDS:
         raise ctx.error("sim", f"reference: unknown kind '{kind}'{did_you_mean(str(kind), REFERENCE_KINDS)}")
     required, optional = REFERENCE_KINDS[kind]
