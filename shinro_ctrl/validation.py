@@ -126,31 +126,45 @@ def as_matrix(name: str, value: Any, shape: tuple[int, int], *, finite: bool = T
     return arr
 
 
-def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False) -> np.ndarray:
-    """A cost weight as a symmetric ``(n, n)`` matrix.
+def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False, rtol: float = 1e-9) -> np.ndarray:
+    """A cost weight as a symmetric ``(n, n)`` matrix: the one weight check of LQR and MPC.
 
     Accepts a full matrix, or a vector of length ``n`` (or a scalar when
-    ``n == 1``) meaning the diagonal. The matrix must be symmetric within a
-    relative tolerance and positive semidefinite (positive definite when
-    ``definite``), since LQR and MPC costs are otherwise meaningless.
+    ``n == 1``) meaning the diagonal. With ``s = max |W_ij|`` the matrix must
+    be symmetric, ``max |W − Wᵀ| <= rtol · s``, and positive semidefinite,
+    ``λ_min(W) >= −rtol · s`` (positive definite, ``λ_min > rtol · s``, when
+    ``definite``): LQR and MPC costs are otherwise meaningless. The
+    tolerances are relative to the matrix's own scale, so a large weight
+    symmetric up to rounding passes and a tiny one is judged as strictly.
+
+    Returns:
+        ``½ (W + Wᵀ)`` ``(n, n)``.
 
     Raises:
-        ValueError: wrong shape, asymmetric, or not (semi)definite.
+        InvalidArgument: wrong shape, asymmetric, or not (semi)definite.
         NonFiniteError: NaN or inf.
     """
-    arr = np.asarray(value, dtype=float) if not isinstance(value, np.ndarray) else value.astype(float)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidArgument(f"{name} must be a numeric ({n}, {n}) matrix, got {value!r}") from None
     if arr.ndim <= 1:
         arr = np.diag(as_vector(name, arr, n))
-    W = as_matrix(name, arr, (n, n))
-    scale = max(1.0, float(np.abs(W).max()))
-    if np.abs(W - W.T).max() > 1e-9 * scale:
-        raise InvalidArgument(f"{name} must be symmetric (max |{name} - {name}ᵀ| = {np.abs(W - W.T).max():.3g})")
-    W = 0.5 * (W + W.T)
-    lam_min = float(np.linalg.eigvalsh(W).min())
-    if definite and lam_min <= 1e-12 * scale:
-        raise InvalidArgument(f"{name} must be positive definite (smallest eigenvalue {lam_min:.3g})")
-    if lam_min < -1e-9 * scale:
-        raise InvalidArgument(f"{name} must be positive semidefinite (smallest eigenvalue {lam_min:.3g})")
+    if arr.shape != (n, n):
+        raise InvalidArgument(f"{name}: expected ({n}, {n}) but found {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise NonFiniteError(f"{name} must be finite")
+    tiny = np.finfo(float).tiny
+    scale = max(float(np.max(np.abs(arr), initial=0.0)), tiny)
+    asym = float(np.max(np.abs(arr - arr.T), initial=0.0))
+    if asym > rtol * scale:
+        raise InvalidArgument(f"{name} must be symmetric; max |{name} - {name}ᵀ| = {asym:.3g} (scale {scale:.3g})")
+    W = 0.5 * (arr + arr.T)
+    lam_min = float(np.linalg.eigvalsh(W).min()) if W.size else 0.0
+    if definite and (not W.size or lam_min <= rtol * scale):
+        raise InvalidArgument(f"{name} must be positive definite; smallest eigenvalue {lam_min:.3g}")
+    if lam_min < -rtol * scale:
+        raise InvalidArgument(f"{name} must be positive semidefinite; smallest eigenvalue {lam_min:.3g}")
     return W
 
 

@@ -382,10 +382,11 @@ def test_matrices_are_built_once_and_paths_agree(cartpole):
     kw = dict(horizon=20, u_min=-3.0, u_max=3.0, **cart_bounds(0.6))
     fast = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
     public = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
-    public._low = None  # force OSQP's public Python wrapper
+    public._osqp.fast = False  # force OSQP's public Python wrapper
+    assert fast._osqp.fast and not public._osqp.fast
     P, A = fast.P, fast.A_con
     Pdata, Adata = P.data.copy(), A.data.copy()
-    solver = fast._solver
+    solver = fast._osqp.solver
 
     def no_setup(*args, **kwargs):
         raise AssertionError("setup called per step")
@@ -398,7 +399,7 @@ def test_matrices_are_built_once_and_paths_agree(cartpole):
         np.testing.assert_allclose(u1, u2, atol=1e-12)
         assert fast.last.iterations == public.last.iterations
         plant.step(u1)
-    assert fast.P is P and fast.A_con is A and fast._solver is solver
+    assert fast.P is P and fast.A_con is A and fast._osqp.solver is solver
     np.testing.assert_array_equal(P.data, Pdata)
     np.testing.assert_array_equal(A.data, Adata)
 

@@ -36,7 +36,9 @@ def controller_class(name: str) -> type:
 
 
 def controller_keys(cls: type) -> tuple[str, ...]:
-    """The keyword names of ``cls.from_plant`` after the plant argument."""
+    """The keyword names of ``cls.from_plant`` after the plant argument (``cls.option_keys()`` when defined)."""
+    if hasattr(cls, "option_keys"):
+        return tuple(cls.option_keys())
     params = list(inspect.signature(cls.from_plant).parameters.values())[1:]
     return tuple(p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
 

@@ -1,4 +1,11 @@
-"""OSQP set-up with the C library's printed errors turned into our exception.
+"""The one OSQP adapter: set-up with captured C errors, settings validation, compiled fast path.
+
+:class:`OsqpQP` holds one set-up problem and routes updates and solves through
+OSQP's compiled solver object when available (public API otherwise);
+:func:`merge_settings` checks user settings by name. This module is the only
+one that touches OSQP's private ``_solver``.
+
+Set-up errors:
 
 OSQP validates its data and settings in C and, on failure, prints the reason
 (``ERROR in validate_settings: eps_abs must be nonnegative``) to standard
@@ -21,13 +28,15 @@ import os
 import sys
 import tempfile
 import threading
+from collections.abc import Mapping
 from typing import Any
 
 import osqp
 
 from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.validation import closest, unknown_keys
 
-__all__ = ["setup_solver"]
+__all__ = ["OsqpQP", "merge_settings", "setup_solver", "valid_settings"]
 
 _LOCK = threading.Lock()  # fd 1 is process-wide: one redirected set-up at a time
 
@@ -121,3 +130,132 @@ def setup_solver(solver: Any, what: str, /, *args: Any, **kwargs: Any) -> None:
     else:
         detail = str(failure) or repr(failure)
     raise InvalidArgument(f"OSQP rejected the {what}: {detail}") from failure
+
+
+def valid_settings() -> tuple[str, ...]:
+    """The setting names ``OSQP.setup`` accepts (``solver_type``/``cg_preconditioner`` for the two aliases)."""
+    ext = osqp.OSQP().ext
+    names = {k for k in ext.OSQPSettings.__dict__ if not k.startswith("_")}
+    names -= {"linsys_solver", "cg_precond"}  # set through the two aliases below
+    return tuple(sorted(names | {"solver_type", "cg_preconditioner"}))
+
+
+def merge_settings(
+    defaults: Mapping[str, Any], overrides: Mapping[str, Any] | None, name: str = "osqp_settings"
+) -> dict[str, Any]:
+    """``defaults`` updated with ``overrides`` after checking every override's name.
+
+    Args:
+        defaults: The caller's default settings.
+        overrides: The user's settings (None: none).
+        name: The argument name for messages.
+
+    Raises:
+        InvalidArgument: an unknown setting, naming the closest valid one and listing all.
+    """
+    settings = dict(defaults)
+    if overrides:
+        valid = valid_settings()
+        bad = unknown_keys(overrides, valid)
+        if bad:
+            close = closest(bad[0], valid)
+            near = f" (did you mean '{close}'?)" if close else ""
+            raise InvalidArgument(f"{name}: unknown OSQP setting '{bad[0]}'{near}; valid settings: {', '.join(valid)}")
+        settings.update(overrides)
+    return settings
+
+
+class OsqpQP:
+    """One OSQP problem set up once and updated in place: the project's only OSQP adapter.
+
+    ``min ½ zᵀ P z + qᵀ z  s.t.  l ≤ A z ≤ u`` with a fixed sparsity pattern.
+    Updates and solves go through OSQP's compiled solver object when the
+    wrapper exposes it (``OSQP._solver``: about 25-40 µs less per call than
+    ``OSQP.update``/``OSQP.solve``, which clamp arguments and pack a result
+    namespace); otherwise through the public API. The compiled path neither
+    clamps infinite bounds nor checks lengths: callers pass bounds within
+    ±1e30 in arrays of the set-up lengths.
+
+    Args:
+        what: What is being set up, for error messages.
+        P: Upper-triangular cost Hessian, CSC ``(n, n)``.
+        q: Linear cost ``(n,)``.
+        A: Constraint matrix, CSC ``(m, n)``.
+        l: Lower bounds ``(m,)``.
+        u: Upper bounds ``(m,)``.
+        settings: OSQP settings (already merged with the caller's defaults).
+        fast: Use the compiled path when available (False forces the public API).
+
+    Attributes:
+        solver: The public ``osqp.OSQP`` object.
+        fast: Whether calls go through the compiled solver.
+    """
+
+    _NEEDED = ("update_data_vec", "update_data_mat", "warm_start", "update_rho", "solve", "info", "solution")
+
+    def __init__(self, what: str, P: Any, q: Any, A: Any, l: Any, u: Any, settings: Mapping[str, Any], *, fast=True):
+        self.what = what
+        self.settings = dict(settings)
+        self._data = (P, q, A, l, u)
+        self.prefer_fast = bool(fast)
+        self.setup()
+
+    def setup(self) -> None:
+        """(Re)create and set up the OSQP object from the set-up data (a clean solver state)."""
+        self.solver = osqp.OSQP()
+        setup_solver(self.solver, self.what, *self._data, **self.settings)
+        raw = getattr(self.solver, "_solver", None) if self.prefer_fast else None
+        self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
+
+    @property
+    def fast(self) -> bool:
+        """True when calls go through OSQP's compiled solver object."""
+        return self._raw is not None
+
+    @fast.setter
+    def fast(self, value: bool) -> None:
+        self.prefer_fast = bool(value)
+        if not value:
+            self._raw = None
+        elif self._raw is None:
+            raw = getattr(self.solver, "_solver", None)
+            self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
+
+    def update(self, q: Any, l: Any, u: Any, Px: Any = None) -> None:
+        """New ``q`` (None keeps it), ``l``, ``u`` and optionally the values ``Px`` of ``P``'s pattern."""
+        raw = self._raw
+        if raw is not None:
+            if raw.update_data_vec(q, l, u) != 0:  # pragma: no cover - sizes are fixed
+                raise RuntimeError("OSQP rejected the vector update")
+            if Px is not None:
+                raw.update_data_mat(Px, None, None, None)
+            return
+        kwargs = {"l": l, "u": u}
+        if q is not None:
+            kwargs["q"] = q
+        if Px is not None:
+            kwargs["Px"] = Px
+        self.solver.update(**kwargs)
+
+    def warm_start(self, x: Any, y: Any) -> None:
+        """Primal ``x (n,)`` and dual ``y (m,)`` starting iterates for the next solve."""
+        if self._raw is not None:
+            self._raw.warm_start(x, y)
+        else:
+            self.solver.warm_start(x=x, y=y)
+
+    def update_rho(self, rho: float) -> None:
+        """Set the ADMM step ``rho`` (OSQP adapts it between solves when ``adaptive_rho``)."""
+        if self._raw is not None:
+            self._raw.update_rho(rho)
+        else:
+            self.solver.update_settings(rho=rho)
+
+    def solve(self) -> tuple[Any, Any]:
+        """Solve; returns ``(solution, info)`` (``.x``, ``.y``, ``.prim_inf_cert``; ``.status``, ``.iter``, …)."""
+        raw = self._raw
+        if raw is not None:
+            raw.solve()
+            return raw.solution, raw.info
+        sol = self.solver.solve(raise_error=False)
+        return sol, sol.info

@@ -39,7 +39,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from shinro_ctrl.controllers._osqp import setup_solver
+from shinro_ctrl.controllers._osqp import OsqpQP
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.kinematics import (
@@ -125,15 +125,14 @@ class IKStep:
 
 
 class _BoxQP:
-    """``min ½ xᵀPx + cᵀx  s.t.  l ≤ x ≤ u`` in one OSQP object, updated in place.
+    """``min ½ xᵀPx + cᵀx  s.t.  l ≤ x ≤ u`` in one OSQP problem, updated in place.
 
     ``P``'s pattern is the full upper triangle (built from ``np.triu(np.ones)``, so no
     entry is dropped as an explicit zero) and ``A`` the identity; only values change.
-    The update goes through OSQP's compiled solver object when the wrapper exposes it
-    (about 10 µs per update and solve instead of 35 µs through ``OSQP.update`` /
-    ``OSQP.solve``, which also build a result namespace every call). That path neither
-    clamps infinite bounds nor checks lengths, so this class only ever passes finite
-    bounds in arrays whose lengths are checked once here.
+    Updates go through :class:`~shinro_ctrl.controllers._osqp.OsqpQP` (OSQP's compiled
+    solver when available). That path neither clamps infinite bounds nor checks
+    lengths, so this class only ever passes finite bounds in arrays whose lengths are
+    checked once here.
     """
 
     def __init__(self, n: int, P_upper: np.ndarray, settings: dict[str, Any]):
@@ -143,35 +142,24 @@ class _BoxQP:
         if P_upper.shape != (self.nnz,):
             raise InvalidArgument(f"P upper triangle: expected {self.nnz} values but found {P_upper.shape}")
         P = sp.csc_matrix((P_upper.copy(), pattern.indices, pattern.indptr), shape=(n, n))
-        self.solver = osqp.OSQP()
-        setup_solver(
-            self.solver,
+        self.qp = OsqpQP(
             "IK problem or its osqp_settings",
-            P=P,
-            q=np.zeros(n),
-            A=sp.identity(n, format="csc"),
-            l=-np.ones(n),
-            u=np.ones(n),
-            **settings,
+            P,
+            np.zeros(n),
+            sp.identity(n, format="csc"),
+            -np.ones(n),
+            np.ones(n),
+            settings,
         )
-        raw = getattr(self.solver, "_solver", None)
-        names = ("update_data_vec", "update_data_mat", "solve", "solution", "info")
-        self._raw = raw if raw is not None and all(hasattr(raw, a) for a in names) else None
+        self.solver = self.qp.solver
         self._rho0 = float(settings.get("rho", self.solver.settings.rho))
         self._zeros = np.zeros(n)
 
     def solve(self, P_upper: np.ndarray, c: np.ndarray, l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, int, int]:
         """Solve with new values; returns ``(x (n,), status_val, admm_iterations)``."""
-        raw = self._raw
-        if raw is not None:
-            raw.update_data_vec(q=c, l=l, u=u)
-            raw.update_data_mat(P_x=P_upper, P_i=None, A_x=None, A_i=None)
-            raw.solve()
-            info = raw.info
-            return raw.solution.x, int(info.status_val), int(info.iter)
-        self.solver.update(Px=P_upper, q=c, l=l, u=u)
-        res = self.solver.solve(raise_error=False)
-        return res.x, int(res.info.status_val), int(res.info.iter)
+        self.qp.update(c, l, u, P_upper)
+        sol, info = self.qp.solve()
+        return sol.x, int(info.status_val), int(info.iter)
 
     def reset(self) -> None:
         """Back to the set-up state: no warm start (iterates zero) and the initial ``rho``.
@@ -179,12 +167,8 @@ class _BoxQP:
         OSQP carries both from one solve to the next (adaptive rho included), so results
         depend on the solve history unless this is called first.
         """
-        if self._raw is not None:
-            self._raw.warm_start(self._zeros, self._zeros)
-            self._raw.update_rho(self._rho0)
-            return
-        self.solver.warm_start(x=np.zeros(self.n), y=np.zeros(self.n))
-        self.solver.update_settings(rho=self._rho0)
+        self.qp.warm_start(self._zeros, self._zeros)
+        self.qp.update_rho(self._rho0)
 
 
 class IKQP(Controller):
@@ -320,7 +304,8 @@ class IKQP(Controller):
         settings = dict(DEFAULT_OSQP_SETTINGS)
         settings.update(osqp_settings or {})
         self._qp = _BoxQP(n, self._Hu, settings)
-        self._raw = self._qp._raw
+        self._osqp_update = self._qp.qp.update  # bound once: the hot path calls them per iteration
+        self._osqp_solve = self._qp.qp.solve
         self.last: IKStep | None = None
         self.preview = 1
         self.u_min = None
@@ -416,15 +401,10 @@ class IKQP(Controller):
         np.subtract(box_hi, q, out=u)
         np.minimum(u, s, out=u)
         self._clu *= 1.0 / scale
-        raw = self._raw
-        if raw is not None:
-            raw.update_data_vec(c, l, u)
-            raw.update_data_mat(self._Hu, None, None, None)
-            raw.solve()
-            status = int(raw.info.status_val)
-            x = raw.solution.x
-        else:
-            x, status, _ = self._qp.solve(self._Hu, c, l, u)
+        self._osqp_update(c, l, u, self._Hu)
+        sol, info = self._osqp_solve()
+        status = int(info.status_val)
+        x = sol.x
         # "solved" means converged residuals, hence a finite x: only other statuses need the check.
         if status != _SOLVED and (status not in _USABLE or not math.isfinite(x.sum())):
             # A box QP with P ≻ 0 is always feasible; should OSQP still fail, fall back on the

@@ -1,16 +1,63 @@
-"""Linear-quadratic regulator on a linearized plant (python-control)."""
+"""Linear-quadratic regulator on a linearized plant, and the Riccati solve it shares with the MPC."""
 
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
 
-__all__ = ["LQR", "check_stabilizable"]
+__all__ = ["LQR", "check_stabilizable", "riccati"]
+
+
+def riccati(
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, discrete: bool = True, what: str = "the LQR design"
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""The stabilizing Riccati solution and its gain: the one Riccati path (LQR and the MPC terminal cost).
+
+    Discrete: ``S = Aᵀ S A − Aᵀ S B (R + Bᵀ S B)⁻¹ Bᵀ S A + Q`` and
+    ``K = (R + Bᵀ S B)⁻¹ Bᵀ S A``. Continuous: ``Aᵀ S + S A − S B R⁻¹ Bᵀ S + Q = 0``
+    and ``K = R⁻¹ Bᵀ S``. Solved by SciPy's Schur method (what python-control's
+    ``dlqr``/``lqr`` call without slycot).
+
+    Args:
+        A: ``(n, n)``.
+        B: ``(n, m)``.
+        Q: Symmetric PSD ``(n, n)``.
+        R: Symmetric PD ``(m, m)``.
+        discrete: DARE (True) or CARE.
+        what: What the solution is for, in the error message.
+
+    Returns:
+        ``(K (m, n), S (n, n))`` with ``S`` symmetrized.
+
+    Raises:
+        NotStabilizable: no finite stabilizing solution.
+    """
+    name = "DARE" if discrete else "CARE"
+    try:
+        if discrete:
+            S = scipy.linalg.solve_discrete_are(A, B, Q, R)
+        else:
+            S = scipy.linalg.solve_continuous_are(A, B, Q, R)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise NotStabilizable(
+            f"no stabilizing {name} solution for {what} ({exc}); (A, B) must be stabilizable and (A, Q) "
+            "detectable: check that every unstable mode is observable through Q"
+        ) from exc
+    if not np.all(np.isfinite(S)):
+        raise NotStabilizable(f"the {name} solution for {what} is not finite")
+    S = 0.5 * (S + S.T)
+    if discrete:
+        BtS = B.T @ S
+        K = np.linalg.solve(R + BtS @ B, BtS @ A)
+    else:
+        K = np.linalg.solve(R, B.T @ S)
+    return K, S
 
 
 def check_stabilizable(A: np.ndarray, B: np.ndarray, *, discrete: bool, names: Any = None) -> None:
@@ -106,21 +153,10 @@ class LQR(Controller):
         self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
         check_stabilizable(A, B, discrete=self.discrete, names=state_names)
-        import control  # deferred: importing python-control costs about a second
-
-        try:
-            if self.discrete:
-                K, S, E = control.dlqr(A, B, self.Q, self.R)
-            else:
-                K, S, E = control.lqr(A, B, self.Q, self.R)
-        except (ValueError, np.linalg.LinAlgError, control.ControlArgument) as exc:
-            raise NotStabilizable(
-                f"the Riccati equation has no stabilizing solution for this (A, B, Q, R): {exc}. "
-                "Check that every unstable mode is observable through Q."
-            ) from exc
-        self.K = np.asarray(K, dtype=float)
-        self.S = np.asarray(S, dtype=float)
-        self.poles = np.asarray(E)
+        K, S = riccati(A, B, self.Q, self.R, discrete=self.discrete)
+        self.K = K
+        self.S = S
+        self.poles = np.linalg.eigvals(A - B @ K)
         self.state_dim, self.input_dim = n, m
         self._x0_u = self.u0 + self.K @ self.x0  # u = (u0 + K x0) - K x
         self.feedforward = bool(feedforward)
