@@ -12,6 +12,7 @@ from shinro_ctrl.plants.cartpole import CartPole
 from shinro_ctrl.plants.double_pendulum import DoublePendulum
 from shinro_ctrl.plants.holonomic import HolonomicMobileRobot
 from shinro_ctrl.plants.inverted_pendulum import InvertedPendulum
+from shinro_ctrl.plants.mjcf import MjcfPlant, is_model_file
 from shinro_ctrl.plants.quadrotor import Quadrotor
 from shinro_ctrl.validation import did_you_mean
 
@@ -24,9 +25,11 @@ __all__ = [
     "HolonomicMobileRobot",
     "InvertedPendulum",
     "MjcfPatch",
+    "MjcfPlant",
     "Plant",
     "Quadrotor",
     "plant_class",
+    "plant_from_name",
 ]
 
 PLANTS: dict[str, type[Plant]] = {
@@ -36,6 +39,7 @@ PLANTS: dict[str, type[Plant]] = {
     "HolonomicMobileRobot": HolonomicMobileRobot,
     "Quadrotor": Quadrotor,
     "ArmRobot": ArmRobot,
+    "MjcfPlant": MjcfPlant,
 }
 
 PLANT_ALIASES: dict[str, str] = {
@@ -54,7 +58,21 @@ def plant_class(name: str) -> type[Plant]:
     Raises:
         ConfigError: unknown name, with the closest known one.
     """
+    if is_model_file(name):  # a model file: MjcfPlant (the caller passes the file as ``model``)
+        return MjcfPlant
     key = PLANT_ALIASES.get(name, name)
     if key not in PLANTS:
         raise ConfigError(f"unknown plant '{name}'{did_you_mean(name, [*PLANTS, *PLANT_ALIASES])}")
     return PLANTS[key]
+
+
+def plant_from_name(name: str) -> Plant:
+    """A plant with its defaults from a class name, an alias, or an MJCF/URDF model file (``MjcfPlant(name)``).
+
+    Raises:
+        ConfigError: unknown name, with the closest known one.
+        FileNotFoundError: a model file that does not exist.
+    """
+    if is_model_file(name):
+        return MjcfPlant(name)
+    return plant_class(name)()

@@ -1,0 +1,232 @@
+"""Read an MJCF (or URDF) file into a plain-numpy :class:`~shinro_ctrl.multibody.ModelTree`.
+
+This is the one place that turns MuJoCo's compiled ``MjModel`` arrays into
+the description :class:`~shinro_ctrl.multibody.RigidBodyTree` builds exact
+dynamics from (``plants.mjcf.MjcfPlant`` imports it: the agreed exception to
+"plants never import the engine").
+
+Supported: fixed-base trees of hinge and slide joints; actuators with a joint
+transmission, no activation dynamics, ``fixed``/``affine`` gain and
+``none``/``affine`` bias (``motor``, ``position``, ``velocity`` and
+equivalent ``general`` actuators). Everything else is refused with one clear
+error naming the element.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.multibody import ActuatorInfo, BodyInfo, JointInfo, ModelTree
+from shinro_ctrl.resources import asset_path, list_assets
+
+__all__ = ["load_model", "read_model_tree", "resolve_model_path"]
+
+_JOINT_KINDS = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide"}
+_BAD_JOINTS = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball"}
+_GAIN = {int(mujoco.mjtGain.mjGAIN_FIXED): "fixed", int(mujoco.mjtGain.mjGAIN_AFFINE): "affine"}
+_BIAS = {int(mujoco.mjtBias.mjBIAS_NONE): "none", int(mujoco.mjtBias.mjBIAS_AFFINE): "affine"}
+_DSBL = mujoco.mjtDisableBit
+
+
+def resolve_model_path(model: str | os.PathLike) -> Path:
+    """The absolute path of a model: an existing file path, or a shipped asset name.
+
+    Raises:
+        FileNotFoundError: neither (the message lists the shipped assets).
+        InvalidArgument: not a path or a string, or empty.
+    """
+    if not isinstance(model, str | os.PathLike) or isinstance(model, bytes):
+        raise InvalidArgument(f"model must be an MJCF/URDF file path or a shipped asset name, got {model!r}")
+    if not os.fspath(model).strip():
+        raise InvalidArgument("model path is empty: give an MJCF/URDF file path or a shipped asset name")
+    p = Path(model).expanduser()
+    if p.is_dir():
+        raise FileNotFoundError(f"model path '{model}' is a directory, not an MJCF/URDF file")
+    if p.is_file():
+        return p.resolve()
+    try:
+        return asset_path(model).resolve()
+    except FileNotFoundError:
+        raise FileNotFoundError(
+            f"model file not found: '{model}' (shipped assets: {', '.join(list_assets()) or 'none'})"
+        ) from None
+
+
+def load_model(model: str | os.PathLike) -> tuple[mujoco.MjModel, Path]:
+    """Compile a model file with ``MjModel.from_xml_path`` (MJCF or URDF).
+
+    Returns:
+        ``(MjModel, absolute path)``.
+
+    Raises:
+        FileNotFoundError: no such file or shipped asset.
+        InvalidArgument: MuJoCo cannot load it (its message quoted).
+    """
+    path = resolve_model_path(model)
+    try:
+        return mujoco.MjModel.from_xml_path(str(path)), path
+    except ValueError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InvalidArgument(f"MuJoCo cannot load model '{path}': {first}") from exc
+
+
+def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = "") -> ModelTree:
+    """Read a model file (or a compiled ``MjModel``) into a :class:`ModelTree`.
+
+    Args:
+        model: MJCF/URDF path, shipped asset name, or an ``MjModel``.
+        path: Recorded as :attr:`ModelTree.path` when ``model`` is an ``MjModel``.
+
+    Raises:
+        FileNotFoundError: no such file.
+        InvalidArgument: free or ball joints ("not supported yet", naming the
+            joint), no joints, no actuators, an actuator kind other than a joint
+            transmission without activation dynamics and with fixed/affine gain
+            and none/affine bias (naming it), equality constraints, gravity
+            compensation, tendons.
+    """
+    if isinstance(model, mujoco.MjModel):
+        m = model
+    else:
+        m, p = load_model(model)
+        path = str(p)
+    label = path or m.names[: m.names.find(b"\0")].decode() or "<model>"
+
+    def name(kind: Any, i: int) -> str:
+        return kind(i).name or f"#{i}"
+
+    for j in range(m.njnt):
+        t = int(m.jnt_type[j])
+        if t in _BAD_JOINTS:
+            raise InvalidArgument(
+                f"model '{label}': {_BAD_JOINTS[t]} joint '{name(m.joint, j)}' is not supported yet "
+                "(MjcfPlant handles fixed-base trees of hinge and slide joints)"
+            )
+    if m.njnt == 0:
+        raise InvalidArgument(f"model '{label}' has no joints: nothing moves")
+    if m.nu == 0:
+        raise InvalidArgument(f"model '{label}' has no actuators: MjcfPlant needs at least one input")
+    if m.neq:
+        raise InvalidArgument(f"model '{label}': equality constraints are not supported yet ({m.neq} found)")
+    if m.ntendon:
+        raise InvalidArgument(f"model '{label}': tendons are not supported yet ({m.ntendon} found)")
+    if np.any(m.body_gravcomp != 0.0):
+        b = int(np.flatnonzero(m.body_gravcomp)[0])
+        raise InvalidArgument(f"model '{label}': body '{name(m.body, b)}' uses gravcomp, which is not supported yet")
+    if np.any(m.dof_frictionloss != 0.0) and not m.opt.disableflags & int(_DSBL.mjDSBL_FRICTIONLOSS):
+        d = int(np.flatnonzero(m.dof_frictionloss)[0])
+        raise InvalidArgument(
+            f"model '{label}': joint '{name(m.joint, int(m.dof_jntid[d]))}' has frictionloss (a constraint "
+            "force), which is not supported yet"
+        )
+    if m.opt.density != 0.0 or m.opt.viscosity != 0.0:
+        raise InvalidArgument(f"model '{label}': fluid forces (density/viscosity) are not supported yet")
+
+    joints = []
+    body_joints: dict[int, list[int]] = {}
+    for j in range(m.njnt):
+        d = int(m.jnt_dofadr[j])
+        b = int(m.jnt_bodyid[j])
+        body_joints.setdefault(b, []).append(j)
+        joints.append(
+            JointInfo(
+                name=m.joint(j).name,
+                type=_JOINT_KINDS[int(m.jnt_type[j])],
+                body=b,
+                axis=np.array(m.jnt_axis[j], dtype=float),
+                pos=np.array(m.jnt_pos[j], dtype=float),
+                qpos0=float(m.qpos0[int(m.jnt_qposadr[j])]),
+                damping=float(m.dof_damping[d]),
+                armature=float(m.dof_armature[d]),
+                stiffness=float(m.jnt_stiffness[j]),
+                springref=float(m.qpos_spring[int(m.jnt_qposadr[j])]),
+                limited=bool(m.jnt_limited[j]),
+                range=(float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])),
+            )
+        )
+    bodies = [
+        BodyInfo(
+            name=m.body(b).name,
+            parent=int(m.body_parentid[b]) if b else -1,
+            pos=np.array(m.body_pos[b], dtype=float),
+            quat=np.array(m.body_quat[b], dtype=float),
+            mass=float(m.body_mass[b]),
+            ipos=np.array(m.body_ipos[b], dtype=float),
+            iquat=np.array(m.body_iquat[b], dtype=float),
+            inertia=np.array(m.body_inertia[b], dtype=float),
+            joints=tuple(body_joints.get(b, ())),
+        )
+        for b in range(m.nbody)
+    ]
+
+    actuators = []
+    for a in range(m.nu):
+        aname = name(m.actuator, a)
+        if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+            kind = mujoco.mjtTrn(int(m.actuator_trntype[a])).name
+            raise InvalidArgument(
+                f"model '{label}': actuator '{aname}' uses transmission {kind}; only joint transmissions are "
+                "supported yet"
+            )
+        if int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE):
+            kind = mujoco.mjtDyn(int(m.actuator_dyntype[a])).name
+            raise InvalidArgument(
+                f"model '{label}': actuator '{aname}' has activation dynamics {kind}; only actuators without "
+                "(motor, position, velocity, general with dyntype none) are supported yet"
+            )
+        gt, bt = int(m.actuator_gaintype[a]), int(m.actuator_biastype[a])
+        if gt not in _GAIN or bt not in _BIAS:
+            raise InvalidArgument(
+                f"model '{label}': actuator '{aname}' has gain {mujoco.mjtGain(gt).name} and bias "
+                f"{mujoco.mjtBias(bt).name}; supported: fixed/affine gain, none/affine bias"
+            )
+        gain = tuple(float(c) for c in m.actuator_gainprm[a, :3])
+        bias = tuple(float(c) for c in m.actuator_biasprm[a, :3])
+        kind = "general"
+        if _GAIN[gt] == "fixed" and _BIAS[bt] == "none" and gain[0] == 1.0:
+            kind = "motor"
+        elif _GAIN[gt] == "fixed" and _BIAS[bt] == "affine" and bias[0] == 0.0:
+            if bias[1] == -gain[0] and bias[1] != 0.0:
+                kind = "position"
+            elif bias[1] == 0.0 and bias[2] == -gain[0]:
+                kind = "velocity"
+        clamp_ctrl = bool(m.actuator_ctrllimited[a]) and not m.opt.disableflags & int(_DSBL.mjDSBL_CLAMPCTRL)
+        actuators.append(
+            ActuatorInfo(
+                name=m.actuator(a).name,
+                kind=kind,
+                joint=int(m.actuator_trnid[a, 0]),
+                gear=float(m.actuator_gear[a, 0]),
+                gaintype=_GAIN[gt],
+                gainprm=gain,  # type: ignore[arg-type]
+                biastype=_BIAS[bt],
+                biasprm=bias,  # type: ignore[arg-type]
+                ctrlrange=tuple(float(c) for c in m.actuator_ctrlrange[a]) if clamp_ctrl else None,  # type: ignore[arg-type]
+                forcerange=tuple(float(c) for c in m.actuator_forcerange[a])  # type: ignore[arg-type]
+                if m.actuator_forcelimited[a]
+                else None,
+            )
+        )
+
+    flags = int(m.opt.disableflags)
+    gravity = np.zeros(3) if flags & int(_DSBL.mjDSBL_GRAVITY) else np.array(m.opt.gravity, dtype=float)
+    return ModelTree(
+        name=m.names[: m.names.find(b"\0")].decode(),
+        path=path,
+        bodies=tuple(bodies),
+        joints=tuple(joints),
+        actuators=tuple(actuators),
+        gravity=gravity,
+        timestep=float(m.opt.timestep),
+        integrator=mujoco.mjtIntegrator(int(m.opt.integrator)).name.removeprefix("mjINT_"),
+        damping_enabled=not flags & int(_DSBL.mjDSBL_DAMPER),
+        springs_enabled=not flags & int(_DSBL.mjDSBL_SPRING),
+        actuation_enabled=not flags & int(_DSBL.mjDSBL_ACTUATION),
+        extras={"gravity_vector": np.array(m.opt.gravity, dtype=float)},
+    )

@@ -1,0 +1,581 @@
+r"""Exact rigid-body dynamics of a fixed-base tree of hinge and slide joints.
+
+A :class:`ModelTree` is a plain-numpy description of a kinematic tree (as
+``shinro_ctrl.engine.model_tree.read_model_tree`` reads it from an MJCF or
+URDF file). :class:`RigidBodyTree` turns it into the equations of motion
+
+.. math::
+
+    (M(q) + \operatorname{diag}(a))\,\ddot q + c(q, \dot q)
+        = \tau_{act}(q, \dot q, u) - b \odot \dot q - k \odot (q - q_{spring})
+
+with ``M`` the joint-space mass matrix, ``c`` the Coriolis, centrifugal and
+gravity terms, ``a`` the armature, ``b`` the joint damping and ``k`` the
+joint stiffness, exactly as MuJoCo's ``mj_forward`` computes ``qacc`` for a
+model without contacts, limits or equality constraints.
+
+The algorithms are the textbook ones, written on scalars so that the same
+code builds a CasADi ``SX`` expression, evaluates floats or evaluates
+complex numbers (complex-step differentiation):
+
+* ``c(q, q̇)``: recursive Newton–Euler (RNEA) with ``q̈ = 0`` and the base
+  accelerated by ``-g`` (gravity);
+* ``M(q)``: column ``j`` is the RNEA of unit acceleration ``e_j`` at rest
+  without gravity (zeros fold away symbolically, so only the branches that
+  move are built);
+* ``q̈``: an LDLᵀ factorization of ``M + diag(a)`` (no pivoting; ``M`` is
+  symmetric positive definite).
+
+Each joint is one node. A node's frame is its body's frame translated to the
+joint's anchor (MuJoCo ``jnt_pos``), so a hinge rotates the frame about its
+origin; a body with several joints becomes a chain of nodes with the body's
+inertia on the last one, and a body without joints is welded to its parent
+node (its inertia is merged there). Joint coordinates are measured from the
+model's ``qpos0`` as in MuJoCo.
+
+Actuators with a joint transmission map controls to joint forces as MuJoCo
+defines them: with actuator length ``l = g q`` and velocity ``l̇ = g q̇``
+(``g`` the gear), force ``F = gain(l, l̇)·u + bias(l, l̇)``, where
+``gain = p₀`` (fixed) or ``p₀ + p₁ l + p₂ l̇`` (affine) and
+``bias = 0`` (none) or ``b₀ + b₁ l + b₂ l̇`` (affine), and generalized force
+``g F``. A ``position`` servo is ``gain = k_p``, ``bias = (0, −k_p, −k_v)``;
+a ``velocity`` servo ``gain = k_v``, ``bias = (0, 0, −k_v)``; a ``motor``
+``gain = 1``, no bias.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as cs
+import numpy as np
+
+__all__ = ["ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree", "RigidBodyTree"]
+
+
+# ------------------------------------------------------------------ description
+@dataclass(frozen=True)
+class BodyInfo:
+    """One body of the tree, in its parent's frame.
+
+    Attributes:
+        name: Body name ("" when unnamed).
+        parent: Index of the parent body (-1 for the world body, index 0).
+        pos: Body frame origin in the parent frame ``(3,)`` [m].
+        quat: Body frame orientation in the parent frame, ``(w, x, y, z)``.
+        mass: Mass [kg].
+        ipos: Centre of mass in the body frame ``(3,)`` [m].
+        iquat: Principal axes of inertia in the body frame ``(w, x, y, z)``.
+        inertia: Principal moments of inertia about the COM ``(3,)`` [kg m²].
+        joints: Indices of the body's joints, in application order.
+    """
+
+    name: str
+    parent: int
+    pos: np.ndarray
+    quat: np.ndarray
+    mass: float
+    ipos: np.ndarray
+    iquat: np.ndarray
+    inertia: np.ndarray
+    joints: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class JointInfo:
+    """One hinge or slide joint.
+
+    Attributes:
+        name: Joint name.
+        type: ``"hinge"`` or ``"slide"``.
+        body: Index of the body the joint moves.
+        axis: Unit axis in the body frame ``(3,)``.
+        pos: Anchor in the body frame ``(3,)`` [m].
+        qpos0: Reference coordinate (the body's pose in the model is at ``qpos0``).
+        damping: Viscous damping [N m s/rad or N s/m].
+        armature: Rotor inertia added to ``M``'s diagonal [kg m² or kg].
+        stiffness: Spring stiffness [N m/rad or N/m].
+        springref: Spring rest coordinate.
+        limited: Whether the joint has a range.
+        range: ``(lo, hi)`` (meaningful when ``limited``).
+    """
+
+    name: str
+    type: str
+    body: int
+    axis: np.ndarray
+    pos: np.ndarray
+    qpos0: float = 0.0
+    damping: float = 0.0
+    armature: float = 0.0
+    stiffness: float = 0.0
+    springref: float = 0.0
+    limited: bool = False
+    range: tuple[float, float] = (-np.inf, np.inf)
+
+
+@dataclass(frozen=True)
+class ActuatorInfo:
+    """One actuator with a joint transmission (see the module docstring for the force law).
+
+    Attributes:
+        name: Actuator name.
+        kind: ``"motor"``, ``"position"``, ``"velocity"`` or ``"general"`` (informative).
+        joint: Index of the driven joint.
+        gear: Gear ratio ``g``.
+        gaintype: ``"fixed"`` or ``"affine"``.
+        gainprm: ``(p₀, p₁, p₂)``.
+        biastype: ``"none"`` or ``"affine"``.
+        biasprm: ``(b₀, b₁, b₂)``.
+        ctrlrange: ``(lo, hi)`` when MuJoCo clamps the control, else None.
+        forcerange: ``(lo, hi)`` when MuJoCo clamps the force, else None.
+    """
+
+    name: str
+    kind: str
+    joint: int
+    gear: float
+    gaintype: str = "fixed"
+    gainprm: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    biastype: str = "none"
+    biasprm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ctrlrange: tuple[float, float] | None = None
+    forcerange: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class ModelTree:
+    """A fixed-base kinematic tree with its actuators and options.
+
+    Attributes:
+        name: Model name.
+        path: Absolute path of the model file ("" when built in memory).
+        bodies: Bodies, index 0 the world; parents precede children.
+        joints: Hinge and slide joints in MuJoCo's ``qpos`` order.
+        actuators: Actuators in MuJoCo's ``ctrl`` order.
+        gravity: Gravity vector ``(3,)`` [m/s²] (zero when disabled).
+        timestep: The model's ``opt.timestep`` [s].
+        integrator: The model's integrator name (e.g. ``"Euler"``).
+        damping_enabled: False when the model disables joint damping.
+        springs_enabled: False when the model disables joint springs.
+        actuation_enabled: False when the model disables actuation.
+    """
+
+    name: str
+    path: str
+    bodies: tuple[BodyInfo, ...]
+    joints: tuple[JointInfo, ...]
+    actuators: tuple[ActuatorInfo, ...]
+    gravity: np.ndarray
+    timestep: float
+    integrator: str = "Euler"
+    damping_enabled: bool = True
+    springs_enabled: bool = True
+    actuation_enabled: bool = True
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def nq(self) -> int:
+        """Number of joint coordinates (= velocities)."""
+        return len(self.joints)
+
+    @property
+    def nu(self) -> int:
+        """Number of actuators."""
+        return len(self.actuators)
+
+
+# ------------------------------------------------------------ scalar helpers
+def _zero(a: Any) -> bool:
+    return isinstance(a, float | int) and a == 0
+
+
+def _mul(a: Any, b: Any) -> Any:
+    if _zero(a) or _zero(b):
+        return 0.0
+    if isinstance(a, float | int) and a == 1:
+        return b
+    if isinstance(b, float | int) and b == 1:
+        return a
+    return a * b
+
+
+def _add(*terms: Any) -> Any:
+    out: Any = 0.0
+    for t in terms:
+        if _zero(t):
+            continue
+        out = t if _zero(out) else out + t
+    return out
+
+
+def _sub(a: Any, b: Any) -> Any:
+    if _zero(b):
+        return a
+    if _zero(a):
+        return -b
+    return a - b
+
+
+def _dot(a: Sequence[Any], b: Sequence[Any]) -> Any:
+    return _add(*(_mul(x, y) for x, y in zip(a, b, strict=True)))
+
+
+def _cross(a: Sequence[Any], b: Sequence[Any]) -> list[Any]:
+    return [
+        _sub(_mul(a[1], b[2]), _mul(a[2], b[1])),
+        _sub(_mul(a[2], b[0]), _mul(a[0], b[2])),
+        _sub(_mul(a[0], b[1]), _mul(a[1], b[0])),
+    ]
+
+
+def _vadd(*vs: Sequence[Any]) -> list[Any]:
+    return [_add(*(v[k] for v in vs)) for k in range(3)]
+
+
+def _vscale(v: Sequence[Any], s: Any) -> list[Any]:
+    return [_mul(c, s) for c in v]
+
+
+def _matvec(R: Sequence[Sequence[Any]], v: Sequence[Any]) -> list[Any]:
+    return [_dot(R[k], v) for k in range(3)]
+
+
+def _matTvec(R: Sequence[Sequence[Any]], v: Sequence[Any]) -> list[Any]:
+    return [_dot([R[0][k], R[1][k], R[2][k]], v) for k in range(3)]
+
+
+def _const(v: np.ndarray) -> list[float]:
+    """Numeric constants as Python floats, with round-off dust snapped to exact zeros."""
+    return [0.0 if abs(float(c)) < 1e-15 else float(c) for c in np.asarray(v, dtype=float).ravel()]
+
+
+def quat_to_mat(q: Any) -> np.ndarray:
+    """Rotation matrix ``(3, 3)`` of a quaternion ``(w, x, y, z)`` (normalized first)."""
+    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@dataclass
+class _Node:
+    """One joint: fixed placement in the parent node, motion, and the inertia it carries."""
+
+    parent: int
+    dof: int
+    slide: bool
+    R0: np.ndarray  # (3, 3) orientation in the parent node frame
+    p0: np.ndarray  # (3,) origin in the parent node frame
+    axis: np.ndarray  # (3,) unit axis in the node frame
+    qpos0: float
+    mass: float = 0.0
+    h: np.ndarray = field(default_factory=lambda: np.zeros(3))  # first moment m c in the node frame
+    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # about the node origin
+
+
+class Ops:
+    """The elementwise functions the algorithms need (``sin``, ``cos``) for one number type."""
+
+    def __init__(self, sin: Callable[[Any], Any], cos: Callable[[Any], Any]):
+        self.sin = sin
+        self.cos = cos
+
+
+CASADI_OPS = Ops(cs.sin, cs.cos)
+NUMPY_OPS = Ops(np.sin, np.cos)  # floats and complex numbers (complex step)
+
+
+class RigidBodyTree:
+    """Equations of motion of a :class:`ModelTree`, on any scalar type.
+
+    Args:
+        tree: The model description.
+
+    Attributes:
+        tree: The description.
+        nq: Number of joint coordinates.
+        nu: Number of actuators.
+        parent: Parent node of each node (-1 for the world), shape ``(nq,)``.
+    """
+
+    def __init__(self, tree: ModelTree):
+        self.tree = tree
+        self.nq = tree.nq
+        self.nu = tree.nu
+        self._nodes = self._build_nodes(tree)
+        self.parent = np.array([n.parent for n in self._nodes], dtype=int)
+        g = np.asarray(tree.gravity, dtype=float)
+        self._a_base = _const(-g)
+        self._damping = [j.damping if tree.damping_enabled else 0.0 for j in tree.joints]
+        self._stiffness = [j.stiffness if tree.springs_enabled else 0.0 for j in tree.joints]
+        self._springref = [j.springref for j in tree.joints]
+        self._armature = [j.armature for j in tree.joints]
+        # children lists give each column of M its moving subtree
+        self._subtree = [self._descendants(i) for i in range(self.nq)]
+
+    # ------------------------------------------------------------- structure
+    @staticmethod
+    def _build_nodes(tree: ModelTree) -> list[_Node]:
+        nb = len(tree.bodies)
+        # Each body's frame relative to a node frame: (node index or -1 for the world, R, p).
+        frame: list[tuple[int, np.ndarray, np.ndarray]] = [(-1, np.eye(3), np.zeros(3))] * nb
+        nodes: list[_Node] = []
+        for b in range(1, nb):
+            body = tree.bodies[b]
+            pnode, Rp, pp = frame[body.parent]
+            Rb = Rp @ quat_to_mat(body.quat)
+            pb = pp + Rp @ np.asarray(body.pos, dtype=float)
+            node, R, p = pnode, Rb, pb
+            for j in body.joints:
+                jt = tree.joints[j]
+                anchor = np.asarray(jt.pos, dtype=float)
+                # node frame = current frame moved to the anchor (same orientation)
+                nodes.append(
+                    _Node(
+                        parent=node,
+                        dof=j,
+                        slide=jt.type == "slide",
+                        R0=R.copy(),
+                        p0=p + R @ anchor,
+                        axis=np.asarray(jt.axis, dtype=float) / np.linalg.norm(jt.axis),
+                        qpos0=float(jt.qpos0),
+                    )
+                )
+                node, R, p = len(nodes) - 1, np.eye(3), -anchor
+            frame[b] = (node, R, p)
+            if node >= 0 and (body.mass > 0.0 or np.any(np.asarray(body.inertia) > 0.0)):  # else: world-welded
+                # body inertia expressed in the node frame, about the node origin
+                Ri = R @ quat_to_mat(body.iquat)
+                c = p + R @ np.asarray(body.ipos, dtype=float)
+                Ic = Ri @ np.diag(np.asarray(body.inertia, dtype=float)) @ Ri.T
+                m = float(body.mass)
+                nd = nodes[node]
+                nd.mass += m
+                nd.h = nd.h + m * c
+                nd.inertia = nd.inertia + Ic + m * (float(c @ c) * np.eye(3) - np.outer(c, c))
+        order = [n.dof for n in nodes]
+        if order != list(range(len(tree.joints))):  # MuJoCo numbers dofs in body order
+            raise ValueError(f"joints are not in tree order: {order}")
+        return nodes
+
+    def _descendants(self, i: int) -> list[int]:
+        out = [i]
+        for k in range(i + 1, self.nq):
+            if self._nodes[k].parent in out:
+                out.append(k)
+        return out
+
+    # ----------------------------------------------------------- kinematics
+    def _joint_transforms(self, q: Sequence[Any], ops: Ops) -> list[tuple[list[list[Any]], list[Any]]]:
+        """Each node's ``(R (3, 3), p (3,))`` in its parent node frame at ``q``."""
+        out = []
+        for i, nd in enumerate(self._nodes):
+            R0 = [_const(r) for r in nd.R0]
+            p0 = _const(nd.p0)
+            ax = _const(nd.axis)
+            th = _sub(q[i], nd.qpos0) if nd.qpos0 != 0.0 else q[i]
+            if nd.slide:
+                R = R0
+                p = _vadd(p0, _vscale(_matvec(R0, ax), th))
+            else:
+                s, c1 = ops.sin(th), 1.0 - ops.cos(th)
+                x, y, z = ax
+                # Rodrigues: I + s K + (1 - cos) K², K = [axis]×
+                K = [[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]
+                K2 = [[_dot(K[r], [K[0][c], K[1][c], K[2][c]]) for c in range(3)] for r in range(3)]
+                Rj = [
+                    [_add(1.0 if r == c else 0.0, _mul(K[r][c], s), _mul(K2[r][c], c1)) for c in range(3)]
+                    for r in range(3)
+                ]
+                R = [[_dot(R0[r], [Rj[0][c], Rj[1][c], Rj[2][c]]) for c in range(3)] for r in range(3)]
+                p = p0
+            out.append((R, p))
+        return out
+
+    # ------------------------------------------------------------------ RNEA
+    def _rnea(
+        self,
+        X: list[tuple[list[list[Any]], list[Any]]],
+        qd: Sequence[Any] | None,
+        qdd: Sequence[Any],
+        a_base: Sequence[Any],
+        nodes: Sequence[int] | None = None,
+    ) -> list[Any]:
+        """Joint forces ``τ = M q̈ + c`` by recursive Newton–Euler.
+
+        Args:
+            X: Node transforms from :meth:`_joint_transforms`.
+            qd: Joint velocities, or None for rest (all terms in q̇ dropped).
+            qdd: Joint accelerations.
+            a_base: Acceleration of the base ``(3,)`` (``-g`` includes gravity).
+            nodes: Only these nodes move (others are at rest, and forces stop at
+                the first node at rest); None: all.
+        """
+        n = self.nq
+        zero3 = [0.0, 0.0, 0.0]
+        w: list[list[Any]] = [zero3] * n
+        al: list[list[Any]] = [zero3] * n
+        a: list[list[Any]] = [zero3] * n
+        f: list[list[Any]] = [zero3] * n
+        m_: list[list[Any]] = [zero3] * n
+        active = range(n) if nodes is None else nodes
+        moving = set(active)
+        for i in active:
+            nd = self._nodes[i]
+            R, p = X[i]
+            pi = nd.parent
+            if pi >= 0 and pi in moving:
+                wp, alp, ap = w[pi], al[pi], a[pi]
+            elif pi >= 0:
+                wp, alp, ap = zero3, zero3, a_base
+            else:
+                wp, alp, ap = zero3, zero3, a_base
+            ax = _const(nd.axis)
+            wpl = _matTvec(R, wp)  # parent's rate in this frame
+            apl = _matTvec(R, _vadd(ap, _cross(alp, p), _cross(wp, _cross(wp, p))))
+            alpl = _matTvec(R, alp)
+            vj = _vscale(ax, qd[i]) if qd is not None else zero3
+            aj = _vscale(ax, qdd[i])
+            if nd.slide:
+                w[i] = wpl
+                al[i] = alpl
+                a[i] = _vadd(apl, _vscale(_cross(wpl, vj), 2.0), aj)
+            else:
+                w[i] = _vadd(wpl, vj)
+                al[i] = _vadd(alpl, _cross(wpl, vj), aj)
+                a[i] = apl
+            h = _const(nd.h)
+            Ib = [_const(r) for r in nd.inertia]
+            wi, ali, ai = w[i], al[i], a[i]
+            f[i] = _vadd(_vscale(ai, nd.mass), _cross(ali, h), _cross(wi, _cross(wi, h)))
+            m_[i] = _vadd(_matvec(Ib, ali), _cross(wi, _matvec(Ib, wi)), _cross(h, ai))
+        # backward pass: forces of the moving nodes propagate to every ancestor
+        tau: list[Any] = [0.0] * n
+        f = list(f)
+        m_ = list(m_)
+        for i in range(n - 1, -1, -1):
+            nd = self._nodes[i]
+            ax = _const(nd.axis)
+            tau[i] = _dot(ax, f[i]) if nd.slide else _dot(ax, m_[i])
+            pi = nd.parent
+            if pi >= 0 and (nodes is None or pi in moving) and not (_all_zero(f[i]) and _all_zero(m_[i])):
+                R, p = X[i]
+                fr = _matvec(R, f[i])
+                f[pi] = _vadd(f[pi], fr)
+                m_[pi] = _vadd(m_[pi], _matvec(R, m_[i]), _cross(p, fr))
+        return tau
+
+    # ---------------------------------------------------------------- public
+    def mass_matrix(self, q: Sequence[Any], ops: Ops = NUMPY_OPS, X: Any = None) -> list[list[Any]]:
+        """Joint-space mass matrix ``M(q)`` (without armature) as nested lists ``(nq, nq)``."""
+        X = self._joint_transforms(q, ops) if X is None else X
+        n = self.nq
+        M: list[list[Any]] = [[0.0] * n for _ in range(n)]
+        for j in range(n):
+            e = [1.0 if k == j else 0.0 for k in range(n)]
+            col = self._rnea(X, None, e, [0.0, 0.0, 0.0], self._subtree[j])
+            for i in self._subtree[j]:  # the lower triangle: row j and its descendants; the rest by symmetry
+                M[i][j] = col[i]
+                M[j][i] = col[i]
+        return M
+
+    def bias(self, q: Sequence[Any], qd: Sequence[Any], ops: Ops = NUMPY_OPS, X: Any = None) -> list[Any]:
+        """``c(q, q̇)``: Coriolis, centrifugal and gravity forces ``(nq,)``."""
+        X = self._joint_transforms(q, ops) if X is None else X
+        return self._rnea(X, qd, [0.0] * self.nq, self._a_base)
+
+    def actuator_forces(
+        self, q: Sequence[Any], qd: Sequence[Any], u: Sequence[Any], active: Sequence[int]
+    ) -> list[Any]:
+        """Generalized actuator forces ``(nq,)`` of the actuators ``active`` driven by ``u``.
+
+        Actuators not in ``active`` get control 0 (their bias still acts).
+        """
+        tau: list[Any] = [0.0] * self.nq
+        if not self.tree.actuation_enabled:
+            return tau
+        ctrl = dict(zip(active, u, strict=True))
+        for k, act in enumerate(self.tree.actuators):
+            j = act.joint
+            g = act.gear
+            length = _mul(g, q[j])
+            vel = _mul(g, qd[j])
+            p0, p1, p2 = (float(c) for c in act.gainprm)
+            gain: Any = p0 if act.gaintype == "fixed" else _add(p0, _mul(p1, length), _mul(p2, vel))
+            b0, b1, b2 = (float(c) for c in act.biasprm)
+            bias: Any = 0.0 if act.biastype == "none" else _add(b0, _mul(b1, length), _mul(b2, vel))
+            force = _add(_mul(gain, ctrl[k]) if k in ctrl else 0.0, bias)
+            tau[j] = _add(tau[j], _mul(g, force))
+        return tau
+
+    def passive_forces(self, q: Sequence[Any], qd: Sequence[Any]) -> list[Any]:
+        """Joint damping and spring forces ``-b q̇ - k (q - q_spring)`` ``(nq,)``."""
+        return [
+            _sub(
+                _mul(-self._damping[i], qd[i]) if self._damping[i] else 0.0,
+                _mul(self._stiffness[i], _sub(q[i], self._springref[i])) if self._stiffness[i] else 0.0,
+            )
+            for i in range(self.nq)
+        ]
+
+    def accelerations(
+        self, q: Sequence[Any], qd: Sequence[Any], u: Sequence[Any], active: Sequence[int], ops: Ops = NUMPY_OPS
+    ) -> list[Any]:
+        """Forward dynamics ``q̈ = (M + diag(a))⁻¹ (τ_act + τ_passive − c)`` ``(nq,)``."""
+        X = self._joint_transforms(q, ops)
+        M = self.mass_matrix(q, ops, X)
+        for i in range(self.nq):
+            M[i][i] = _add(M[i][i], self._armature[i])
+        c = self.bias(q, qd, ops, X)
+        ta = self.actuator_forces(q, qd, u, active)
+        tp = self.passive_forces(q, qd)
+        rhs = [_sub(_add(ta[i], tp[i]), c[i]) for i in range(self.nq)]
+        return _ldl_solve(M, rhs)
+
+    def xdot_sx(self, x: cs.SX, u: cs.SX, active: Sequence[int]) -> cs.SX:
+        """``ẋ = [q̇; q̈]`` as a CasADi ``SX`` column from symbols ``x (2nq,)`` and ``u (len(active),)``."""
+        n = self.nq
+        q = [x[i] for i in range(n)]
+        qd = [x[n + i] for i in range(n)]
+        uu = [u[k] for k in range(len(active))]
+        qdd = self.accelerations(q, qd, uu, active, CASADI_OPS)
+        return cs.vertcat(*qd, *[cs.SX(v) if isinstance(v, float | int) else v for v in qdd])
+
+    def xdot_numpy(self, x: Any, u: Any, active: Sequence[int]) -> np.ndarray:
+        """``ẋ (2nq,)`` evaluated directly on numbers (float or complex; the complex-step path)."""
+        n = self.nq
+        x = np.asarray(x)
+        u = np.asarray(u)
+        q, qd = list(x[:n]), list(x[n:])
+        qdd = self.accelerations(q, qd, list(u), active, NUMPY_OPS)
+        return np.array([*qd, *qdd], dtype=np.result_type(x, u, float))
+
+
+def _all_zero(v: Sequence[Any]) -> bool:
+    return all(_zero(c) for c in v)
+
+
+def _ldl_solve(M: list[list[Any]], b: list[Any]) -> list[Any]:
+    """Solve ``M x = b`` for symmetric positive definite ``M`` by LDLᵀ (structural zeros skipped)."""
+    n = len(b)
+    L: list[list[Any]] = [[0.0] * n for _ in range(n)]
+    D: list[Any] = [0.0] * n
+    for j in range(n):
+        D[j] = _sub(M[j][j], _add(*(_mul(_mul(L[j][k], L[j][k]), D[k]) for k in range(j))))
+        for i in range(j + 1, n):
+            s = _sub(M[i][j], _add(*(_mul(_mul(L[i][k], L[j][k]), D[k]) for k in range(j))))
+            L[i][j] = 0.0 if _zero(s) else s / D[j]
+    y: list[Any] = [0.0] * n
+    for i in range(n):
+        y[i] = _sub(b[i], _add(*(_mul(L[i][k], y[k]) for k in range(i))))
+    x: list[Any] = [0.0] * n
+    for i in range(n - 1, -1, -1):
+        x[i] = _sub(y[i] / D[i] if not _zero(y[i]) else 0.0, _add(*(_mul(L[k][i], x[k]) for k in range(i + 1, n))))
+    return x
