@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as cs
 import numpy as np
@@ -73,6 +74,47 @@ class LinearModel:
     B_c: np.ndarray
     method: str
     discretization: str
+
+    def to_statespace(
+        self,
+        *,
+        discrete: bool = True,
+        C: np.ndarray | None = None,
+        state_names: Any = None,
+        input_names: Any = None,
+        output_names: Any = None,
+    ) -> Any:
+        """This model as a python-control ``StateSpace`` (deviation variables ``x − x0``, ``u − u0``).
+
+        Args:
+            discrete: ``(A, B)`` with ``dt`` (True) or the continuous ``(A_c, B_c)``.
+            C: Output matrix ``(p, n)``; default the identity (every state measured).
+            state_names: ``(n,)`` names (default ``x[i]``); input_names ``(m,)``
+                (default ``u[i]``); output_names ``(p,)`` (default: the state
+                names when ``C`` is the identity, else ``y[i]``).
+
+        Returns:
+            ``control.StateSpace`` with ``D = 0`` and the names as its labels.
+        """
+        import control  # deferred: importing python-control costs about a second
+
+        n, m = self.B.shape
+        Cm = np.eye(n) if C is None else np.atleast_2d(np.asarray(C, dtype=float))
+        if Cm.ndim != 2 or Cm.shape[1] != n:
+            raise InvalidArgument(f"C: expected (p, {n}) but found {Cm.shape}")
+        states = [f"x[{i}]" for i in range(n)] if state_names is None else [str(s) for s in state_names]
+        inputs = [f"u[{i}]" for i in range(m)] if input_names is None else [str(s) for s in input_names]
+        if output_names is None:
+            outputs = states if C is None else [f"y[{i}]" for i in range(Cm.shape[0])]
+        else:
+            outputs = [str(s) for s in output_names]
+        for what, names, size in (("state", states, n), ("input", inputs, m), ("output", outputs, Cm.shape[0])):
+            if len(names) != size:
+                raise InvalidArgument(f"{what}_names: expected {size} names but found {len(names)}")
+        A, B, dt = (self.A, self.B, self.dt) if discrete else (self.A_c, self.B_c, 0)
+        return control.ss(
+            A, B, Cm, np.zeros((Cm.shape[0], m)), dt, states=states, inputs=inputs, outputs=outputs
+        )
 
 
 def discretize(A_c: np.ndarray, B_c: np.ndarray, dt: float, method: str = "euler") -> tuple[np.ndarray, np.ndarray]:

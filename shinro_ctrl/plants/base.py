@@ -237,6 +237,28 @@ class Plant:
         A, B = discretize(A_c, B_c, self.dt, discretization)
         return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization)
 
+    def statespace(self, x0: Any = None, u0: Any = None, *, discrete: bool = True, measured: Any = None) -> Any:
+        """The linear model at ``(x0, u0)`` as a named python-control ``StateSpace`` (Euler at ``dt``).
+
+        Args:
+            x0, u0: Operating point (default :meth:`equilibrium`).
+            discrete: Discrete at ``dt`` (True) or continuous Jacobians.
+            measured: Names of the measured states (the outputs); default all states.
+        """
+        names = list(self.state_names)
+        if measured is None:
+            C, outputs = None, None
+        else:
+            outputs = [str(s) for s in measured]
+            bad = [s for s in outputs if s not in names]
+            if bad:
+                raise InvalidArgument(f"measured: unknown state '{bad[0]}'{did_you_mean(bad[0], names)}")
+            C = np.eye(self.state_dim)[[names.index(s) for s in outputs]]
+        lm = self.linear_model(x0, u0)
+        return lm.to_statespace(
+            discrete=discrete, C=C, state_names=names, input_names=self.input_names, output_names=outputs
+        )
+
     def get_model(
         self, x0: Any = None, u0: Any = None, *, method: str = "exact", discretization: str = "euler"
     ) -> tuple[np.ndarray, np.ndarray]:
