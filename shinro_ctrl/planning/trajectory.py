@@ -1,0 +1,274 @@
+"""A planned trajectory: knots, the interpolants its transcription implies, and solve statistics.
+
+The interpolants are those the transcription promises (so that a controller
+tracking ``x_at(t)`` under ``u_at(t)`` follows what the optimizer verified):
+
+* ``hermite_simpson``: inputs linear between knots (first-order hold, the
+  midpoint input is the average); states the cubic Hermite polynomial through
+  ``(x_k, f_k)`` and ``(x_{k+1}, f_{k+1})`` with ``f_k = f(x_k, u_k)``.
+* ``trapezoid``: inputs linear; states the quadratic
+  ``x(t_k + τ) = x_k + τ f_k + τ² (f_{k+1} − f_k) / (2 h)``, which meets
+  ``x_{k+1}`` exactly when the trapezoidal defect is zero.
+* ``multiple_shooting``: inputs held (zero-order hold); states the cubic
+  Hermite polynomial through ``(x_k, f(x_k, u_k))`` and
+  ``(x_{k+1}, f(x_{k+1}, u_k))``.
+
+Outside ``[t_0, t_N]`` both interpolants hold their end values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shinro_ctrl.errors import InvalidArgument
+
+__all__ = ["METHODS", "Trajectory"]
+
+METHODS = ("hermite_simpson", "trapezoid", "multiple_shooting")
+
+
+@dataclass
+class Trajectory:
+    """A trajectory ``x(t), u(t)`` on ``N`` knots.
+
+    Attributes:
+        t: Knot times ``(N,)`` [s], starting at 0.
+        x: Knot states ``(N, n)``.
+        u: Knot inputs ``(N, m)`` (for ``multiple_shooting`` the last row
+            repeats the one before: inputs are held over each interval).
+        xdot: State derivatives at the knots ``(N, n)`` as the interpolant
+            uses them (``f(x_k, u_k)``; for ``multiple_shooting`` the right
+            end of interval ``k`` uses ``u_k``, stored in ``xdot_right``).
+        method: Transcription, one of :data:`METHODS`.
+        solve_time: Wall-clock time of the NLP solve [s].
+        iterations: IPOPT iterations.
+        objective: Optimal objective value.
+        max_defect: Largest absolute dynamics defect of the transcription.
+        status: IPOPT's return status.
+        state_names, input_names: Labels.
+        xdot_right: ``(N - 1, n)`` right-end derivatives for ``multiple_shooting``
+            (None otherwise).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    xdot: np.ndarray
+    method: str = "hermite_simpson"
+    solve_time: float = 0.0
+    iterations: int = 0
+    objective: float = float("nan")
+    max_defect: float = float("nan")
+    status: str = ""
+    state_names: tuple[str, ...] = ()
+    input_names: tuple[str, ...] = ()
+    xdot_right: np.ndarray | None = None
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=float)
+        self.x = np.asarray(self.x, dtype=float)
+        self.u = np.asarray(self.u, dtype=float)
+        self.xdot = np.asarray(self.xdot, dtype=float)
+        if self.method not in METHODS:
+            raise InvalidArgument(f"Trajectory: unknown method {self.method!r}; valid: {', '.join(METHODS)}")
+        N = self.t.shape[0]
+        if N < 2 or self.x.shape[0] != N or self.u.shape[0] != N or self.xdot.shape != self.x.shape:
+            raise InvalidArgument(
+                f"Trajectory: expected t (N,), x (N, n), u (N, m), xdot (N, n) with N >= 2 but found "
+                f"{self.t.shape}, {self.x.shape}, {self.u.shape}, {self.xdot.shape}"
+            )
+        if np.any(np.diff(self.t) <= 0):
+            raise InvalidArgument("Trajectory: knot times t must be strictly increasing")
+        if self.method == "multiple_shooting":
+            if self.xdot_right is None or np.shape(self.xdot_right) != (N - 1, self.x.shape[1]):
+                raise InvalidArgument(f"Trajectory: multiple_shooting needs xdot_right of shape ({N - 1}, n)")
+            self.xdot_right = np.asarray(self.xdot_right, dtype=float)
+        if not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(self.u))):
+            raise InvalidArgument("Trajectory: x and u must be finite")
+
+    # ------------------------------------------------------------ properties
+    @property
+    def duration(self) -> float:
+        """``t_N − t_0`` [s]."""
+        return float(self.t[-1] - self.t[0])
+
+    @property
+    def knots(self) -> int:
+        """Number of knots ``N``."""
+        return int(self.t.shape[0])
+
+    @property
+    def state_dim(self) -> int:
+        return int(self.x.shape[1])
+
+    @property
+    def input_dim(self) -> int:
+        return int(self.u.shape[1])
+
+    # ----------------------------------------------------------- interpolants
+    def _locate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Interval index ``k``, local time ``τ`` and step ``h`` for times ``t`` (clamped to the knots)."""
+        tc = np.clip(t, self.t[0], self.t[-1])
+        k = np.clip(np.searchsorted(self.t, tc, side="right") - 1, 0, self.knots - 2)
+        h = self.t[k + 1] - self.t[k]
+        return k, tc - self.t[k], h
+
+    def u_at(self, t: Any) -> np.ndarray:
+        """Input at time(s) ``t``: scalar → ``(m,)``, ``(T,)`` → ``(T, m)``.
+
+        Linear between knots (``hermite_simpson``, ``trapezoid``) or held
+        (``multiple_shooting``); held at the end values outside the knots.
+        """
+        ts = np.asarray(t, dtype=float)
+        scalar = ts.ndim == 0
+        ts = np.atleast_1d(ts)
+        k, tau, h = self._locate(ts)
+        if self.method == "multiple_shooting":
+            out = self.u[k]
+            out = np.where((ts >= self.t[-1])[:, None], self.u[-1], out)
+        else:
+            s = (tau / h)[:, None]
+            out = (1.0 - s) * self.u[k] + s * self.u[k + 1]
+        return out[0] if scalar else out
+
+    def x_at(self, t: Any) -> np.ndarray:
+        """State at time(s) ``t``: scalar → ``(n,)``, ``(T,)`` → ``(T, n)`` (see the module doc)."""
+        ts = np.asarray(t, dtype=float)
+        scalar = ts.ndim == 0
+        ts = np.atleast_1d(ts)
+        k, tau, h = self._locate(ts)
+        x0, x1 = self.x[k], self.x[k + 1]
+        f0 = self.xdot[k]
+        f1 = self.xdot_right[k] if self.method == "multiple_shooting" else self.xdot[k + 1]
+        tau_, h_ = tau[:, None], h[:, None]
+        if self.method == "trapezoid":
+            out = x0 + tau_ * f0 + tau_**2 * (f1 - f0) / (2.0 * h_)
+        else:
+            s = tau_ / h_
+            s2, s3 = s * s, s * s * s
+            out = (
+                (2 * s3 - 3 * s2 + 1) * x0 + (s3 - 2 * s2 + s) * h_ * f0 + (-2 * s3 + 3 * s2) * x1 + (s3 - s2) * h_ * f1
+            )
+        return out[0] if scalar else out
+
+    def sample(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(t (K,), x (K, n), u (K, m))`` at a fixed step ``dt`` from 0 to the last knot (inclusive).
+
+        Args:
+            dt: Sampling step [s], > 0.
+        """
+        if not dt > 0:
+            raise InvalidArgument(f"dt must be positive, got {dt!r}")
+        K = int(np.floor(self.duration / dt + 1e-9)) + 1
+        ts = self.t[0] + dt * np.arange(K)
+        return ts, self.x_at(ts), self.u_at(ts)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path: str | Path) -> Path:
+        """Write the trajectory to an ``.npz`` file (atomically) and return its path."""
+        from shinro_ctrl.files import atomic_write
+
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays: dict[str, Any] = {
+            "t": self.t,
+            "x": self.x,
+            "u": self.u,
+            "xdot": self.xdot,
+            "method": np.array(self.method),
+            "stats": np.array([self.solve_time, self.iterations, self.objective, self.max_defect]),
+            "status": np.array(self.status),
+            "state_names": np.array(self.state_names, dtype=str),
+            "input_names": np.array(self.input_names, dtype=str),
+        }
+        if self.xdot_right is not None:
+            arrays["xdot_right"] = self.xdot_right
+        atomic_write(path, lambda f: np.savez(f, **arrays), binary=True)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> Trajectory:
+        """Read a trajectory written by :meth:`save`.
+
+        Raises:
+            FileNotFoundError: no such file.
+            InvalidArgument: the file is not a saved trajectory.
+        """
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                stats = z["stats"]
+                return cls(
+                    t=z["t"],
+                    x=z["x"],
+                    u=z["u"],
+                    xdot=z["xdot"],
+                    method=str(z["method"]),
+                    solve_time=float(stats[0]),
+                    iterations=int(stats[1]),
+                    objective=float(stats[2]),
+                    max_defect=float(stats[3]),
+                    status=str(z["status"]),
+                    state_names=tuple(str(s) for s in z["state_names"]),
+                    input_names=tuple(str(s) for s in z["input_names"]),
+                    xdot_right=z["xdot_right"] if "xdot_right" in z.files else None,
+                )
+        except FileNotFoundError:
+            raise
+        except (KeyError, ValueError, OSError) as exc:
+            raise InvalidArgument(f"{path}: not a saved Trajectory ({exc})") from None
+
+    # ------------------------------------------------------------------- plot
+    def plot(self, path: str | Path, *, samples: int = 400) -> Path:
+        """Plot the states and inputs (interpolants as lines, knots as dots) to a PNG."""
+        import matplotlib.pyplot as plt
+
+        from shinro_ctrl.files import atomic_write
+
+        n, m = self.state_dim, self.input_dim
+        ts = np.linspace(self.t[0], self.t[-1], samples)
+        xs, us = self.x_at(ts), self.u_at(ts)
+        fig, axes = plt.subplots(n + m, 1, figsize=(8, 1.5 * (n + m) + 0.8), sharex=True, squeeze=False)
+        for i in range(n):
+            ax = axes[i, 0]
+            ax.plot(ts, xs[:, i], color="C0", lw=1.3)
+            ax.plot(self.t, self.x[:, i], ".", color="C0", ms=3)
+            ax.set_ylabel(self.state_names[i] if self.state_names else f"x{i}", rotation=0, ha="right")
+            ax.grid(alpha=0.3)
+        for j in range(m):
+            ax = axes[n + j, 0]
+            ax.plot(ts, us[:, j], color="C2", lw=1.3)
+            ax.plot(self.t, self.u[:, j], ".", color="C2", ms=3)
+            ax.set_ylabel(self.input_names[j] if self.input_names else f"u{j}", rotation=0, ha="right")
+            ax.grid(alpha=0.3)
+        axes[-1, 0].set_xlabel("time [s]")
+        fig.suptitle(
+            f"{self.method}: {self.knots} knots, T = {self.duration:.3g} s, objective {self.objective:.4g}, "
+            f"max defect {self.max_defect:.1e}",
+            x=0.02,
+            ha="left",
+            fontsize=10,
+        )
+        fig.tight_layout(rect=(0, 0, 1, 0.97))
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
+        plt.close(fig)
+        return path
+
+    def summary(self) -> str:
+        """Solve statistics on a few lines."""
+        return (
+            f"  method      {self.method} ({self.knots} knots)\n"
+            f"  status      {self.status}\n"
+            f"  duration    {self.duration:.6g} s\n"
+            f"  solve time  {self.solve_time:.4g} s\n"
+            f"  iterations  {self.iterations}\n"
+            f"  objective   {self.objective:.8g}\n"
+            f"  max defect  {self.max_defect:.3e}"
+        )
