@@ -13,9 +13,19 @@ import pkgutil
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.estimators.base import ESTIMATORS, Estimator
 from shinro_ctrl.estimators.full_state import FullState
+from shinro_ctrl.estimators.kalman import ExtendedKalmanFilter, KalmanFilter
+from shinro_ctrl.estimators.luenberger import Luenberger
 from shinro_ctrl.validation import did_you_mean
 
-__all__ = ["ESTIMATORS", "Estimator", "FullState", "estimator_class"]
+__all__ = [
+    "ESTIMATORS",
+    "Estimator",
+    "ExtendedKalmanFilter",
+    "FullState",
+    "KalmanFilter",
+    "Luenberger",
+    "estimator_class",
+]
 
 
 def _import_all() -> None:

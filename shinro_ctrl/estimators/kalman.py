@@ -1,0 +1,441 @@
+r"""Kalman filters: linear (steady-state or time-varying) and extended (RK4 in CasADi).
+
+Both filters take, at step ``k``, the measurement ``y_k (p,)`` of the
+measured states and the input ``u_{k-1} (m,)`` applied over the last step,
+and return the filtered estimate ``x̂_{k|k}`` (predict, then correct):
+
+.. math::
+
+    \bar x = F(\hat x_{k-1}, u_{k-1}), \qquad
+    P^- = F_x P F_x^\top + G Q_n G^\top,
+
+    M = P^- C^\top (C P^- C^\top + R_n)^{-1}, \qquad
+    \hat x_k = \bar x + M (y_k - C \bar x), \qquad
+    P = (I - M C) P^- (I - M C)^\top + M R_n M^\top .
+
+Noise model (the same in both filters): the measurement is ``y = C x + v``
+with ``v ~ N(0, Rn)``; the process noise ``w ~ N(0, Qn)`` is, by default
+(``Qn_on="input"``), a random input added to ``u`` and held over the step,
+so ``G = ∂F/∂u`` (``B`` for the linear filter); with ``Qn_on="state"`` it is
+added to the state after the step (``G = I``). ``Qn`` and ``Rn`` are
+per-step covariances (variances on the diagonal, not standard deviations):
+a scenario's ``[sim] process_noise`` and ``sensor_noise`` standard deviations
+``σ`` correspond to ``Qn = σ_u²`` and ``Rn = σ_y²``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as cs
+import numpy as np
+
+from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.estimators._linear import (
+    check_detectable,
+    measured_indices,
+    noise_covariance,
+    process_noise_input,
+)
+from shinro_ctrl.estimators.base import Estimator
+from shinro_ctrl.validation import as_matrix, as_vector, state_space, weight_matrix
+
+__all__ = ["DISTURBANCE_MODELS", "ExtendedKalmanFilter", "KalmanFilter", "rk4_step"]
+
+#: Disturbance models a linear filter can add to its state: None, or a constant input disturbance.
+DISTURBANCE_MODELS = (None, "input")
+
+
+class KalmanFilter(Estimator):
+    r"""Discrete Kalman filter on a linear model around an operating point.
+
+    Model (deviations from ``(x0, u0)``): ``x̃_{k+1} = A x̃_k + B ũ_k + G w_k``,
+    ``y_k = C x_k + v_k``; see the module docstring for the update and the
+    noise conventions.
+
+    With ``steady_state=True`` (default) the gain is the stationary one of the
+    DARE ``P⁻ = A P⁻ Aᵀ − A P⁻ Cᵀ (C P⁻ Cᵀ + Rn)⁻¹ C P⁻ Aᵀ + G Qn Gᵀ``
+    (``control.dlqe``): ``L = A M`` is dlqe's predictor gain and
+    ``eig(A − L C)`` the estimator poles. With ``steady_state=False`` the
+    covariance is propagated from ``P0`` and converges to that solution.
+
+    With ``disturbance_model="input"`` the state is augmented with a constant
+    input disturbance ``d (m,)``: ``x̃_{k+1} = A x̃_k + B (ũ_k + d_k)``,
+    ``d_{k+1} = d_k + w_d`` (``w_d ~ N(0, Qd)``), and :meth:`update`
+    returns ``[x̂; d̂]`` of shape ``(n + m,)`` (what an offset-free
+    ``LinearMPC`` takes).
+
+    Args:
+        A: Discrete state matrix ``(n, n)``.
+        B: Discrete input matrix ``(n, m)``.
+        C: Measurement matrix ``(p, n)``.
+        Qn: Process-noise covariance ``(m, m)`` (``Qn_on="input"``) or
+            ``(n, n)`` (``"state"``), or its diagonal.
+        Rn: Sensor-noise covariance ``(p, p)`` or its diagonal, positive definite.
+        Qn_on: ``"input"`` (default) or ``"state"``.
+        steady_state: Stationary gain (True) or time-varying covariance.
+        x0: Operating-point state ``(n,)`` (default zeros).
+        u0: Operating-point input ``(m,)`` (default zeros).
+        disturbance_model: None or ``"input"``.
+        Qd: Random-walk covariance of the disturbance ``(m,)`` / ``(m, m)``
+            (``disturbance_model="input"`` only; default ``1e-4 · I``).
+        state_names: Names for messages.
+
+    Attributes:
+        L: Predictor gain ``(N, p)`` (``N = n`` or ``n + m``), dlqe's ``L``.
+        M: Filter (innovation) gain ``(N, p)``, ``L = A M``.
+        P: Covariance of the current estimate ``P_{k|k}`` ``(N, N)``.
+        P_prior: A-priori covariance ``P⁻`` ``(N, N)`` (dlqe's ``P`` when steady).
+        poles: Estimator poles ``eig(A − L C)`` (steady state) ``(N,)``.
+
+    Raises:
+        InvalidArgument: wrong shapes, negative or indefinite noise, or a
+            mode with ``|λ| ≥ 1`` that ``C`` cannot see (named, PBH test).
+    """
+
+    def __init__(
+        self,
+        A: Any,
+        B: Any,
+        C: Any,
+        Qn: Any,
+        Rn: Any,
+        *,
+        Qn_on: str = "input",
+        steady_state: bool = True,
+        x0: Any = None,
+        u0: Any = None,
+        disturbance_model: str | None = None,
+        Qd: Any = None,
+        state_names: Any = None,
+    ):
+        A, B = state_space(A, B)
+        n, m = B.shape
+        C = np.atleast_2d(np.asarray(C, dtype=float))
+        p = C.shape[0]
+        C = as_matrix("C", C, (p, n))
+        G = process_noise_input(Qn_on, B)
+        Qn = noise_covariance("Qn", Qn, G.shape[1], definite=False)
+        Rn = noise_covariance("Rn", Rn, p, definite=True)
+        if disturbance_model not in DISTURBANCE_MODELS:
+            raise InvalidArgument(f"disturbance_model: expected None or 'input' but found {disturbance_model!r}")
+        self.state_names = tuple(state_names) if state_names is not None else None
+        self.n, self.m, self.p = n, m, p
+        self.measured = measured_indices(C)
+        self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
+        self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
+        self.disturbance_model = disturbance_model
+        self.Qn_on = Qn_on
+        self.Qn, self.Rn = Qn, Rn
+        measured_names = [self.state_names[i] for i in self.measured] if self.state_names and self.measured else None
+        check_detectable(A, C, names=self.state_names, measured=measured_names)
+        Qw = G @ Qn @ G.T
+        if disturbance_model == "input":
+            Qd = 1e-4 * np.eye(m) if Qd is None else noise_covariance("Qd", Qd, m, definite=False)
+            A = np.block([[A, B], [np.zeros((m, n)), np.eye(m)]])
+            B = np.vstack([B, np.zeros((m, m))])
+            C = np.hstack([C, np.zeros((p, m))])
+            Qw = np.block([[Qw, np.zeros((n, m))], [np.zeros((m, n)), Qd]])
+            names = (*self.state_names, *(f"d_{i}" for i in range(m))) if self.state_names else None
+            check_detectable(A, C, names=names, measured=measured_names)
+        elif Qd is not None:
+            raise InvalidArgument("Qd is the disturbance covariance: it needs disturbance_model='input'")
+        self.A, self.B, self.C, self.G, self.Qw = A, B, C, G, Qw
+        self.n_aug = A.shape[0]
+        self.steady_state = bool(steady_state)
+        self._steady_gain()
+        N = self.n_aug
+        self._z = np.zeros(N)  # deviation estimate [x̃; d]
+        self._zbar = np.zeros(N)
+        self._nu = np.zeros(p)
+        self._out = np.zeros(N)
+        self._xoff = np.zeros(N)
+        self._xoff[:n] = self.x0
+        self._yoff = C[:, :n] @ self.x0
+        self._first = True
+        self.P = self._P_post_ss.copy()
+        self.P_prior = self.P_prior_ss.copy()
+        self._I = np.eye(N)
+
+    def _steady_gain(self) -> None:
+        import control  # deferred: importing python-control costs about a second
+
+        try:
+            L, P, E = control.dlqe(self.A, np.eye(self.n_aug), self.C, self.Qw, self.Rn)
+        except (ValueError, np.linalg.LinAlgError, control.ControlArgument) as exc:
+            raise InvalidArgument(f"the filter Riccati equation has no stabilizing solution: {exc}") from exc
+        self.L = np.asarray(L, dtype=float)
+        self.P_prior_ss = np.asarray(P, dtype=float)
+        self.poles = np.asarray(E)
+        S = self.C @ self.P_prior_ss @ self.C.T + self.Rn
+        self.M = np.linalg.solve(S, self.C @ self.P_prior_ss).T
+        ImC = np.eye(self.n_aug) - self.M @ self.C
+        self._P_post_ss = ImC @ self.P_prior_ss @ ImC.T + self.M @ self.Rn @ self.M.T
+        self._Phi, self._Gam = ImC @ self.A, ImC @ self.B  # steady state: ẑ = (I − M C)(A ẑ + B ũ) + M ỹ
+
+    @classmethod
+    def from_plant(
+        cls,
+        plant: Any,
+        *,
+        measured: Any = None,
+        Qn: Any,
+        Rn: Any,
+        Qn_on: str = "input",
+        steady_state: bool = True,
+        x0: Any = None,
+        u0: Any = None,
+        discretization: str = "zoh",
+        disturbance_model: str | None = None,
+        Qd: Any = None,
+    ) -> KalmanFilter:
+        """The filter on ``plant`` linearized at ``(x0, u0)`` (default its equilibrium), discretized at ``dt``.
+
+        Args:
+            plant: Any plant.
+            measured: Measured state names in the order of ``y`` (default all).
+            Qn, Rn, Qn_on, steady_state, disturbance_model, Qd: See the class.
+            x0, u0: Operating point.
+            discretization: ``zoh`` (default), ``euler`` or ``rk4``.
+        """
+        C = plant.output_matrix(measured)
+        lm = plant.linear_model(x0, u0, discretization=discretization)
+        est = cls(
+            lm.A,
+            lm.B,
+            C,
+            Qn,
+            Rn,
+            Qn_on=Qn_on,
+            steady_state=steady_state,
+            x0=lm.x0,
+            u0=lm.u0,
+            disturbance_model=disturbance_model,
+            Qd=Qd,
+            state_names=plant.state_names,
+        )
+        est.model = lm
+        return est
+
+    def reset(self, x0_hat: Any, P0: Any = None) -> None:
+        """Start from ``x0_hat (n,)`` (or ``(n + m,)`` with the disturbance) and, time-varying, ``P0`` (default I)."""
+        N = self.n_aug
+        if self.disturbance_model is not None and np.shape(x0_hat) == (self.n,):
+            x0_hat = np.concatenate([np.asarray(x0_hat, dtype=float), np.zeros(self.m)])
+        z = as_vector("x0_hat", x0_hat, N)
+        self._z[:] = z - self._xoff
+        if self.steady_state:
+            if P0 is not None:
+                raise InvalidArgument("P0: a steady-state filter has a fixed covariance; use steady_state=False")
+            self.P = self._P_post_ss.copy()
+        else:
+            self.P = np.eye(N) if P0 is None else weight_matrix("P0", P0, N)
+        self._first = True
+
+    def update(self, y: Any, u: Any) -> np.ndarray:
+        """Predict with ``u (m,)`` (skipped on the first call after :meth:`reset`), correct with ``y (p,)``.
+
+        Returns:
+            ``x̂ (n,)``, or ``[x̂; d̂] (n + m,)`` with the input disturbance.
+        """
+        y = as_vector("y", y, self.p)
+        if self.steady_state and not self._first:  # fused fast path
+            z = self._z
+            np.subtract(y, self._yoff, out=self._nu)
+            np.dot(self._Phi, z, out=self._zbar)
+            self._zbar += self._Gam @ (as_vector("u", u, self.m) - self.u0)
+            self._zbar += self.M @ self._nu
+            z[:] = self._zbar
+            out = z + self._xoff
+            return out if self.disturbance_model is not None else out[: self.n]
+        zbar = self._zbar
+        if self._first:
+            zbar[:] = self._z
+            self._first = False
+            if not self.steady_state:
+                self.P_prior = self.P
+        else:
+            u = as_vector("u", u, self.m)
+            np.dot(self.A, self._z, out=zbar)
+            zbar += self.B @ (u - self.u0)
+            if not self.steady_state:
+                self.P_prior = self.A @ self.P @ self.A.T + self.Qw
+        if self.steady_state:
+            M = self.M
+        else:
+            Pm = self.P_prior
+            S = self.C @ Pm @ self.C.T + self.Rn
+            M = np.linalg.solve(S, self.C @ Pm).T
+            ImC = self._I - M @ self.C
+            self.P = ImC @ Pm @ ImC.T + M @ self.Rn @ M.T
+            self.M = M
+        np.subtract(y, self._yoff, out=self._nu)
+        self._nu -= self.C @ zbar
+        np.add(zbar, M @ self._nu, out=self._z)
+        np.add(self._z, self._xoff, out=self._out)
+        return self._out.copy() if self.disturbance_model is not None else self._out[: self.n].copy()
+
+    @property
+    def d_hat(self) -> np.ndarray | None:
+        """The input-disturbance estimate ``(m,)`` (None without a disturbance model)."""
+        return self._z[self.n :].copy() if self.disturbance_model is not None else None
+
+    def __repr__(self) -> str:
+        kind = "steady-state" if self.steady_state else "time-varying"
+        return f"KalmanFilter(n={self.n}, measured={self.measured}, {kind}, disturbance_model={self.disturbance_model})"
+
+
+def rk4_step(f: cs.Function, x: Any, u: Any, dt: float) -> Any:
+    """One classical RK4 step ``x + dt/6 (k1 + 2 k2 + 2 k3 + k4)`` of ``ẋ = f(x, u)`` with ``u`` held."""
+    k1 = f(x, u)
+    k2 = f(x + 0.5 * dt * k1, u)
+    k3 = f(x + 0.5 * dt * k2, u)
+    k4 = f(x + dt * k3, u)
+    return x + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+class ExtendedKalmanFilter(Estimator):
+    r"""Extended Kalman filter on the plant's nonlinear dynamics.
+
+    The prediction is one RK4 step of the plant's continuous dynamics over
+    ``dt`` with the input held, ``F(x, u)``; the covariance uses the exact
+    Jacobians ``F_x = ∂F/∂x`` and ``F_u = ∂F/∂u`` of that same step (CasADi
+    automatic differentiation of the symbolic step, not of the continuous
+    dynamics). The whole update (prediction, Jacobians, gain, Joseph-form
+    covariance) is one CasADi ``Function`` built once per filter and
+    evaluated through its buffer interface into arrays the filter owns.
+
+    Args:
+        plant: The plant (its :meth:`symbolic` dynamics and ``dt``).
+        C: Measurement matrix ``(p, n)``.
+        Qn: Process-noise covariance on the inputs ``(m, m)`` (``G = F_u``,
+            ``Qn_on="input"``) or on the states ``(n, n)`` (``"state"``).
+        Rn: Sensor-noise covariance ``(p, p)``, positive definite.
+        Qn_on: ``"input"`` (default) or ``"state"``.
+
+    Attributes:
+        P: Covariance of the current estimate ``(n, n)``.
+        M: Last filter gain ``(n, p)``.
+        step_function: ``casadi.Function`` ``(x, u) -> (x_next, F_x, F_u)``.
+    """
+
+    def __init__(self, plant: Any, C: Any, Qn: Any, Rn: Any, *, Qn_on: str = "input"):
+        n, m = plant.state_dim, plant.input_dim
+        C = np.atleast_2d(np.asarray(C, dtype=float))
+        p = C.shape[0]
+        C = as_matrix("C", C, (p, n))
+        if Qn_on not in ("input", "state"):
+            process_noise_input(Qn_on, np.zeros((n, m)))  # raises with the valid choices
+        Qn = noise_covariance("Qn", Qn, m if Qn_on == "input" else n, definite=False)
+        Rn = noise_covariance("Rn", Rn, p, definite=True)
+        self.n, self.m, self.p = n, m, p
+        self.C, self.Qn, self.Rn, self.Qn_on = C, Qn, Rn, Qn_on
+        self.measured = measured_indices(C)
+        self.dt = float(plant.dt)
+        self.state_names = tuple(plant.state_names)
+        lm = plant.linear_model(discretization="rk4")
+        names = [self.state_names[i] for i in self.measured] if self.measured else None
+        check_detectable(lm.A, C, names=self.state_names, measured=names)
+        self._build(plant.symbolic())
+        self._first = True
+
+    def _build(self, f: cs.Function) -> None:
+        n, m, p = self.n, self.m, self.p
+        x = cs.SX.sym("x", n)
+        u = cs.SX.sym("u", m)
+        xn = rk4_step(f, x, u, self.dt)
+        Fx = cs.densify(cs.jacobian(xn, x))
+        Fu = cs.densify(cs.jacobian(xn, u))
+        self.step_function = cs.Function("ekf_step", [x, u], [xn, Fx, Fu], ["x", "u"], ["x_next", "F_x", "F_u"])
+
+        # The update: predict (optionally) and correct, symbolic in x, P, u, y.
+        P = cs.SX.sym("P", n, n)
+        y = cs.SX.sym("y", p)
+        C = cs.DM(self.C)
+        R = cs.DM(self.Rn)
+        Q = cs.DM(self.Qn)
+        Qw = Fu @ Q @ Fu.T if self.Qn_on == "input" else Q
+        Pm = Fx @ P @ Fx.T + Qw
+
+        def correct(xb: Any, Pb: Any) -> tuple[Any, Any, Any]:
+            S = C @ Pb @ C.T + R
+            K = cs.solve(S, C @ Pb).T
+            ImC = cs.DM.eye(n) - K @ C
+            Pn = ImC @ Pb @ ImC.T + K @ R @ K.T
+            return xb + K @ (y - C @ xb), 0.5 * (Pn + Pn.T), K
+
+        out_pred = correct(xn, Pm)
+        out_first = correct(x, P)
+        outs = ["x_hat", "P_hat", "K"]
+        # Transposed results: CasADi's column-major nonzeros are then the row-major numpy layout.
+        f_pred = cs.Function(
+            "ekf_update", [x, P, u, y], [out_pred[0], out_pred[1].T, out_pred[2].T], ["x", "P", "u", "y"], outs
+        )
+        f_first = cs.Function(
+            "ekf_correct", [x, P, u, y], [out_first[0], out_first[1].T, out_first[2].T], ["x", "P", "u", "y"], outs
+        )
+        self.update_function = f_pred
+        # Buffers bound once: inputs and outputs are arrays this object owns (see API-NOTES on buffer()).
+        self._x = np.zeros(n)
+        self._P = np.zeros((n, n))
+        self._u = np.zeros(m)
+        self._y = np.zeros(p)
+        self._xo = np.zeros(n)
+        self._Po = np.zeros((n, n))
+        self._K = np.zeros((n, p))
+        self._evals = []
+        for fn in (f_pred, f_first):
+            buf, ev = fn.buffer()
+            buf.set_arg(0, memoryview(self._x))
+            buf.set_arg(1, memoryview(self._P.reshape(-1)))
+            buf.set_arg(2, memoryview(self._u))
+            buf.set_arg(3, memoryview(self._y))
+            buf.set_res(0, memoryview(self._xo))
+            buf.set_res(1, memoryview(self._Po.reshape(-1)))
+            buf.set_res(2, memoryview(self._K.reshape(-1)))
+            self._evals.append((buf, ev))
+
+    @classmethod
+    def from_plant(
+        cls, plant: Any, *, measured: Any = None, Qn: Any, Rn: Any, Qn_on: str = "input"
+    ) -> ExtendedKalmanFilter:
+        """The EKF of ``plant`` measuring the named states (default all); see the class for the noise."""
+        return cls(plant, plant.output_matrix(measured), Qn, Rn, Qn_on=Qn_on)
+
+    def step_jacobians(self, x: Any, u: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The RK4 step and its exact Jacobians at ``(x (n,), u (m,))``: ``(x_next (n,), F_x (n, n), F_u (n, m))``."""
+        xn, Fx, Fu = self.step_function(as_vector("x", x, self.n), as_vector("u", u, self.m))
+        return np.asarray(xn).reshape(-1), np.asarray(Fx), np.asarray(Fu)
+
+    @property
+    def M(self) -> np.ndarray:
+        """The last filter gain ``(n, p)``."""
+        return self._K.copy()
+
+    @property
+    def P(self) -> np.ndarray:
+        """Covariance of the current estimate ``(n, n)``."""
+        return self._P.copy()
+
+    def reset(self, x0_hat: Any, P0: Any = None) -> None:
+        """Start from ``x0_hat (n,)`` with covariance ``P0 (n, n)`` (default the identity)."""
+        self._x[:] = as_vector("x0_hat", x0_hat, self.n)
+        self._P[:] = np.eye(self.n) if P0 is None else weight_matrix("P0", P0, self.n)
+        self._first = True
+
+    def update(self, y: Any, u: Any) -> np.ndarray:
+        """Predict one RK4 step with ``u (m,)`` (skipped right after :meth:`reset`), correct with ``y (p,)``."""
+        self._y[:] = as_vector("y", y, self.p)
+        if self._first:
+            self._first = False
+            self._evals[1][1]()
+        else:
+            self._u[:] = as_vector("u", u, self.m)
+            self._evals[0][1]()
+        # The buffers read _x/_P and wrote _xo/_Po (column-major of Pᵀ = P, symmetric).
+        self._x[:] = self._xo
+        self._P[:] = self._Po
+        return self._xo.copy()
+
+    def __repr__(self) -> str:
+        return f"ExtendedKalmanFilter(n={self.n}, measured={self.measured}, dt={self.dt:g})"
