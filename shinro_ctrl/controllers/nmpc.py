@@ -148,8 +148,14 @@ class NonlinearMPC(Controller):
         solver: ``"auto"`` / ``"daqp"`` (condensed QP, DAQP) or ``"ipopt"``.
         integrator: ``"rk4"`` or ``"semi_implicit"`` (needs ``position_indices``).
         position_indices, velocity_indices: For ``"semi_implicit"``.
-        init_iterations: SQP iterations allowed on the first call after
-            construction or :meth:`reset` (a cold start from ``x`` held).
+        init_iterations: SQP iterations allowed on a cold start with
+            ``cold_start="sqp"``.
+        cold_start: How the first call after construction or :meth:`reset`
+            finds its first trajectory: ``"ipopt"`` (the OCP solved to
+            convergence by IPOPT; the swing-ups need it: Gauss-Newton SQP
+            from ``x`` held over the horizon converges slowly there and to a
+            worse local minimum) or ``"sqp"`` (up to ``init_iterations`` SQP
+            iterations from ``x`` held). Later calls never use IPOPT.
         hold: Calls per solve: the controller re-plans every ``hold`` calls and
             holds its input in between (``dt = hold · plant.dt``).
         state_names, input_names: For messages.
@@ -185,6 +191,7 @@ class NonlinearMPC(Controller):
         position_indices: tuple[int, ...] = (),
         velocity_indices: tuple[int, ...] = (),
         init_iterations: int = 30,
+        cold_start: str = "ipopt",
         hold: int = 1,
         state_names: Any = None,
         input_names: Any = None,
@@ -203,6 +210,9 @@ class NonlinearMPC(Controller):
         self.dt = check_positive("dt", dt)
         self.iterations = int(iterations)
         self.init_iterations = int(init_iterations)
+        if cold_start not in ("ipopt", "sqp"):
+            raise InvalidArgument(f"cold_start must be 'ipopt' or 'sqp', got {cold_start!r}")
+        self.cold_start = cold_start
         self.hold = int(hold)
         self.tol = check_positive("tol", tol)
         if solver not in SOLVERS:
@@ -331,6 +341,7 @@ class NonlinearMPC(Controller):
         tol: float = 1e-6,
         solver: str = "auto",
         init_iterations: int = 30,
+        cold_start: str = "ipopt",
     ) -> NonlinearMPC:
         """Build the controller on the plant's own dynamics ``plant.symbolic()``.
 
@@ -347,7 +358,7 @@ class NonlinearMPC(Controller):
             x0: Target state ``(n,)``; default ``plant.equilibrium()``.
             u0: Input reference ``(m,)``; default ``plant.equilibrium()``.
             u_min, u_max, x_min, x_max, soft, soft_weight_l1, soft_weight_quad,
-            Qf, iterations, tol, solver, init_iterations: As for :class:`NonlinearMPC`.
+            Qf, iterations, tol, solver, init_iterations, cold_start: As for :class:`NonlinearMPC`.
         """
         xe, ue = plant.equilibrium()
         x_ref = xe if x0 is None else x0
@@ -384,6 +395,7 @@ class NonlinearMPC(Controller):
             position_indices=tuple(getattr(plant, "position_indices", ())),
             velocity_indices=tuple(getattr(plant, "velocity_indices", ())),
             init_iterations=init_iterations,
+            cold_start=cold_start,
             hold=hold,
             state_names=plant.state_names,
             input_names=plant.input_names,
@@ -481,8 +493,8 @@ class NonlinearMPC(Controller):
         """Feedback phase: solve the prepared QP for the measured ``x (n,)`` and take the step.
 
         With ``iterations > 1`` SQP iterations follow until the KKT residual is
-        below ``tol``. The first call after :meth:`reset` runs up to
-        ``init_iterations`` SQP iterations from ``x`` held over the horizon.
+        below ``tol``. The first call after :meth:`reset` starts cold (see
+        ``cold_start``).
 
         Returns:
             The input ``u (m,)`` clipped to ``[u_min, u_max]``.
@@ -492,16 +504,26 @@ class NonlinearMPC(Controller):
         if self.solver == "ipopt":
             return self._solve_ipopt(x, t_start)
         t_lin = t_cond = t_qp = 0.0
-        if not self._started:
-            self._X[:] = x
-            self._U[:] = np.clip(self.u0, self.u_min, self.u_max)
-            self._started = True
+        fresh = not self._started
+        if fresh:
             self._prepared = False
-            budget, cold = self.init_iterations, True
+            if self.cold_start == "ipopt":
+                t0 = time.perf_counter()
+                self._ipopt_guess = None
+                X, U, _, _ = self._ipopt_solve(x)
+                t_qp += time.perf_counter() - t0
+                self._X[:] = X
+                self._U[:] = U
+                budget, cold = self.iterations, False
+            else:
+                self._X[:] = x
+                self._U[:] = np.clip(self.u0, self.u_min, self.u_max)
+                budget, cold = self.init_iterations, True
+            self._started = True
         else:
             budget, cold = self.iterations, False
         if not self._prepared:
-            if self.last is not None:
+            if not fresh:
                 self._shift()
             t0 = time.perf_counter()
             self._linearize()
@@ -693,6 +715,32 @@ class NonlinearMPC(Controller):
         self._ubg = np.concatenate(ubg)
 
     def _solve_ipopt(self, x: np.ndarray, t_start: float) -> np.ndarray:
+        t0 = time.perf_counter()
+        X, U, stats, obj = self._ipopt_solve(x)
+        t_qp = time.perf_counter() - t0
+        u = np.clip(U[0], self.u_min, self.u_max)
+        total = time.perf_counter() - t_start
+        iters = int(stats.get("iter_count", 0))
+        self.last = NMPCSolution(
+            status="solved", iterations=iters, kkt_residual=math.nan, qp_status=str(stats.get("return_status")),
+            qp_iterations=iters, time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=t_qp,
+            time_other_s=total - t_qp, solve_time_s=total, states=X.copy(), inputs=U.copy(), u=u,
+            objective=obj,
+        )  # fmt: skip
+        self._started = True
+        return u
+
+    def _ipopt_solve(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, Any], float]:
+        """The OCP from ``x`` solved by IPOPT, warm-started from the previous solution shifted.
+
+        Returns:
+            ``(X (N + 1, n), U (N, m), IPOPT's stats, objective)``.
+
+        Raises:
+            MPCInfeasible: IPOPT did not succeed.
+        """
+        if self._ipopt is None:
+            self._build_ipopt()
         n, m, N = self.n, self.m, self.N
         nX = n * (N + 1)
         if self._ipopt_guess is None:
@@ -710,32 +758,20 @@ class NonlinearMPC(Controller):
             Xg[:-1] = Xg[1:].copy()
             Ug[:-1] = Ug[1:].copy()
             Xg[0] = x
-        t0 = time.perf_counter()
         sol = self._ipopt(
             x0=guess, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg, p=np.concatenate([x, self._ref])
         )
-        t_qp = time.perf_counter() - t0
         stats = self._ipopt.stats()
         w = np.asarray(sol["x"], dtype=float).ravel()
-        X = w[:nX].reshape(N + 1, n)
-        U = w[nX : nX + N * m].reshape(N, m)
         if not stats.get("success", False) or not np.all(np.isfinite(w)):
             status = str(stats.get("return_status", "failed"))
-            message = f"NonlinearMPC (ipopt): {status} at x = {np.array2string(x, precision=4)}"
             self._ipopt_guess = None
-            raise MPCInfeasible(message)
+            self._started = False
+            raise MPCInfeasible(f"NonlinearMPC (ipopt): {status} at x = {np.array2string(x, precision=4)}")
         self._ipopt_guess = w
-        u = np.clip(U[0], self.u_min, self.u_max)
-        total = time.perf_counter() - t_start
-        iters = int(stats.get("iter_count", 0))
-        self.last = NMPCSolution(
-            status="solved", iterations=iters, kkt_residual=math.nan, qp_status=str(stats.get("return_status")),
-            qp_iterations=iters, time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=t_qp,
-            time_other_s=total - t_qp, solve_time_s=total, states=X.copy(), inputs=U.copy(), u=u,
-            objective=float(sol["f"]),
-        )  # fmt: skip
-        self._started = True
-        return u
+        X = w[:nX].reshape(N + 1, n)
+        U = w[nX : nX + N * m].reshape(N, m)
+        return X, U, stats, float(sol["f"])
 
     def describe(self) -> str:
         """One paragraph: horizon, integrator, solver, bounds."""
