@@ -1,49 +1,77 @@
-"""Controllers: LQR, linear MPC (OSQP) and differential IK as a QP.
+"""Controllers: LQR, linear MPC (OSQP), differential IK as a QP, and whatever else registers.
 
-:data:`CONTROLLERS` maps class names to classes; each is built from a plant
-by its ``from_plant(plant, ...)`` factory, whose keyword names are the keys a
-``[controller]`` table may hold (:func:`controller_keys`).
+Every concrete :class:`~shinro_ctrl.controllers.base.Controller` subclass
+registers itself under its class name when defined; this package imports each
+of its modules on first look-up, so a new module here needs no list edit.
+:data:`CONTROLLERS` names the controllers the package ships; each is built from
+a plant by its ``from_plant(plant, ...)`` factory, whose keyword names are the
+keys a ``[controller]`` table may hold (:func:`controller_keys`).
 """
 
 from __future__ import annotations
 
 import importlib
-import inspect
+import pkgutil
 from typing import Any
 
-from shinro_ctrl.controllers.base import Controller
+from shinro_ctrl.controllers.base import CONTROLLER_REGISTRY, Controller
 from shinro_ctrl.controllers.lqr import LQR
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.validation import did_you_mean
 
-__all__ = ["CONTROLLERS", "IKQP", "LQR", "Controller", "LinearMPC", "controller_class", "controller_keys"]
+__all__ = [
+    "CONTROLLERS",
+    "CONTROLLER_REGISTRY",
+    "IKQP",
+    "LQR",
+    "Controller",
+    "LinearMPC",
+    "controller_class",
+    "controller_keys",
+]
 
-# Class name -> module; imported lazily so a missing optional piece never breaks LQR.
-_MODULES = {"LQR": "lqr", "LinearMPC": "mpc", "IKQP": "ik_qp"}
-CONTROLLERS = tuple(_MODULES)
+_discovered = False
 
 
-def controller_class(name: str) -> type:
-    """The controller class named ``name`` (``LQR``, ``LinearMPC`` or ``IKQP``).
+def _import_all() -> None:
+    """Import every public module of this package (once), so each controller has registered itself."""
+    global _discovered
+    if _discovered:
+        return
+    for info in pkgutil.iter_modules(__path__):
+        if not info.name.startswith("_") and not info.ispkg:
+            importlib.import_module(f"{__name__}.{info.name}")
+    _discovered = True
+
+
+def _shipped() -> tuple[str, ...]:
+    _import_all()
+    return tuple(name for name, cls in CONTROLLER_REGISTRY.items() if cls.__module__.startswith(f"{__name__}."))
+
+
+def controller_class(name: str) -> type[Controller]:
+    """The controller class registered as ``name`` (``LQR``, ``LinearMPC``, ``IKQP``, ...).
 
     Raises:
         ConfigError: unknown name, with the closest known one.
     """
-    if name not in _MODULES:
-        raise ConfigError(f"unknown controller '{name}'{did_you_mean(name, _MODULES)}")
-    module = importlib.import_module(f"shinro_ctrl.controllers.{_MODULES[name]}")
-    return getattr(module, name)
+    if name not in CONTROLLER_REGISTRY:
+        _import_all()
+    if name not in CONTROLLER_REGISTRY:
+        raise ConfigError(f"unknown controller '{name}'{did_you_mean(name, CONTROLLER_REGISTRY)}")
+    return CONTROLLER_REGISTRY[name]
 
 
 def controller_keys(cls: type) -> tuple[str, ...]:
-    """The keyword names of ``cls.from_plant`` after the plant argument (``cls.option_keys()`` when defined)."""
-    if hasattr(cls, "option_keys"):
-        return tuple(cls.option_keys())
-    params = list(inspect.signature(cls.from_plant).parameters.values())[1:]
-    return tuple(p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
+    """The keys a ``[controller]`` table may hold for ``cls`` (``cls.option_keys()``)."""
+    return tuple(cls.option_keys())
 
 
-def __getattr__(name: str) -> Any:  # LinearMPC, IKQP on first use
-    if name in _MODULES:
-        return controller_class(name)
+def __getattr__(name: str) -> Any:  # CONTROLLERS, and LinearMPC, IKQP, ... on first use
+    if name == "CONTROLLERS":
+        return _shipped()
+    if not name.startswith("_"):
+        _import_all()
+        if name in CONTROLLER_REGISTRY:
+            return CONTROLLER_REGISTRY[name]
     raise AttributeError(f"module 'shinro_ctrl.controllers' has no attribute '{name}'")

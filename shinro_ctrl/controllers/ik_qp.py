@@ -135,6 +135,8 @@ class _BoxQP:
     checked once here.
     """
 
+    stateful = True  # warm start, previous input and plan
+
     def __init__(self, n: int, P_upper: np.ndarray, settings: dict[str, Any]):
         pattern = sp.csc_matrix(np.triu(np.ones((n, n))))
         self.n = n

@@ -127,6 +127,8 @@ class LQR(Controller):
         NotStabilizable: an unstable mode the input cannot reach (PBH test).
     """
 
+    stateful = False  # a pure state feedback
+
     def __init__(
         self,
         A: Any,

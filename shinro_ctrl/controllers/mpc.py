@@ -199,6 +199,8 @@ class LinearMPC(Controller):
         >>> u = mpc([0.0, 0.0, 0.3, 0.0])
     """
 
+    stateful = True  # warm start, previous input and plan
+
     def __init__(
         self, A: Any, B: Any, Q: Any, R: Any, horizon: int, *, options: MPCOptions | None = None, **kwargs: Any
     ):

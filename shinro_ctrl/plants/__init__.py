@@ -1,13 +1,20 @@
 """Plant models: dynamics written once, evaluated numerically and symbolically.
 
-:data:`PLANTS` maps each class name to its class and :data:`PLANT_ALIASES`
-maps the short command-line names (``cartpole``, ``pendulum``, …) to class
-names; :func:`plant_class` resolves either.
+Every :class:`~shinro_ctrl.plants.base.Plant` subclass registers itself under
+its class name (and its ``aliases``) when defined, and this package imports
+each of its modules, so a new plant module here needs no list edit.
+:data:`PLANTS` maps the class name of each plant the package ships to its
+class and :data:`PLANT_ALIASES` maps the short command-line names
+(``cartpole``, ``pendulum``, …) to class names; :func:`plant_class` resolves
+either (and any registered plant, e.g. one defined in a test).
 """
+
+import importlib
+import pkgutil
 
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.plants.armrobot import ArmRobot
-from shinro_ctrl.plants.base import MjcfPatch, Plant
+from shinro_ctrl.plants.base import PLANT_ALIASES_REGISTRY, PLANT_REGISTRY, MjcfPatch, Plant
 from shinro_ctrl.plants.cartpole import CartPole
 from shinro_ctrl.plants.double_pendulum import DoublePendulum
 from shinro_ctrl.plants.holonomic import HolonomicMobileRobot
@@ -32,24 +39,17 @@ __all__ = [
     "plant_from_name",
 ]
 
+for _info in pkgutil.iter_modules(__path__):  # every plant module registers its classes on import
+    if not _info.name.startswith("_"):
+        importlib.import_module(f"{__name__}.{_info.name}")
+
+#: Class name -> class of every plant this package ships (a view of the registry at import).
 PLANTS: dict[str, type[Plant]] = {
-    "InvertedPendulum": InvertedPendulum,
-    "CartPole": CartPole,
-    "DoublePendulum": DoublePendulum,
-    "HolonomicMobileRobot": HolonomicMobileRobot,
-    "Quadrotor": Quadrotor,
-    "ArmRobot": ArmRobot,
-    "MjcfPlant": MjcfPlant,
+    name: cls for name, cls in PLANT_REGISTRY.items() if cls.__module__.startswith(f"{__name__}.")
 }
 
-PLANT_ALIASES: dict[str, str] = {
-    "pendulum": "InvertedPendulum",
-    "cartpole": "CartPole",
-    "double_pendulum": "DoublePendulum",
-    "holonomic": "HolonomicMobileRobot",
-    "quadrotor": "Quadrotor",
-    "arm6": "ArmRobot",
-}
+#: Alias -> class name (from each plant's ``aliases``).
+PLANT_ALIASES: dict[str, str] = PLANT_ALIASES_REGISTRY
 
 
 def plant_class(name: str) -> type[Plant]:
@@ -61,9 +61,9 @@ def plant_class(name: str) -> type[Plant]:
     if is_model_file(name):  # a model file: MjcfPlant (the caller passes the file as ``model``)
         return MjcfPlant
     key = PLANT_ALIASES.get(name, name)
-    if key not in PLANTS:
-        raise ConfigError(f"unknown plant '{name}'{did_you_mean(name, [*PLANTS, *PLANT_ALIASES])}")
-    return PLANTS[key]
+    if key not in PLANT_REGISTRY:
+        raise ConfigError(f"unknown plant '{name}'{did_you_mean(name, [*PLANT_REGISTRY, *PLANT_ALIASES])}")
+    return PLANT_REGISTRY[key]
 
 
 def plant_from_name(name: str) -> Plant:

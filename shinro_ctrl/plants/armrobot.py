@@ -113,6 +113,7 @@ class ArmRobot(Plant):
         NonFiniteError: a limit or offset is NaN or infinite.
     """
 
+    aliases = ("arm6",)
     state_names = ("x", "y", "z", "roll", "pitch", "yaw")
     input_names = ("vx", "vy", "vz", "roll_rate", "pitch_rate", "yaw_rate")
     param_names = ()

@@ -33,7 +33,12 @@ from shinro_ctrl.errors import ConfigError, InvalidArgument, SimulationDiverged
 from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd_jacobians
 from shinro_ctrl.validation import as_vector, check_positive, did_you_mean, unknown_keys
 
-__all__ = ["MjcfPatch", "Plant"]
+__all__ = ["PLANT_ALIASES_REGISTRY", "PLANT_REGISTRY", "MjcfPatch", "Plant"]
+
+#: Class name -> every :class:`Plant` subclass defined so far (filled by ``Plant.__init_subclass__``).
+PLANT_REGISTRY: dict[str, type[Plant]] = {}
+#: Alias -> class name, from the subclasses' ``aliases``.
+PLANT_ALIASES_REGISTRY: dict[str, str] = {}
 
 _NUMPY = NumpyBackend()
 _SCALAR = ScalarBackend()
@@ -98,6 +103,15 @@ class Plant:
     asset: ClassVar[str | None] = None
     position_indices: ClassVar[tuple[int, ...]] = ()
     velocity_indices: ClassVar[tuple[int, ...]] = ()
+    #: Short names a scenario or the CLI may use instead of the class name (``("cartpole",)``).
+    aliases: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Register every subclass under its class name (and its ``aliases``) in :data:`PLANT_REGISTRY`."""
+        super().__init_subclass__(**kwargs)
+        PLANT_REGISTRY[cls.__name__] = cls
+        for alias in cls.__dict__.get("aliases", ()):
+            PLANT_ALIASES_REGISTRY[alias] = cls.__name__
 
     # ------------------------------------------------------------------ set-up
     def _init(self, *, dt: float, params: Mapping[str, float], backend: Any = None) -> None:

@@ -50,6 +50,7 @@ class CartPole(Plant):
         backend: Array backend kept for API compatibility (numpy).
     """
 
+    aliases = ("cartpole",)
     state_names = ("x", "x_dot", "theta", "theta_dot")
     input_names = ("force",)
     param_names = ("cart_mass", "pole_mass", "pole_length", "damping", "gravity")

@@ -47,6 +47,7 @@ class DoublePendulum(StateBoundsMixin, Plant):
         backend: Array backend kept for API compatibility (numpy).
     """
 
+    aliases = ("double_pendulum",)
     state_names = ("theta_1", "theta_2", "omega_1", "omega_2")
     input_names = ("tau_1", "tau_2")
     param_names = ("mass_top", "mass_bottom", "length_top", "length_bottom", "g")

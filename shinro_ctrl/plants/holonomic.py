@@ -67,6 +67,7 @@ class HolonomicMobileRobot(Plant):
         ValueError: a malformed argument (named in the message).
     """
 
+    aliases = ("holonomic",)
     state_names = ("x", "y", "theta")
     input_names = ("vx", "vy", "omega")
     param_names = ("radius_robots", "gamma", "radius_wheels")

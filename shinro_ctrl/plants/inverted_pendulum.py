@@ -39,6 +39,7 @@ class InvertedPendulum(StateBoundsMixin, Plant):
         backend: Array backend kept for API compatibility (numpy).
     """
 
+    aliases = ("pendulum",)
     state_names = ("theta", "theta_dot")
     input_names = ("tau",)
     param_names = ("mass", "length", "damping", "gravity")

@@ -123,6 +123,7 @@ class Quadrotor(Plant):
         ValueError: a non-positive or malformed argument (named in the message).
     """
 
+    aliases = ("quadrotor",)
     state_names = ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "p", "q", "r")
     input_names = ("thrust", "tau_x", "tau_y", "tau_z")
     param_names = ("mass", "Ixx", "Iyy", "Izz", "gravity")
