@@ -227,6 +227,8 @@ class MjcfPlant(Plant):
         """``ẋ``: the model's SX expression for the CasADi backend, the compiled function otherwise."""
         if isinstance(bk, CasadiBackend):
             return self._fun(x, u)
+        if np.iscomplexobj(x) or np.iscomplexobj(u):  # complex step: the scalar algorithms on complex numbers
+            return self._f_complex(np.asarray(x), np.asarray(u))
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
         if x.ndim == 1 and u.ndim == 1:
@@ -238,6 +240,15 @@ class MjcfPlant(Plant):
         out = np.empty_like(xb)
         for k in range(xb.shape[0]):
             out[k] = self._eval_one(xb[k], ub[k])
+        return out.reshape(*lead, x.shape[-1])
+
+    def _f_complex(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """``ẋ`` for complex ``x (..., n)``, ``u (..., m)`` by the scalar algorithms (complex-step reference)."""
+        lead = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
+        xb = np.broadcast_to(x, (*lead, x.shape[-1])).reshape(-1, x.shape[-1])
+        ub = np.broadcast_to(u, (*lead, u.shape[-1])).reshape(-1, u.shape[-1])
+        rb, active = self.rigid_body_tree, self.active_actuators
+        out = np.array([rb.xdot_numpy(xb[k], ub[k], active) for k in range(xb.shape[0])], dtype=complex)
         return out.reshape(*lead, x.shape[-1])
 
     def symbolic(self, params: bool = False) -> cs.Function:
