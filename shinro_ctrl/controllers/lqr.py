@@ -8,6 +8,7 @@ import numpy as np
 import scipy.linalg
 
 from shinro_ctrl.controllers.base import Controller
+from shinro_ctrl.controllers.lqi import integral_action
 from shinro_ctrl.errors import InvalidArgument, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
 
@@ -116,9 +117,15 @@ class LQR(Controller):
             ``ũ_ff = B⁺ (r̃_{k+1} − A r̃_k)`` and ``u = u0 + ũ_ff − K (x − r_k)``
             (exact when ``B`` has full row rank, e.g. kinematic plants).
         state_names: Optional names used in error messages.
+        integral: States (names, or indices) whose tracking error
+            ``x[i] − r[i]`` is integrated (LQI, discrete only): ``Q`` then
+            weights ``[x̃; z]`` with ``n + q`` entries; the integrators are
+            clamped while the input saturates (see ``controllers/lqi.py``).
+        integral_dt: Integration step [s] (``from_plant`` passes ``plant.dt``).
 
     Attributes:
         K: Gain ``(m, n)``.
+        K_i: Integrator gain ``(m, q)`` (LQI only).
         S: Riccati solution ``(n, n)``.
         poles: Closed-loop eigenvalues of ``A − B K`` ``(n,)``.
 
@@ -143,22 +150,32 @@ class LQR(Controller):
         u_max: Any = None,
         feedforward: bool = False,
         state_names: Any = None,
+        integral: Any = None,
+        integral_dt: float = 1.0,
     ):
         A, B = state_space(A, B)
         n, m = B.shape
         self.A, self.B = A, B
-        self.Q = weight_matrix("Q", Q, n)
+        # LQI (controllers/lqi.py): the design runs on the model augmented with the error integrators.
+        self._lqi, design_names = integral_action(A, B, integral, integral_dt, state_names, discrete=bool(discrete))
+        A_d, B_d = (A, B) if self._lqi is None else (self._lqi.A_aug, self._lqi.B_aug)
+        self.Q = weight_matrix("Q", Q, A_d.shape[0])
         self.R = weight_matrix("R", R, m, definite=True)
         self.discrete = bool(discrete)
         self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
         self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
         self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
-        check_stabilizable(A, B, discrete=self.discrete, names=state_names)
-        K, S = riccati(A, B, self.Q, self.R, discrete=self.discrete)
+        check_stabilizable(A_d, B_d, discrete=self.discrete, names=design_names)
+        K, S = riccati(A_d, B_d, self.Q, self.R, discrete=self.discrete)
+        self.poles = np.linalg.eigvals(A_d - B_d @ K)
+        if self._lqi is not None:
+            self.K_i = K[:, n:]  # integrator gain (m, q)
+            self._lqi.set_gain(self.K_i)
+            self.stateful = True
+            K = K[:, :n]
         self.K = K
         self.S = S
-        self.poles = np.linalg.eigvals(A - B @ K)
         self.state_dim, self.input_dim = n, m
         self._x0_u = self.u0 + self.K @ self.x0  # u = (u0 + K x0) - K x
         self.feedforward = bool(feedforward)
@@ -180,6 +197,7 @@ class LQR(Controller):
         u_min: Any = None,
         u_max: Any = None,
         feedforward: bool = False,
+        integral: Any = None,
     ) -> LQR:
         """Design on ``plant`` linearized at ``(x0, u0)`` (default its equilibrium).
 
@@ -194,6 +212,8 @@ class LQR(Controller):
             method: Linearization method, ``exact`` or ``fd``.
             u_min, u_max: Optional saturation bounds.
             feedforward: Use reference feed-forward (see the class docstring).
+            integral: State names whose tracking error is integrated (LQI;
+                ``Q`` then has ``n + q`` entries; see ``controllers/lqi.py``).
         """
         lm = plant.linear_model(x0, u0, method=method, discretization=discretization)
         A, B = (lm.A, lm.B) if discrete else (lm.A_c, lm.B_c)
@@ -209,6 +229,8 @@ class LQR(Controller):
             u_max=u_max,
             feedforward=feedforward,
             state_names=plant.state_names,
+            integral=integral,
+            integral_dt=plant.dt,
         )
         ctrl.model = lm
         return ctrl
@@ -226,6 +248,7 @@ class LQR(Controller):
         x = as_vector("x", x, self.state_dim)  # fast path for a finite (n,) array
         if ref is None:
             u = self._x0_u - self.K @ x
+            r = self.x0
         else:
             ref = np.asarray(ref, dtype=float)
             if ref.ndim == 2:
@@ -237,7 +260,10 @@ class LQR(Controller):
                     r_next = as_vector("ref", ref[1], self.state_dim)
                     u = u + self._B_pinv @ ((r_next - self.x0) - self.A @ (r - self.x0))
             else:
-                u = self.u0 - self.K @ (x - as_vector("ref", ref, self.state_dim))
+                r = as_vector("ref", ref, self.state_dim)
+                u = self.u0 - self.K @ (x - r)
+        if self._lqi is not None:  # LQI: − K_i z, saturation, clamped integration
+            return self._lqi.finish(u, x, r, self.u_min if self._saturate else None, self.u_max)
         if self._saturate:
             np.clip(u, self.u_min, self.u_max, out=u)
         return u
@@ -245,4 +271,11 @@ class LQR(Controller):
     def cost_to_go(self, x: Any) -> float:
         """Predicted optimal cost ``½ (x − x0)ᵀ S (x − x0)`` from state ``x (n,)``."""
         d = as_vector("x", x, self.state_dim) - self.x0
+        if self._lqi is not None:  # the augmented state [x̃; z]
+            d = np.concatenate([d, self._lqi.z])
         return 0.5 * float(d @ self.S @ d)
+
+    def reset(self) -> None:
+        """Empty the integrators (LQI); a plain LQR has no memory."""
+        if self._lqi is not None:
+            self._lqi.reset()
