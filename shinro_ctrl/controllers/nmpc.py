@@ -183,7 +183,7 @@ class NonlinearMPC(Controller):
         soft: bool = False,
         soft_weight_l1: float = 1e2,
         soft_weight_quad: float = 1e2,
-        Qf: Any = None,
+        Qf: str | Any = None,
         iterations: int = 1,
         tol: float = 1e-6,
         solver: str = "auto",
@@ -307,7 +307,7 @@ class NonlinearMPC(Controller):
     def _dare(self) -> np.ndarray:
         xs, us = cs.SX.sym("x", self.n), cs.SX.sym("u", self.m)
         xn = self.F(xs, us)
-        jac = cs.Function("jac", [xs, us], [cs.jacobian(xn, xs), cs.jacobian(xn, us)])
+        jac = cs.Function("F_jac", [xs, us], [cs.jacobian(xn, xs), cs.jacobian(xn, us)])
         A, B = (np.array(M, dtype=float) for M in jac(self.x0, self.u0))
         try:
             P = scipy.linalg.solve_discrete_are(A, B, self.Q, self.R)
@@ -336,7 +336,7 @@ class NonlinearMPC(Controller):
         soft: bool = False,
         soft_weight_l1: float = 1e2,
         soft_weight_quad: float = 1e2,
-        Qf: Any = None,
+        Qf: str | Any = None,
         iterations: int = 1,
         tol: float = 1e-6,
         solver: str = "auto",
