@@ -279,11 +279,7 @@ def _atom_accepts(atom: str, value: Any, key: str) -> str | None:
     if base in ("dict", "Mapping"):
         if not isinstance(value, Mapping):
             return "a table such as { key = value }"
-        for k, v in value.items():
-            if isinstance(v, list | Mapping) and _numeric_problem(v, f"{key}.{k}"):
-                problem = _numeric_problem(v, f"{key}.{k}")
-                return problem
-        return None
+        return _structure_problem(value, key)  # the table's own keys are checked by its consumer
     if base == "Any":
         return _numeric_problem(value, key)
     # an annotation this checker does not know: only the structural bounds apply

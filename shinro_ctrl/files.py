@@ -1,43 +1,179 @@
-"""Atomic file output and a minimal TOML writer for resolved scenarios."""
+"""Safe file output: atomic files, atomic folders of files, stale-temp cleanup, and output-path checks.
+
+Every file the workbench writes goes through :func:`atomic_write` (a temporary
+file beside the target, fsynced, renamed over it), so a kill leaves the old
+file or the new one. A *set* of files that belong together (a run's
+``result.npz``, ``metrics.json``, ``scenario.toml`` and plot) is written with
+:func:`atomic_folder`: into a fresh hidden folder that is swapped with the
+target in one ``rename``, so a folder always holds one complete run or the
+previous one.
+
+Temporary files and folders carry an advisory lock (``flock``) for as long as
+their writer lives; :func:`remove_stale_temps` deletes only those whose lock
+it can take (their writer died), never another live writer's.
+
+Outputs never overwrite inputs: :func:`check_output_file` and
+:func:`check_output_folder` refuse a target that is one of the command's
+input files, or a file that is not an earlier output of the same kind, before
+any work is done.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import ctypes.util
+import errno
 import json
 import math
 import os
+import shutil
 import tempfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_write", "dump_json", "dump_toml"]
+from shinro_ctrl.errors import InvalidArgument
+
+try:  # POSIX advisory locks; without them (Windows) nothing counts as provably stale
+    import fcntl
+except ImportError:  # pragma: no cover
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = [
+    "RUN_MANIFEST",
+    "atomic_folder",
+    "atomic_write",
+    "atomic_write_set",
+    "check_output_file",
+    "check_output_folder",
+    "dump_json",
+    "dump_toml",
+    "recover_journals",
+    "remove_stale_temps",
+]
+
+RUN_MANIFEST = ".shinro-run.json"  # written last into a run folder: the names (and sizes) of its files
+TEMP_SUFFIX = ".tmp"
+_MAGIC = {".png": b"\x89PNG\r\n\x1a\n", ".gif": b"GIF8", ".npz": b"PK\x03\x04"}
+
+
+# ---------------------------------------------------------------- locks
+def _try_lock(fd: int) -> bool:
+    """Take an exclusive, non-blocking advisory lock on ``fd``; False if another process holds it."""
+    if fcntl is None:  # pragma: no cover
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True
+
+
+def _same_inode(fd: int, path: str | Path) -> bool:
+    try:
+        a, b = os.fstat(fd), os.stat(path, follow_symlinks=False)
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
+
+
+def _locked_tempfile(directory: Path, prefix: str) -> tuple[int, str]:
+    """``mkstemp`` whose file is locked by this process (retried if a cleaner got it first)."""
+    for _ in range(100):
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=TEMP_SUFFIX, dir=directory)
+        if (fcntl is None or _try_lock(fd)) and _same_inode(fd, tmp):
+            return fd, tmp
+        os.close(fd)
+    raise OSError(errno.EAGAIN, f"could not create a temporary file in '{directory}'")
+
+
+def remove_stale_temps(directory: str | Path, pattern: str = f".*{TEMP_SUFFIX}") -> list[Path]:
+    """Delete temporary files and folders in ``directory`` whose writer is gone.
+
+    A temporary (see :func:`atomic_write`, :func:`atomic_folder`) is stale when
+    its advisory lock can be taken: the process that created it holds the lock
+    until it finishes, so a live writer's file (another ``regress --update`` on
+    the same folder) is never touched.
+
+    Returns:
+        The paths removed.
+    """
+    removed = []
+    for path in Path(directory).glob(pattern):
+        try:
+            fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        except OSError:
+            continue
+        try:
+            if not _try_lock(fd) or not _same_inode(fd, path):
+                continue
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+            removed.append(path)
+        finally:
+            os.close(fd)
+    return removed
+
+
+# --------------------------------------------------------------- single files
+def _target(path: Path) -> Path:
+    """The file a write must replace: the final target of a symlink (its link stays a link)."""
+    if path.is_symlink():
+        return Path(os.path.realpath(path))
+    return path
 
 
 def atomic_write(path: str | Path, write: Callable[[Any], None], *, binary: bool = False) -> Path:
     """Write a file atomically: ``write(f)`` fills a temporary file that then replaces ``path``.
 
     An interrupted run leaves either the old file or the new one, never a
-    half-written one.
+    half-written one; the temporary is locked while it is written and removed
+    on any error. A symlink is written through (its target is replaced, the
+    link stays). Errors name ``path``, never the temporary.
+
+    Returns:
+        ``path`` as given.
     """
     path = Path(path)
     if path.exists() and not path.is_file():
+        if path.is_dir():
+            raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", str(path))
         # A device or pipe (/dev/null, /dev/stdout): renaming over it would replace the device itself.
         with open(path, "wb" if binary else "w", encoding=None if binary else "utf-8") as f:
             write(f)
         return path
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file the permissions open() would
+    target = _target(path)
     try:
-        with os.fdopen(fd, "wb" if binary else "w", encoding=None if binary else "utf-8") as f:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = _locked_tempfile(target.parent, f".{target.name}.")
+    except OSError as exc:
+        raise _named(exc, path) from None
+    try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file the permissions open() would
+        with os.fdopen(os.dup(fd), "wb" if binary else "w", encoding=None if binary else "utf-8") as f:
             write(f)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        os.replace(tmp, target)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise _named(exc, path) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    finally:
+        os.close(fd)
     return path
+
+
+def _named(exc: OSError, path: Path) -> OSError:
+    """The same error, naming the user's path instead of a temporary."""
+    if exc.errno:
+        return type(exc)(exc.errno, exc.strerror or os.strerror(exc.errno), str(path))
+    return OSError(f"cannot write '{path}': {exc}")
 
 
 def _umask() -> int:
@@ -46,6 +182,272 @@ def _umask() -> int:
     return mask
 
 
+# ------------------------------------------------------------- sets of files
+JOURNAL_PATTERN = ".shinro-journal.*.json"
+
+
+def atomic_write_set(files: Mapping[str | Path, str], journal_dir: str | Path) -> list[Path]:
+    """Replace several text files as one set: all new or all old, even if killed.
+
+    Every new file is written and fsynced to a locked temporary beside its
+    target first (an error there leaves every target untouched); then a
+    journal listing the renames is committed in ``journal_dir``, the renames
+    run and the journal is removed. A kill during the renames leaves the
+    journal, which :func:`recover_journals` (called by the next writer or
+    reader of the folder) completes. Symlinks are written through.
+
+    Returns:
+        The paths written, as given.
+    """
+    journal_dir = Path(journal_dir)
+    temps: list[tuple[int, str, Path]] = []
+    jfd = -1
+    try:
+        for path, text in files.items():
+            target = _target(Path(path))
+            try:
+                fd, tmp = _locked_tempfile(target.parent, f".{target.name}.")
+            except OSError as exc:
+                raise _named(exc, Path(path)) from None
+            temps.append((fd, tmp, target))
+            os.chmod(tmp, 0o666 & ~_umask())
+            with os.fdopen(os.dup(fd), "w", encoding="utf-8") as f:
+                f.write(text)
+                f.flush()
+                os.fsync(f.fileno())
+        moves = [[tmp, str(target)] for _, tmp, target in temps]
+        jfd, jtmp = _locked_tempfile(journal_dir, ".shinro-journal.")
+        with os.fdopen(os.dup(jfd), "w", encoding="utf-8") as f:
+            f.write(json.dumps({"moves": moves}) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        journal = journal_dir / (Path(jtmp).name.removesuffix(TEMP_SUFFIX) + ".json")
+        os.replace(jtmp, journal)  # the commit point
+        _fsync_dir(journal_dir)
+    except BaseException:
+        for _, tmp, _ in temps:
+            Path(tmp).unlink(missing_ok=True)
+        if jfd >= 0:
+            Path(jtmp).unlink(missing_ok=True)
+        for fd, _, _ in temps:
+            os.close(fd)
+        if jfd >= 0:
+            os.close(jfd)
+        raise
+    try:
+        for _, tmp, target in temps:
+            os.replace(tmp, target)
+        for d in {target.parent for _, _, target in temps}:
+            _fsync_dir(d)
+        journal.unlink()
+    finally:
+        for fd, _, _ in temps:
+            os.close(fd)
+        os.close(jfd)
+    return [Path(p) for p in files]
+
+
+def recover_journals(directory: str | Path) -> int:
+    """Complete the renames of :func:`atomic_write_set` calls that were killed after their commit point.
+
+    A journal still locked belongs to a live writer and is left alone.
+
+    Returns:
+        The number of journals completed.
+    """
+    done = 0
+    for journal in sorted(Path(directory).glob(JOURNAL_PATTERN)):
+        try:
+            fd = os.open(journal, os.O_RDONLY)
+        except OSError:
+            continue
+        try:
+            if not _try_lock(fd) or not _same_inode(fd, journal):
+                continue
+            try:
+                moves = json.loads(journal.read_text(encoding="utf-8"))["moves"]
+            except (ValueError, KeyError, TypeError):
+                continue
+            for tmp, target in moves:
+                if Path(tmp).exists():
+                    os.replace(tmp, target)
+            journal.unlink(missing_ok=True)
+            done += 1
+        finally:
+            os.close(fd)
+    return done
+
+
+# ------------------------------------------------------------------- folders
+_RENAME_EXCHANGE = 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where unsupported."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    renameat2.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    at_fdcwd = -100
+    rc = renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE)
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+@contextlib.contextmanager
+def atomic_folder(directory: str | Path, names: Iterable[str] = ()) -> Iterator[Path]:
+    """Build a folder's files in a fresh hidden folder and swap it into place in one step.
+
+    ``with atomic_folder(out, RUN_FILES) as tmp:`` — write every file into
+    ``tmp``; on leaving the block the manifest :data:`RUN_MANIFEST` is written
+    last and ``tmp`` replaces ``directory`` atomically (the previous contents
+    are removed). An exception or a kill inside the block leaves ``directory``
+    as it was; the orphaned temporary folder is removed by the next call.
+
+    Args:
+        directory: The output folder (created; a symlink is followed).
+        names: The files the block may write (checked by :func:`check_output_folder` beforehand).
+    """
+    directory = Path(directory)
+    target = Path(os.path.realpath(directory) if directory.is_symlink() else os.path.abspath(directory))
+    parent = target.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(parent, f".{target.name}.*{TEMP_SUFFIX}")
+        for _ in range(100):
+            tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=TEMP_SUFFIX, dir=parent))
+            lock = os.open(tmp, os.O_RDONLY)
+            if _try_lock(lock) and _same_inode(lock, tmp):
+                break
+            os.close(lock)
+        else:  # pragma: no cover
+            raise OSError(errno.EAGAIN, "could not create a temporary folder", str(parent))
+    except OSError as exc:
+        raise _named(exc, directory) from None
+    try:
+        os.chmod(tmp, 0o777 & ~_umask())
+        yield tmp
+        written = sorted(p.name for p in tmp.iterdir() if not p.name.startswith("."))
+        manifest = {"files": {n: (tmp / n).stat().st_size for n in written}, "expected": sorted(names)}
+        atomic_write(tmp / RUN_MANIFEST, lambda f: f.write(json.dumps(manifest, indent=1) + "\n"))
+        _fsync_dir(tmp)
+        if target.exists() and not target.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "exists and is not a folder", str(directory))
+        if not target.exists():
+            os.rename(tmp, target)
+        elif not _exchange(tmp, target):  # pragma: no cover - non-Linux: two renames, a short window
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=TEMP_SUFFIX, dir=parent))
+            os.rename(target, old / "previous")
+            os.rename(tmp, target)
+            shutil.rmtree(old, ignore_errors=True)
+        _fsync_dir(parent)
+    except OSError as exc:
+        raise _named(exc, directory) from None
+    finally:
+        os.close(lock)
+        shutil.rmtree(tmp, ignore_errors=True)  # the previous contents after the swap, or the aborted build
+
+
+def _fsync_dir(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+# ------------------------------------------------------------- output checks
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output_file(path: str | Path, *, inputs: Iterable[str | Path] = (), what: str = "output") -> Path:
+    """Refuse, before any work, an output path that would destroy something the user owns.
+
+    Refused: one of the command's ``inputs`` (also through a link), a folder,
+    and an existing regular file that is not an earlier output of the same
+    kind (by its first bytes for ``.png``/``.gif``/``.npz``), such as a
+    scenario given as ``--plot``.
+
+    Raises:
+        InvalidArgument: naming the path and the reason.
+    """
+    p = Path(path)
+    for inp in inputs:
+        if inp is not None and _same_file(p, Path(inp)):
+            raise InvalidArgument(f"{what} '{p}' is the input file '{inp}': an output never overwrites an input")
+    if p.is_dir():
+        raise InvalidArgument(f"{what} '{p}' is a folder; give a file name")
+    magic = _MAGIC.get(p.suffix.lower())
+    if p.is_file() and magic is not None and p.stat().st_size > 0:
+        with open(p, "rb") as f:
+            head = f.read(len(magic))
+        if head != magic:
+            raise InvalidArgument(
+                f"{what} '{p}' exists and is not a {p.suffix.lower()[1:].upper()} file; "
+                "refusing to overwrite it (remove it or choose another name)"
+            )
+    if p.exists() and not p.is_file() and not p.is_symlink():
+        return p  # a device or pipe: written through
+    _check_writable_parent(p, what)
+    return p
+
+
+def check_output_folder(directory: str | Path, names: Iterable[str], *, inputs: Iterable[str | Path] = ()) -> Path:
+    """Refuse, before any work, an output folder whose contents are not an earlier output.
+
+    The folder may be new, empty, or hold only files named in ``names`` (and
+    the manifest): it is replaced as a whole by :func:`atomic_folder`, so a
+    folder holding anything else (the input scenario, the user's notes) is
+    refused rather than lost.
+
+    Raises:
+        InvalidArgument: naming the folder and the first foreign entry.
+    """
+    d = Path(directory)
+    allowed = {*names, RUN_MANIFEST}
+    if d.exists() and not d.is_dir():
+        raise InvalidArgument(f"output folder '{d}' exists and is not a folder")
+    if d.is_dir():
+        for inp in inputs:
+            if inp is not None and any(_same_file(e, Path(inp)) for e in d.iterdir()):
+                raise InvalidArgument(
+                    f"output folder '{d}' holds the input file '{inp}': an output never overwrites an input; "
+                    "choose another folder"
+                )
+        foreign = sorted(e.name for e in d.iterdir() if e.name not in allowed)
+        if foreign:
+            raise InvalidArgument(
+                f"output folder '{d}' holds '{foreign[0]}'"
+                + (f" and {len(foreign) - 1} more entries" if len(foreign) > 1 else "")
+                + f", which is not a run output ({', '.join(sorted(names))}); it is replaced as a whole, "
+                "so choose a new or empty folder"
+            )
+    _check_writable_parent(d, "output folder")
+    return d
+
+
+def _check_writable_parent(p: Path, what: str) -> None:
+    parent = p.absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InvalidArgument(f"{what} '{p}': '{parent}' is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InvalidArgument(f"{what} '{p}': no permission to write in '{parent}'")
+
+
+# ---------------------------------------------------------------- formats
 def _json_safe(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None if math.isnan(value) else ("inf" if value > 0 else "-inf")

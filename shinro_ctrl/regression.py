@@ -21,16 +21,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shinro_ctrl.errors import ConfigError, ShinroError
+from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
 
 __all__ = [
     "DEFAULT_TOLERANCES",
     "MetricCheck",
     "RegressionReport",
     "baseline_path",
+    "baseline_text",
     "compare_metrics",
     "format_report",
     "read_baseline",
+    "regression_paths",
     "run_regression",
     "write_baseline",
 ]
@@ -81,6 +83,8 @@ class RegressionReport:
     updated: list[str] = field(default_factory=list)
     scenarios: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
+    folder: Path | None = None
+    update: bool = False
 
     @property
     def failures(self) -> list[MetricCheck]:
@@ -110,33 +114,52 @@ def read_baseline(path: str | Path) -> dict[str, float]:
 
     Raises:
         FileNotFoundError: no baseline.
-        ConfigError: the file is not a baseline (corrupt or another format).
+        ConfigError: the file is not a baseline (corrupt, another ``format``, a metric that is not a number).
     """
     p = Path(path)
+    hint = f"rewrite it with 'shinro-ctrl regress {p.parent} --update'"
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
-        return {k: _to_float(v) for k, v in data["metrics"].items()}
     except FileNotFoundError:
         raise
-    except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise ConfigError(f"{p}: not a valid baseline file ({exc}); rewrite it with 'regress --update'") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: not a valid baseline file ({exc}); {hint}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: not a valid baseline file (nested too deeply); {hint}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("metrics"), dict):
+        raise ConfigError(f"{p}: not a valid baseline file (no 'metrics' table); {hint}")
+    fmt = data.get("format")
+    if isinstance(fmt, bool) or fmt != BASELINE_FORMAT:
+        raise ConfigError(f"{p}: baseline 'format' must be {BASELINE_FORMAT}, found {fmt!r}; {hint}")
+    out = {}
+    for k, v in data["metrics"].items():
+        if isinstance(v, bool) or not (isinstance(v, int | float) or v in ("inf", "-inf") or v is None):
+            raise ConfigError(f"{p}: metric '{k}' must be a number, found {v!r}; {hint}")
+        out[k] = _to_float(v)
+    return out
+
+
+def baseline_text(result: Any) -> str:
+    """The baseline file's JSON text for ``result`` (a :class:`~shinro_ctrl.sim.SimResult`)."""
+    from shinro_ctrl import __version__
+    from shinro_ctrl.files import _json_safe
+
+    data = {
+        "format": BASELINE_FORMAT,
+        "scenario": result.scenario,
+        "loop": result.loop,
+        "shinro_ctrl": __version__,
+        "metrics": result.metrics,
+    }
+    return json.dumps(_json_safe(data), indent=2, sort_keys=True) + "\n"
 
 
 def write_baseline(path: str | Path, result: Any) -> Path:
-    """Store ``result.metrics`` (a :class:`~shinro_ctrl.sim.SimResult`) atomically."""
-    from shinro_ctrl import __version__
-    from shinro_ctrl.files import dump_json
+    """Store ``result.metrics`` (a :class:`~shinro_ctrl.sim.SimResult`) atomically (a symlink is written through)."""
+    from shinro_ctrl.files import atomic_write
 
-    return dump_json(
-        path,
-        {
-            "format": BASELINE_FORMAT,
-            "scenario": result.scenario,
-            "loop": result.loop,
-            "shinro_ctrl": __version__,
-            "metrics": result.metrics,
-        },
-    )
+    text = baseline_text(result)
+    return atomic_write(path, lambda f: f.write(text))
 
 
 def compare_metrics(
@@ -172,36 +195,78 @@ def compare_metrics(
     return checks
 
 
+def regression_paths(target: str | Path | None) -> tuple[Path, list[Path]]:
+    """The folder and the scenario files a regression run covers.
+
+    Args:
+        target: A folder of ``*.toml`` scenarios, a single scenario file, or
+            None for the shipped set.
+
+    Raises:
+        FileNotFoundError: no such folder or file, or a folder without scenarios.
+    """
+    from shinro_ctrl.resources import regression_dir
+
+    path = regression_dir() if target is None else Path(target)
+    if path.is_file():
+        if path.suffix != ".toml":
+            raise FileNotFoundError(f"'{path}' is not a regression scenario (*.toml) or a folder of them")
+        return path.parent, [path]
+    if not path.is_dir():
+        raise FileNotFoundError(f"no regression folder or scenario file '{path}'")
+    paths = sorted(p for p in path.glob("*.toml") if p.is_file())
+    if not paths:
+        raise FileNotFoundError(f"no regression scenarios (*.toml) in '{path}'")
+    return path, paths
+
+
 def run_regression(
     directory: str | Path | None = None, *, update: bool = False, progress: bool | None = None
 ) -> RegressionReport:
     """Run every scenario in ``directory`` (default: the shipped ``configs/regression``).
 
+    Every scenario (and, when comparing, every baseline) is parsed and
+    validated before anything runs; with ``update`` the baselines are written
+    only after every scenario ran, as one set (:func:`~shinro_ctrl.files.atomic_write_set`:
+    all new or all old even if killed), and not at all if a run failed.
+
     Args:
-        directory: Folder of regression scenarios.
-        update: Rewrite every baseline (atomically) instead of comparing.
+        directory: Folder of regression scenarios, or one scenario file.
+        update: Rewrite the baselines instead of comparing. The shipped
+            baselines inside the installed package are rewritten only when
+            their folder is named explicitly.
         progress: Passed to :meth:`RobotSim.run`.
 
     Raises:
         FileNotFoundError: the folder does not exist or holds no scenario.
-        ConfigError: a scenario or baseline is invalid.
+        ConfigError: a scenario or baseline is invalid (nothing was run or written).
+        InvalidArgument: ``update`` without a folder.
     """
+    from shinro_ctrl.files import atomic_write_set, recover_journals, remove_stale_temps
     from shinro_ctrl.resources import regression_dir
     from shinro_ctrl.sim import RobotSim
 
-    folder = regression_dir() if directory is None else Path(directory)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"no regression folder '{folder}'")
-    paths = sorted(folder.glob("*.toml"))
-    if not paths:
-        raise FileNotFoundError(f"no regression scenarios (*.toml) in '{folder}'")
-    report = RegressionReport()
-    if update:  # temporary files orphaned by an interrupted earlier update (see files.atomic_write)
-        for orphan in folder.glob(".*.baseline.json.*.tmp"):
-            orphan.unlink(missing_ok=True)
-    t0 = time.perf_counter()
+    if update and directory is None:
+        raise InvalidArgument(
+            f"refusing to rewrite the shipped baselines in '{regression_dir()}' without their folder named; "
+            "update your own folder with 'shinro-ctrl regress DIR --update'"
+        )
+    folder, paths = regression_paths(directory)
+    report = RegressionReport(folder=folder, update=update)
+    recover_journals(folder)  # an update killed after its commit point completes first
+    if update:  # temporaries orphaned by a killed earlier update (a live concurrent writer's are locked)
+        remove_stale_temps(folder, ".*.baseline.json.*.tmp")
+    # 1. parse and validate everything
+    sims = []
     for path in paths:
         sim = RobotSim.from_config(path)
+        if not update and baseline_path(path).exists():
+            read_baseline(baseline_path(path))
+        sims.append((path, sim))
+    # 2. run
+    t0 = time.perf_counter()
+    results = {}
+    for path, sim in sims:
         label = f"{path.stem} ({sim.loop})"
         report.scenarios.append(label)
         try:
@@ -209,18 +274,20 @@ def run_regression(
         except ShinroError as exc:  # a run that diverges or turns infeasible is a regression, not an abort
             report.errors[label] = f"{type(exc).__name__}: {str(exc).splitlines()[0]}"
             continue
-        base = baseline_path(path)
         if update:
-            write_baseline(base, result)
-            report.updated.append(label)
+            results[label] = (baseline_path(path), result)
             continue
         try:
-            baseline = read_baseline(base)
+            baseline = read_baseline(baseline_path(path))
         except FileNotFoundError:
             report.missing.append(label)
             continue
         report.checks.extend(compare_metrics(label, result.metrics, baseline, sim.scenario.regression))
     report.wall_time_s = time.perf_counter() - t0
+    # 3. write, all or nothing
+    if update and not report.errors:
+        atomic_write_set({base: baseline_text(result) for base, result in results.values()}, folder)
+        report.updated.extend(results)
     return report
 
 
@@ -242,12 +309,15 @@ def format_report(report: RegressionReport) -> str:
     lines.insert(1, "  ".join("-" * w for w in widths))
     if not report.checks:
         lines = []
+    where = f" {report.folder}" if report.folder is not None else " DIR"
     for label in report.missing:
-        lines.append(f"{label}: no baseline (run 'shinro-ctrl regress --update' to record one)")
+        lines.append(f"{label}: no baseline (record one with 'shinro-ctrl regress{where} --update')")
     for label, message in report.errors.items():
         lines.append(f"{label}: FAILED to run: {message}")
     for label in report.updated:
         lines.append(f"{label}: baseline written")
+    if report.update and report.errors:
+        lines.append("no baseline written: every scenario must run before the set is updated")
     n = len(report.scenarios)
     verdict = "FAILED" if report.errors else "updated" if report.updated else ("passed" if report.passed else "FAILED")
     lines.append(f"{n} scenario runs in {report.wall_time_s:.1f} s: {verdict}")
