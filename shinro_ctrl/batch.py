@@ -195,7 +195,7 @@ def lqr_batch_rollout(
     vi = np.asarray(plant.velocity_indices, dtype=int)
     tr = np.asarray(tracked, dtype=int)
     r_tr = r[tr]
-    x_min, x_max = getattr(controller, "x_min", None), getattr(controller, "x_max", None)
+    x_min, x_max = controller.x_min, controller.x_max
     if x_min is not None and np.shape(x_min) != (n,):
         x_min = None
     if x_max is not None and np.shape(x_max) != (n,):

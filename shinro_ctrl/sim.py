@@ -1,8 +1,11 @@
 """Closed-loop simulation of a scenario: plant + (engine) + controller + reference.
 
 :class:`RobotSim` builds everything a scenario names; :meth:`RobotSim.run`
-steps the loop ``u_k = controller(x_k + noise, r(t_k))``, ``x_{k+1} =
-plant.step(u_k)`` and returns a :class:`SimResult` with the trajectories and
+steps the loop ``y_k = C x_k + noise``, ``x̂_k = estimator.update(y_k,
+u_{k-1})``, ``u_k = controller(x̂_k, r(t_k))``, ``x_{k+1} = plant.step(u_k)``
+(the controller never sees the plant's state, only the estimate; the default
+:class:`~shinro_ctrl.estimators.full_state.FullState` passes ``y`` through) and
+returns a :class:`SimResult` with the trajectories and
 the metrics that regression baselines are made of.
 """
 
@@ -310,7 +313,12 @@ class RobotSim:
         scenario: The parsed :class:`~shinro_ctrl.config.Scenario`.
         plant: The plant (engine attached when the loop is MuJoCo).
         engine: The :class:`~shinro_ctrl.engine.MujocoEngine`, or None (standalone).
-        controller: The controller built by ``from_plant``.
+        controller: The controller built by ``from_plant``
+            (a :class:`~shinro_ctrl.controllers.base.Controller`).
+        estimator: The :class:`~shinro_ctrl.estimators.base.Estimator` whose
+            estimate the controller is fed (default
+            :class:`~shinro_ctrl.estimators.full_state.FullState`); assign
+            another one before :meth:`run` to close the loop through it.
         reference: The :class:`Reference`.
     """
 
@@ -337,6 +345,7 @@ class RobotSim:
             raise type(exc)(f"{src}: [controller] {exc}") from exc
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{src}: [controller] {exc}") from exc
+        self.estimator = self._default_estimator()
         self.operating_point = self._operating_point()
         sim = scenario.sim
         self.initial_state = (
@@ -393,11 +402,23 @@ class RobotSim:
         """``"mujoco"`` or ``"standalone"``."""
         return "mujoco" if self.engine is not None else "standalone"
 
+    def _default_estimator(self) -> Any:
+        from shinro_ctrl.estimators import FullState
+
+        return FullState(self.plant.state_dim)
+
     def _operating_point(self) -> np.ndarray:
-        x0 = getattr(self.controller, "x0", None)
+        x0 = self.controller.x0
         if x0 is not None and np.shape(x0) == (self.plant.state_dim,):
             return np.asarray(x0, dtype=float)
         return self.plant.equilibrium()[0]
+
+    def _operating_input(self) -> np.ndarray:
+        """The input the estimator assumes before the first step: the controller's ``u0``, else the plant's."""
+        u0 = self.controller.u0
+        if u0 is not None and np.shape(u0) == (self.plant.input_dim,):
+            return np.asarray(u0, dtype=float).copy()
+        return np.asarray(self.plant.equilibrium()[1], dtype=float).copy()
 
     def _default_tracked(self) -> list[str]:
         p = self.plant
@@ -439,16 +460,21 @@ class RobotSim:
         rng = np.random.default_rng(sim.seed)
         noise = np.asarray(sim.measurement_noise, dtype=float) if sim.measurement_noise else None
 
-        if hasattr(ctrl, "reset"):
-            ctrl.reset()
+        ctrl.reset()
         if sim.initial_state is not None or self.engine is None:
             plant.set_state(self.initial_state)
         x = plant.get_state()
         X[0] = x
+        est = self.estimator
+        est.reset(x)
+        estimate = est.update
+        # y = C x (+ noise): the rows of the identity at the estimator's measured indices
+        measured = None if tuple(est.measured) == tuple(range(n)) else np.asarray(est.measured, dtype=np.intp)
+        u_prev = self._operating_input()
         bar = Progress(steps, f"{self.scenario.name} ({self.loop})", progress, unit="steps")
         clock = time.perf_counter
         # Controllers that look ahead (LQR feed-forward, MPC) get the next `preview` samples too.
-        preview = int(getattr(ctrl, "preview", 0)) if ref.kind != "constant" else 0
+        preview = int(ctrl.preview) if ref.kind != "constant" else 0
         k = 0
         try:
             for k in range(steps):
@@ -457,10 +483,14 @@ class RobotSim:
                 if preview:
                     r = np.array([r, *(ref(t[k] + i * dt) for i in range(1, preview + 1))])
                 y = x + noise * rng.standard_normal(n) if noise is not None else x
+                if measured is not None:
+                    y = y[measured]
+                x_hat = estimate(y, u_prev)  # the controller sees the estimate, never the plant's state
                 t0 = clock()
-                u = ctrl(y, r)
+                u = ctrl(x_hat, r)
                 solve[k] = clock() - t0
                 U[k] = u
+                u_prev = u
                 plant.step(u)
                 x = plant.get_state()
                 X[k + 1] = x
@@ -474,8 +504,13 @@ class RobotSim:
             bar.close()
         R[steps] = ref(t[steps])
         bounds = {
-            name: _bound(getattr(ctrl, name, None), size)
-            for name, size in (("u_min", m), ("u_max", m), ("x_min", n), ("x_max", n))
+            name: _bound(value, size)
+            for name, value, size in (
+                ("u_min", ctrl.u_min, m),
+                ("u_max", ctrl.u_max, m),
+                ("x_min", ctrl.x_min, n),
+                ("x_max", ctrl.x_max, n),
+            )
         }
         metrics = compute_metrics(
             t,

@@ -206,11 +206,11 @@ def perturbed_sim(nominal: Any, overrides: Mapping[str, float]) -> Any:
     Raises:
         ConfigError: an invalid value (e.g. a negative mass), naming the key.
     """
-    from shinro_ctrl.controllers import Controller, controller_class
+    from shinro_ctrl.controllers import controller_class
 
     scenario: Scenario = nominal.scenario
     sim = nominal.with_plant(dict(overrides))
-    if getattr(type(nominal.controller), "reset", Controller.reset) is not Controller.reset:
+    if nominal.controller.stateful:  # memory between calls: a fresh controller per sample
         ccls = controller_class(scenario.controller.type)
         sim.controller = ccls.from_plant(nominal.plant, **scenario.controller.options)
     return sim
