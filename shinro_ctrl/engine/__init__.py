@@ -424,6 +424,23 @@ class MujocoEngine:
             raise NonFiniteError(f"control of actuator '{actuator_name}' must be finite, got {v}")
         self._ctrl[i] = v
 
+    def set_body_force(self, name: str, force: Any) -> None:
+        """Apply a world-frame force ``(3,)`` [N] at a body's centre of mass (``xfrc_applied``) until changed.
+
+        Raises:
+            UnknownName: no such body (the valid names are listed).
+            NonFiniteError: NaN or inf in ``force``.
+        """
+        b = self._id(self._body, "body", name)
+        f = np.asarray(force, dtype=float).reshape(3)
+        if not np.all(np.isfinite(f)):
+            raise NonFiniteError(f"force on body '{name}' must be finite, got {f}")
+        self.data.xfrc_applied[b, :3] = f
+
+    def clear_body_forces(self) -> None:
+        """Remove every applied body force and torque (``xfrc_applied = 0``)."""
+        self.data.xfrc_applied[:] = 0.0
+
     def set_ctrl(self, u: Any) -> None:
         """Set every actuator's control at once, ``u`` of shape ``(nu,)`` in actuator order.
 

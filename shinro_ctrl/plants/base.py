@@ -303,6 +303,21 @@ class Plant:
         """Declared limits ``(lo (n,), hi (n,))`` of the state (±inf where none), e.g. ``state_bounds``."""
         return np.full(self.state_dim, -np.inf), np.full(self.state_dim, np.inf)
 
+    def body_force_map(self, body: str) -> np.ndarray:
+        """``G (n, 3)``: how a world-frame force ``F`` [N] at ``body``'s centre of mass changes ``ẋ`` (``ẋ += G F``).
+
+        Used for ``[sim] disturbance`` body forces in the standalone loop
+        (MuJoCo applies the force itself). Plants that accept such forces
+        override this; the base accepts none.
+
+        Raises:
+            InvalidArgument: the plant takes no force on ``body``.
+        """
+        raise InvalidArgument(
+            f"{type(self).__name__} takes no body-force disturbance on '{body}'; disturb an input "
+            f"({', '.join(self.input_names)}) instead"
+        )
+
     def output_matrix(self, measured: Any = None) -> np.ndarray:
         """The measurement matrix ``C (p, n)`` of the measured states: ``y = C x``.
 

@@ -221,6 +221,14 @@ class Quadrotor(Plant):
         new[:6] += dt * self._f(_SCALAR, new, u, self._params)[:6]
         return new
 
+    def body_force_map(self, body: str) -> np.ndarray:
+        """``G (12, 3)``: a world force on the body ``"quadrotor"`` accelerates the world velocity by ``F / m``."""
+        if body != "quadrotor":
+            raise InvalidArgument(f"Quadrotor: a body force acts on body 'quadrotor', got '{body}'")
+        G = np.zeros((self.state_dim, 3))
+        G[6:9] = np.eye(3) / self.m
+        return G
+
     def hover_input(self) -> np.ndarray:
         """The input that holds any hover pose: ``[m g, 0, 0, 0]`` ``(4,)``."""
         return np.array([self.m * self.g, 0.0, 0.0, 0.0])
