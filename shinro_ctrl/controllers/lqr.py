@@ -12,7 +12,7 @@ from shinro_ctrl.controllers.lqi import integral_action
 from shinro_ctrl.errors import InvalidArgument, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
 
-__all__ = ["LQR", "check_stabilizable", "riccati"]
+__all__ = ["LQR", "check_closed_loop", "check_detectable", "check_stabilizable", "riccati"]
 
 
 def riccati(
@@ -94,6 +94,57 @@ def check_stabilizable(A: np.ndarray, B: np.ndarray, *, discrete: bool, names: A
             )
 
 
+def check_detectable(A: np.ndarray, Q: np.ndarray, *, discrete: bool, names: Any = None) -> None:
+    """Raise :class:`NotStabilizable` if an unstable or marginal mode of ``A`` is invisible to ``Q``.
+
+    PBH test on ``(A, Q^½)``: detectable iff ``rank [A − λI; Q^½] = n`` for
+    every eigenvalue with ``|λ| ≥ 1`` (discrete) or ``Re λ ≥ 0`` (continuous).
+    A mode ``Q`` does not weight costs nothing, so the Riccati solution leaves
+    it where it is (on the unit circle for an integrator): the loop would
+    never settle.
+
+    Args:
+        A: ``(n, n)``.
+        Q: Symmetric PSD ``(n, n)``.
+        discrete: Stability region of the unit circle (True) or left half-plane.
+        names: Optional state names, used to describe the offending mode.
+    """
+    n = A.shape[0]
+    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    C = (V * np.sqrt(np.clip(w, 0.0, None))) @ V.T  # Q^½
+    scale = max(1.0, float(np.linalg.norm(np.vstack([A, C]), 2)))
+    eigvals, eigvecs = np.linalg.eig(A)
+    for k, lam in enumerate(eigvals):
+        unstable = abs(lam) >= 1.0 - 1e-12 if discrete else lam.real >= -1e-12
+        if not unstable:
+            continue
+        smin = np.linalg.svd(np.vstack([A - lam * np.eye(n), C.astype(complex)]), compute_uv=False)[-1]
+        if smin <= 1e-9 * scale:
+            raise NotStabilizable(
+                f"(A, Q^½) is not detectable: the mode λ = {lam:.6g}{_mode_where(eigvecs[:, k], names)} has "
+                f"{'|λ| ≥ 1' if discrete else 'Re λ ≥ 0'} and Q does not weight it, so the design would leave it "
+                f"unstable or on the stability boundary (PBH rank test, σ_min = {smin:.2e}); weight that state in Q"
+            )
+
+
+def check_closed_loop(poles: np.ndarray, A_cl: np.ndarray, *, discrete: bool, names: Any = None) -> None:
+    """Raise :class:`NotStabilizable` unless every closed-loop pole is strictly stable (margin 1e-9)."""
+    eigvals, eigvecs = np.linalg.eig(A_cl)
+    for k, lam in enumerate(eigvals):
+        bad = abs(lam) >= 1.0 - 1e-9 if discrete else lam.real >= -1e-9
+        if bad:
+            size = f"|p| = {abs(lam):.9g}" if discrete else f"Re p = {lam.real:.3g}"
+            raise NotStabilizable(
+                f"the closed loop is not strictly stable: pole p = {lam:.6g} ({size})"
+                f"{_mode_where(eigvecs[:, k], names)}; increase the weights of Q on that mode"
+            )
+
+
+def _mode_where(v: np.ndarray, names: Any) -> str:
+    i = int(np.argmax(np.abs(v)))
+    return f" (mostly state '{names[i]}')" if names is not None and i < len(names) else f" (mostly state {i})"
+
+
 class LQR(Controller):
     r"""Infinite-horizon LQR ``u = u0 − K (x − x_ref)``.
 
@@ -167,8 +218,10 @@ class LQR(Controller):
         self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
         check_stabilizable(A_d, B_d, discrete=self.discrete, names=design_names)
+        check_detectable(A_d, self.Q, discrete=self.discrete, names=design_names)
         K, S = riccati(A_d, B_d, self.Q, self.R, discrete=self.discrete)
         self.poles = np.linalg.eigvals(A_d - B_d @ K)
+        check_closed_loop(self.poles, A_d - B_d @ K, discrete=self.discrete, names=design_names)
         if self._lqi is not None:
             self.K_i = K[:, n:]  # integrator gain (m, q)
             self._lqi.set_gain(self.K_i)
