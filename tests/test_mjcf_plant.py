@@ -1,0 +1,286 @@
+"""MjcfPlant: exact dynamics built from a model file, against MuJoCo itself.
+
+References (all independent of the CasADi expression under test):
+
+* ``qacc`` of ``mujoco.mj_forward`` on the same model (contacts and limits
+  off): the dynamics, to 1e-9 relative;
+* complex-step Jacobians of the same algorithms evaluated on complex numbers
+  (``RigidBodyTree.xdot_numpy``, no CasADi involved): the exact Jacobians, to
+  1e-12 relative;
+* MuJoCo's ``mjd_transitionFD`` of one Euler step with explicit damping,
+  converted to continuous time: the exact Jacobians, to 1e-5 relative;
+* the hand-written :class:`DoublePendulum` under its documented state map.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from shinro_ctrl.cli import main
+from shinro_ctrl.crosscheck import crosscheck, mujoco_continuous_jacobians
+from shinro_ctrl.engine import MujocoEngine
+from shinro_ctrl.errors import InvalidArgument, UnknownName
+from shinro_ctrl.linearization import complex_step_jacobians
+from shinro_ctrl.plants import DoublePendulum, MjcfPlant, plant_class, plant_from_name
+from shinro_ctrl.resources import asset_path
+
+# Hinge and slide joints, full inertia tensors (rotated principal axes and fullinertia), off-axis centres of
+# mass, damping, armature, a spring with a reference, a body with two joints, a welded body between joints, a
+# branch, gravity off the z axis, non-unit (and negative) gears, motor / position / velocity / general actuators.
+TREE_XML = """
+<mujoco model="tree_test">
+  <compiler angle="radian"/>
+  <option timestep="0.002" gravity="0.3 -0.2 -9.81">
+    <flag contact="disable" eulerdamp="disable"/>
+  </option>
+  <worldbody>
+    <body name="base" pos="0.1 0.05 0.3" quat="0.9 0.1 0.3 -0.2">
+      <joint name="rail" type="slide" axis="1 0.2 0" damping="0.7" armature="0.05"/>
+      <inertial pos="0.02 -0.01 0.03" quat="0.8 0.2 -0.1 0.4" mass="1.3" diaginertia="0.011 0.017 0.021"/>
+      <body name="upper" pos="0.05 0.1 -0.02" quat="0.7 -0.3 0.2 0.1">
+        <joint name="shoulder" type="hinge" axis="0.3 1 0.1" pos="0.01 0.02 -0.03" damping="0.2" armature="0.01"
+               ref="0.2" stiffness="0.5" springref="0.1"/>
+        <joint name="twist" type="hinge" axis="0 0 1" pos="0.0 0.0 0.05" damping="0.05"/>
+        <inertial pos="0.03 0.04 -0.2" quat="0.9 -0.2 0.3 0.1" mass="0.8" diaginertia="0.006 0.009 0.004"/>
+        <body name="fixed_box" pos="0.02 0 -0.3" quat="0.5 0.5 0.5 0.5">
+          <inertial pos="0.01 0.0 0.02" mass="0.2" fullinertia="0.002 0.003 0.0025 0.0003 -0.0002 0.0001"/>
+          <body name="fore" pos="0 0.05 -0.1">
+            <joint name="elbow" type="hinge" axis="1 0 0.2" damping="0.1" armature="0.02"/>
+            <inertial pos="0.0 0.03 -0.15" quat="1 0.2 0 0.1" mass="0.5" diaginertia="0.003 0.004 0.0015"/>
+            <body name="slider" pos="0 0 -0.3">
+              <joint name="extend" type="slide" axis="0.1 0.3 -1" damping="1.5" armature="0.1"/>
+              <inertial pos="0.01 0.02 -0.05" mass="0.25" diaginertia="0.0005 0.0007 0.0004"/>
+            </body>
+          </body>
+        </body>
+      </body>
+      <body name="side" pos="-0.1 0 0.1">
+        <joint name="side_hinge" type="hinge" axis="0 1 1" pos="0 0.02 0" damping="0.3"/>
+        <inertial pos="-0.05 0.02 0.1" quat="0.6 0.1 0.7 0.2" mass="0.4" diaginertia="0.002 0.0025 0.001"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="rail_motor" joint="rail" gear="2.5"/>
+    <motor name="shoulder_motor" joint="shoulder" gear="7"/>
+    <position name="elbow_servo" joint="elbow" kp="20" kv="1.5" gear="1.3"/>
+    <velocity name="extend_vel" joint="extend" kv="4" gear="0.8"/>
+    <general name="twist_general" joint="twist" gear="3" gainprm="2 0.1 0.2" gaintype="affine"
+             biastype="affine" biasprm="0.3 -0.4 -0.5"/>
+    <motor name="side_motor" joint="side_hinge" gear="-1.7"/>
+  </actuator>
+</mujoco>
+"""
+
+SHIPPED = ("furuta_pendulum.xml", "panda_like_arm.xml", "double_pendulum.xml")
+
+
+@pytest.fixture(scope="module")
+def tree_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("mjcf") / "tree_test.xml"
+    path.write_text(TREE_XML)
+    return path
+
+
+@pytest.fixture(scope="module", params=("tree", *SHIPPED))
+def model(request, tree_path):
+    """(plant, MjModel) for the test tree and every shipped MjcfPlant model."""
+    path = tree_path if request.param == "tree" else asset_path(request.param)
+    m = mujoco.MjModel.from_xml_path(str(path))
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    return MjcfPlant(path), m
+
+
+def _random(plant, rng):
+    nq = plant.state_dim // 2
+    return np.r_[rng.uniform(-2, 2, nq), rng.uniform(-3, 3, nq)], rng.uniform(-1, 1, plant.input_dim)
+
+
+# ------------------------------------------------------------------- dynamics
+def test_dynamics_equal_mujoco_qacc(model):
+    plant, m = model
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(20)
+    nq = m.nq
+    worst = 0.0
+    for _ in range(100):
+        x, u = _random(plant, rng)
+        d.qpos[:], d.qvel[:], d.ctrl[:] = x[:nq], x[nq:], u
+        mujoco.mj_forward(m, d)
+        xdot = plant.dynamics(x, u)
+        np.testing.assert_array_equal(xdot[:nq], x[nq:])
+        worst = max(worst, np.abs(xdot[nq:] - d.qacc).max() / max(1.0, np.abs(d.qacc).max()))
+    assert worst < 1e-9
+
+
+def test_batch_dynamics_equal_single(model):
+    plant, _ = model
+    rng = np.random.default_rng(3)
+    X, U = zip(*(_random(plant, rng) for _ in range(5)), strict=True)
+    batch = plant.dynamics(np.array(X), np.array(U))
+    assert batch.shape == (5, plant.state_dim)
+    for k in range(5):
+        np.testing.assert_allclose(batch[k], plant.dynamics(X[k], U[k]), rtol=0, atol=0)
+
+
+# ------------------------------------------------------------------ Jacobians
+def test_exact_jacobians_equal_complex_step(model):
+    plant, _ = model
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        x, u = _random(plant, rng)
+        A, B = plant.linearize(x, u)
+        Ac, Bc = complex_step_jacobians(plant, x, u)  # RigidBodyTree on complex numbers: no CasADi
+        J, Jc = np.hstack([A, B]), np.hstack([Ac, Bc])
+        assert np.abs(J - Jc).max() <= 1e-12 * max(1.0, np.abs(Jc).max())
+
+
+def test_exact_jacobians_equal_mujoco_transition_fd(model):
+    plant, _ = model
+    engine = MujocoEngine.for_plant(plant)  # the same file: Euler with explicit damping, timestep = dt
+    engine.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)  # limits are not smooth dynamics
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        x, u = _random(plant, rng)
+        x[plant.state_dim // 2 :] *= 0.3
+        A, B = plant.linearize(x, u)
+        Am, Bm = mujoco_continuous_jacobians(engine, x, u, eps=1e-6)
+        J, Jm = np.hstack([A, B]), np.hstack([Am, Bm])
+        assert np.abs(J - Jm).max() <= 1e-5 * np.abs(J).max()
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_crosscheck_every_shipped_model(name):
+    result = crosscheck(MjcfPlant(name))
+    assert result.mujoco_max_rel_error < 1e-5
+    assert result.fd_max_rel_error < 1e-5
+    assert result.model == str(asset_path(name))
+
+
+# ------------------------------------------------------------ double pendulum
+def test_double_pendulum_file_matches_hand_written_plant():
+    mj, dp = MjcfPlant("double_pendulum.xml"), DoublePendulum()
+    assert mj.dt == dp.dt and mj.input_names == ("torque_1", "torque_2")  # same motors, named by the model
+    T, _ = dp.engine_state_map()
+    Ti = np.linalg.inv(T)
+    rng = np.random.default_rng(5)
+    # The asset gives each point mass a 1e-8 kg m² inertia (MuJoCo needs one); against m l² = 0.025 kg m² it
+    # moves the results by ~1e-6 relative, which bounds the agreement below.
+    for z, u in [(np.zeros(4), np.zeros(2)), (np.array([np.pi, 0, 0, 0]), np.zeros(2))] + [
+        (rng.uniform(-2, 2, 4), rng.uniform(-1, 1, 2)) for _ in range(5)
+    ]:
+        x = T @ z
+        np.testing.assert_allclose(T @ mj.dynamics(z, u), dp.dynamics(x, u), rtol=1e-5, atol=1e-5)
+        A, B = mj.linearize(z, u)
+        Ad, Bd = dp.linearize(x, u)
+        assert np.abs(T @ A @ Ti - Ad).max() <= 1e-5 * np.abs(Ad).max()
+        assert np.abs(T @ B - Bd).max() <= 1e-5 * np.abs(Bd).max()
+
+
+# -------------------------------------------------------------- plant contract
+def test_names_operating_point_and_gravity_compensation():
+    arm = MjcfPlant("panda_like_arm.xml")
+    assert arm.state_names[:2] == ("joint1", "joint2") and arm.state_names[7] == "joint1_dot"
+    assert arm.input_names == tuple(f"motor{i}" for i in range(1, 8))
+    x0, u0 = arm.equilibrium()
+    np.testing.assert_allclose(x0[:7], [0, -0.785, 0, -2.356, 0, 1.571, 0.785])  # the "home" keyframe
+    assert np.abs(u0).max() > 0.05  # gravity is not negligible...
+    np.testing.assert_allclose(arm.dynamics(x0, u0), 0.0, atol=1e-10)  # ...and u0 holds the pose
+    # the same torque from MuJoCo's own inverse dynamics: qfrc_bias + damping (zero at rest) = gear * u0
+    m = mujoco.MjModel.from_xml_path(str(asset_path("panda_like_arm.xml")))
+    d = mujoco.MjData(m)
+    d.qpos[:] = x0[:7]
+    mujoco.mj_forward(m, d)
+    np.testing.assert_allclose(m.actuator_gear[:, 0] * u0, d.qfrc_bias, rtol=1e-10, atol=1e-12)
+    with pytest.raises(InvalidArgument, match="cannot hold"):
+        MjcfPlant("furuta_pendulum.xml").equilibrium_input([0, 0.3, 0, 0])  # the pendulum is unactuated
+
+
+def test_actuator_subset_and_options(tree_path):
+    full = MjcfPlant(tree_path)
+    sub = MjcfPlant(tree_path, actuators=["side_motor", "rail_motor"], dt=0.01, u0=[0.0, 0.0])
+    assert sub.input_names == ("side_motor", "rail_motor") and sub.dt == 0.01
+    x = np.linspace(-0.5, 0.5, 12)
+    _, B = full.linearize(x, np.zeros(6))
+    _, Bs = sub.linearize(x, np.zeros(2))
+    np.testing.assert_allclose(Bs, B[:, [5, 0]], rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(sub.dynamics(x, [0.2, -0.3]), full.dynamics(x, [-0.3, 0, 0, 0, 0, 0.2]), rtol=1e-13)
+    assert sub.params() == {} and sub.symbolic(params=True).size1_in(2) == 0
+
+
+def test_standalone_step_equals_mujoco_step(tree_path):
+    plant = MjcfPlant(tree_path)
+    twin = MjcfPlant(tree_path)
+    engine = MujocoEngine.for_plant(twin)
+    twin.physics_engine(engine)
+    x = np.r_[np.linspace(-0.3, 0.3, 6), np.linspace(0.5, -0.5, 6)]
+    plant.set_state(x)
+    twin.set_state(x)
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        u = rng.uniform(-1, 1, 6)
+        np.testing.assert_allclose(plant.step(u), twin.step(u), rtol=1e-9, atol=1e-12)
+
+
+def test_scenario_runs_in_both_loops():
+    from shinro_ctrl.sim import RobotSim
+
+    doc = {
+        "plant": {"type": "MjcfPlant", "model": "furuta_pendulum.xml", "dt": 0.005},
+        "engine": {"type": "mujoco"},
+        "controller": {"type": "LQR", "Q": [5, 50, 0.5, 1], "R": [200]},
+        "sim": {"duration": 1.0, "initial_state": [0.0, 0.1, 0.0, 0.0]},
+    }
+    runs = [RobotSim.from_config(doc, engine=e).run() for e in ("standalone", "mujoco")]
+    for r in runs:
+        assert abs(r.x[-1, 1]) < 0.02 and abs(r.x[:, 1]).max() <= 0.1 + 1e-12
+    np.testing.assert_allclose(runs[0].x, runs[1].x, atol=1e-8)
+
+
+# ---------------------------------------------------------------------- errors
+BALL = """<mujoco><worldbody><body><joint name="wrist" type="ball"/><geom size="0.1"/></body></worldbody>
+<actuator><motor joint="wrist" gear="1 0 0"/></actuator></mujoco>"""
+NO_ACT = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody></mujoco>"""
+FILTER = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody>
+<actuator><general name="lagged" joint="j" dyntype="filter" dynprm="0.1"/></actuator></mujoco>"""
+SITE = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/><site name="s"/></body>
+</worldbody><actuator><motor name="thruster" site="s" gear="0 0 1 0 0 0"/></actuator></mujoco>"""
+
+
+@pytest.mark.parametrize(
+    ("xml", "match"),
+    [
+        (BALL, "ball joint 'wrist' is not supported yet"),
+        (NO_ACT, "has no actuators"),
+        (FILTER, "actuator 'lagged' has activation dynamics"),
+        (SITE, "actuator 'thruster' uses transmission"),
+    ],
+)
+def test_unsupported_models_raise_one_clear_error(tmp_path, xml, match):
+    path = tmp_path / "bad.xml"
+    path.write_text(xml)
+    with pytest.raises(InvalidArgument, match=match):
+        MjcfPlant(path)
+
+
+def test_other_errors(tree_path):
+    with pytest.raises(InvalidArgument, match="free joint 'root' is not supported yet"):
+        MjcfPlant("quadrotor.xml")
+    with pytest.raises(FileNotFoundError, match=r"model file not found: 'no_such_robot\.xml'"):
+        MjcfPlant("no_such_robot.xml")
+    with pytest.raises(UnknownName, match="did you mean 'rail_motor'"):
+        MjcfPlant(tree_path, actuators=["rail_motr"])
+    with pytest.raises(InvalidArgument, match="x0"):
+        MjcfPlant(tree_path, x0=[0, 0])
+
+
+def test_model_files_where_plant_names_are_accepted(tree_path, capsys):
+    assert plant_class(str(tree_path)) is MjcfPlant
+    assert isinstance(plant_from_name(str(tree_path)), MjcfPlant)
+    assert main(["linearize", str(tree_path), "--x0", "0,0.2,0,0,0,0,0.1,0,0,0,0,0"]) == 0
+    assert "max relative" in capsys.readouterr().out
+    assert main(["crosscheck", str(asset_path("furuta_pendulum.xml"))]) == 0
+    assert "MuJoCo" in capsys.readouterr().out
+    assert main(["linearize", "no_such_robot.urdf"]) == 2
