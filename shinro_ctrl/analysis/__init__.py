@@ -10,12 +10,12 @@ python-control is imported only inside the functions that need it, so importing
 this package stays cheap (the scenario layer uses :mod:`.weights`).
 """
 
+from shinro_ctrl.analysis.design import DesignAnalysis, analyze_controller, feedback_gain
 from shinro_ctrl.analysis.margins import ChannelMargins, LoopMargins, loop_margins
 from shinro_ctrl.analysis.poles import PoleRow, PoleTable, pole_table
 from shinro_ctrl.analysis.response import StepMetrics, closed_loop_response, step_metrics
 from shinro_ctrl.analysis.structure import Mode, StructureReport, structure_report
 from shinro_ctrl.analysis.weights import bryson
-from shinro_ctrl.analysis.design import DesignAnalysis, analyze_controller, feedback_gain
 
 __all__ = [
     "ChannelMargins",

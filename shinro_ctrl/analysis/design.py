@@ -93,6 +93,8 @@ class DesignAnalysis:
         t: Times ``(T + 1,)`` of the linear initial-condition response [s].
         x_lin: Linear closed-loop states ``(T + 1, n)`` in absolute units from ``x_init``.
         responses: Label → :class:`StepMetrics` (``"initial: theta"``, ``"step: x"``, …).
+        measured: States used as outputs for the observability test.
+        x0, u0: Operating point ``(n,)``, ``(m,)``.
     """
 
     A: np.ndarray
@@ -108,6 +110,8 @@ class DesignAnalysis:
     x_lin: np.ndarray
     responses: dict[str, StepMetrics] = field(default_factory=dict)
     measured: tuple[str, ...] = ()
+    x0: np.ndarray | None = None
+    u0: np.ndarray | None = None
 
     @property
     def zeta_min(self) -> float:
@@ -115,7 +119,10 @@ class DesignAnalysis:
 
     def format(self) -> str:
         """Text of all tables (what ``shinro-ctrl design`` prints)."""
-        out = ["closed-loop poles:", self.poles.format()]
+        out = [
+            "closed-loop pole table (continuous equivalents s = ln(z)/dt):" if self.dt else "closed-loop pole table:",
+            self.poles.format(),
+        ]
         obs = f" (observability from the measured states {', '.join(self.measured)})" if self.measured else ""
         out += [f"structure{obs}:", self.structure.format()]
         out += ["loop margins (loop broken at the plant input):", self.margins.format()]
@@ -216,4 +223,5 @@ def analyze_controller(
             responses[f"step: {name}"] = step_metrics(t, X[:, j], initial=0.0, final=float(x_ss[j]), target=1.0)
         except InvalidArgument:  # the state does not move at all: nothing to measure
             continue
-    return DesignAnalysis(A, B, K, dt, snames, inames, poles, structure, margins, t, x_lin, responses, meas)
+    u0 = np.asarray(getattr(controller, "u0", np.zeros(m)), dtype=float)
+    return DesignAnalysis(A, B, K, dt, snames, inames, poles, structure, margins, t, x_lin, responses, meas, x0, u0)

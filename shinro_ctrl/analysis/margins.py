@@ -324,7 +324,6 @@ def loop_margins(
         InvalidArgument: wrong shapes, or a closed loop ``A − B K`` that is not
             stable (margins of an unstable loop are meaningless).
     """
-    import control
 
     A, B, dt, names = _model_parts(model, dt)
     n, m = B.shape
