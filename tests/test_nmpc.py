@@ -1,0 +1,197 @@
+"""NonlinearMPC: RTI vs LinearMPC, SQP vs IPOPT, exact stage Jacobians, swing-ups in both loops, failures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shinro_ctrl.backend import NumpyBackend
+from shinro_ctrl.controllers.mpc import LinearMPC
+from shinro_ctrl.controllers.nmpc import NonlinearMPC
+from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError
+from shinro_ctrl.plants import CartPole, Quadrotor
+from shinro_ctrl.sim import RobotSim
+
+Q_CP = [1e3, 1e-2, 1e3, 1e-2]
+R_CP = [1e-2]
+X_BOUND = ([-2.0, -np.inf, -np.inf, -np.inf], [2.0, np.inf, np.inf, np.inf])
+
+
+def cartpole() -> CartPole:
+    return CartPole(cart_mass=1.0, pole_mass=0.1, pole_length=0.8, dt=0.05)
+
+
+def complex_step_rk4_jacobians(plant, x, u, h):
+    """``∂F/∂x``, ``∂F/∂u`` of one RK4 step of ``plant._f`` (numpy, complex arithmetic), by complex step."""
+    bk = NumpyBackend()
+    p = plant._params
+
+    def f(x_, u_):
+        return np.asarray(plant._f(bk, x_, u_, p))
+
+    def F(x_, u_):
+        k1 = f(x_, u_)
+        k2 = f(x_ + 0.5 * h * k1, u_)
+        k3 = f(x_ + 0.5 * h * k2, u_)
+        k4 = f(x_ + h * k3, u_)
+        return x_ + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+    eps = 1e-30
+    n, m = x.size, u.size
+    A = np.empty((n, n))
+    B = np.empty((n, m))
+    for j in range(n):
+        dx = np.zeros(n, dtype=complex)
+        dx[j] = 1j * eps
+        A[:, j] = F(x + dx, u.astype(complex)).imag / eps
+    for j in range(m):
+        du = np.zeros(m, dtype=complex)
+        du[j] = 1j * eps
+        B[:, j] = F(x.astype(complex), u + du).imag / eps
+    return F(x, u).real, A, B
+
+
+@pytest.mark.parametrize("make", [cartpole, lambda: Quadrotor(dt=0.02)], ids=["cartpole", "quadrotor"])
+def test_stage_jacobians_equal_complex_step(make):
+    plant = make()
+    n, m = plant.state_dim, plant.input_dim
+    N = 6
+    ctrl = NonlinearMPC.from_plant(plant, np.ones(n), np.ones(m), horizon=N, cold_start="sqp", init_iterations=1)
+    rng = np.random.default_rng(3)
+    x = plant.equilibrium()[0] + 0.3 * rng.standard_normal(n)
+    ctrl(x)  # the call ends with the preparation for the next one: Jacobians at the shifted trajectory
+    X, U = ctrl._X.copy(), ctrl._U.copy()
+    assert np.ptp(X, axis=0).max() > 1e-3  # a genuine trajectory, not one point
+    for k in range(N):
+        Fk, A, B = complex_step_rk4_jacobians(plant, X[k], U[k], ctrl.dt)
+        np.testing.assert_allclose(ctrl._At[k].T, A, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(ctrl._Bt[k].T, B, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(ctrl._D[k], Fk - X[k + 1], rtol=1e-10, atol=1e-12)
+
+
+def test_rti_near_upright_equals_linear_mpc_rk4():
+    """Inactive bounds, near upright: RTI (converged over calls at one state) = LinearMPC on the RK4 model.
+
+    At the upright equilibrium the Jacobians of the nonlinear RK4 step equal the RK4 discretization of
+    the linearization (the drift vanishes there), and ``Qf="lqr"`` is the same DARE terminal cost; the
+    cart-pole's nonlinearity at upright is cubic, so at 1e-3 rad the two optima differ by ~1e-9.
+    """
+    plant = cartpole()
+    kw = dict(horizon=40, u_min=-40.0, u_max=40.0)
+    nmpc = NonlinearMPC.from_plant(plant, Q_CP, R_CP, Qf="lqr", **kw)
+    lmpc = LinearMPC.from_plant(
+        plant, Q_CP, R_CP, discretization="rk4", terminal_cost="dare",
+        osqp_settings={"eps_abs": 1e-12, "eps_rel": 1e-12, "polishing": True, "max_iter": 100000},
+        **kw,
+    )  # fmt: skip
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        x = 1e-3 * rng.standard_normal(4)
+        nmpc.reset()
+        for _ in range(4):
+            u_n = nmpc(x)
+        u_l = lmpc(x)
+        assert nmpc.last.qp_status == "solved"
+        assert abs(u_l[0]) < 40.0  # the bound is inactive
+        np.testing.assert_allclose(u_n, u_l, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(nmpc.last.inputs, lmpc.last.inputs, rtol=0, atol=1e-6)
+
+
+def test_sqp_converges_to_the_ipopt_solution():
+    plant = cartpole()
+    kw = dict(horizon=40, u_min=-40.0, u_max=40.0, x_min=X_BOUND[0], x_max=X_BOUND[1])
+    ipopt = NonlinearMPC.from_plant(plant, Q_CP, R_CP, solver="ipopt", tol=1e-10, **kw)
+    sqp = NonlinearMPC.from_plant(
+        plant, Q_CP, R_CP, iterations=200, cold_start="sqp", init_iterations=200, tol=1e-9, **kw
+    )
+    rng = np.random.default_rng(11)
+    checked = 0
+    for _ in range(4):
+        x = rng.uniform(-1, 1, 4) * [0.1, 0.1, 0.05, 0.1]
+        ipopt.reset()
+        sqp.reset()
+        u_i = ipopt(x)
+        u_s = sqp(x)
+        assert sqp.last.status == "solved" and sqp.last.kkt_residual < 1e-9
+        np.testing.assert_allclose(u_s, u_i, rtol=1e-5, atol=1e-9)
+        np.testing.assert_allclose(sqp.last.objective, ipopt.last.objective, rtol=1e-7)
+        checked += abs(u_i[0]) < 40.0
+    assert checked >= 2  # some first inputs are interior, not both at the same bound
+
+
+def _run(name: str, engine: str):
+    sim = RobotSim.from_config(name, engine=engine)
+    return sim, sim.run()
+
+
+@pytest.mark.parametrize("engine", ["standalone", "mujoco"])
+def test_cartpole_swingup_both_loops(engine):
+    sim, res = _run("cartpole_nmpc_swingup_mujoco", engine)
+    X, U, t = res.x, res.u, res.t
+    assert np.pi - 0.01 < X[0, 2] < np.pi + 0.01  # from hanging
+    late = t >= 6.0
+    assert np.all(np.abs(X[late, 2]) < 0.02) and np.all(np.abs(X[late, 0]) < 0.05)
+    assert np.all(np.abs(U) <= 40.0)  # hard input bounds at every step
+    assert np.max(np.abs(U)) == 40.0  # and they bind during the swing
+    assert sim.controller.last.qp_status == "solved"
+
+
+@pytest.mark.parametrize("engine", ["standalone", "mujoco"])
+def test_quadrotor_recovery_both_loops(engine):
+    sim, res = _run("quadrotor_nmpc_recovery_mujoco", engine)
+    X, U, t = res.x, res.u, res.t
+    assert abs(X[0, 3] - np.pi / 3) < 1e-9 and abs(X[0, 0] - 1.0) < 1e-9
+    late = t >= 4.0
+    assert np.all(np.linalg.norm(X[late, :3], axis=1) < 0.05)
+    assert np.all(np.abs(X[late, 3:6]) < 0.05)
+    c = sim.controller
+    assert np.all(U >= c.u_min) and np.all(U <= c.u_max)
+    assert np.any(U[:, 0] == c.u_max[0]) and np.any(U[:, 0] == c.u_min[0])  # thrust bounds bind
+
+
+@pytest.mark.parametrize("engine", ["standalone", "mujoco"])
+def test_pendulum_pumping_swingup(engine):
+    sim, res = _run("pendulum_nmpc_mujoco", engine)
+    X, U, t = res.x, res.u, res.t
+    plant = sim.plant
+    assert np.max(np.abs(U)) <= 0.3 < plant.m * plant.g * plant.l  # too weak to lift the bob directly
+    assert np.max(X[:, 0]) > np.pi  # it swings back past hanging first (pumping)
+    assert np.all(np.abs(X[t >= 6.0, 0]) < 0.02)
+
+
+def test_infeasible_hard_state_bound_raises():
+    plant = cartpole()
+    ctrl = NonlinearMPC.from_plant(
+        plant, Q_CP, R_CP, horizon=20, u_min=-40.0, u_max=40.0,
+        x_min=[-0.1, -np.inf, -np.inf, -np.inf], x_max=[0.1, np.inf, np.inf, np.inf], cold_start="sqp",
+    )  # fmt: skip
+    # 3 m/s toward a wall 0.05 m away: at 40 N the cart needs > 0.1 m to stop
+    with pytest.raises(MPCInfeasible, match="infeasible"):
+        ctrl(np.array([0.05, 3.0, 0.0, 0.0]))
+    assert np.all(np.isnan(ctrl.last.u))
+    ipopt = NonlinearMPC.from_plant(
+        plant, Q_CP, R_CP, horizon=20, u_min=-40.0, u_max=40.0,
+        x_min=[-0.1, -np.inf, -np.inf, -np.inf], x_max=[0.1, np.inf, np.inf, np.inf], solver="ipopt",
+    )  # fmt: skip
+    with pytest.raises(MPCInfeasible, match="ipopt"):
+        ipopt(np.array([0.05, 3.0, 0.0, 0.0]))
+    with pytest.raises(NonFiniteError):
+        ctrl(np.array([0.0, np.nan, 0.0, 0.0]))
+
+
+def test_hold_and_argument_errors():
+    plant = cartpole()  # dt = 0.05
+    fine = CartPole(cart_mass=1.0, pole_mass=0.1, pole_length=0.8, dt=0.025)
+    ctrl = NonlinearMPC.from_plant(fine, Q_CP, R_CP, horizon=10, dt=0.05, u_min=-40.0, u_max=40.0)
+    assert ctrl.hold == 2 and ctrl.dt == 0.05
+    x = np.array([0.0, 0.0, 0.2, 0.0])
+    u0 = ctrl(x)
+    u1 = ctrl(x + 0.01)  # held
+    u2 = ctrl(x + 0.01)  # re-planned
+    assert np.array_equal(u0, u1) and not np.array_equal(u1, u2)
+    with pytest.raises(InvalidArgument, match="whole multiple"):
+        NonlinearMPC.from_plant(fine, Q_CP, R_CP, horizon=10, dt=0.06)
+    with pytest.raises(InvalidArgument, match="solver"):
+        NonlinearMPC.from_plant(plant, Q_CP, R_CP, horizon=10, solver="qpoases")
+    with pytest.raises(InvalidArgument, match="Qf"):
+        NonlinearMPC.from_plant(plant, Q_CP, R_CP, horizon=10, Qf="dare")
