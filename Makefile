@@ -2,36 +2,45 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
+# Two stamps: the runtime install (what `make demo` needs) and the development install (the `dev` extra:
+# pytest, hypothesis, ruff, mkdocs, dask ... for `make test` and the rest). A development install includes the
+# runtime one, so it refreshes both stamps; either is redone only when pyproject.toml changed since.
+STAMP_RUN := $(VENV)/.installed-runtime
+STAMP_DEV := $(VENV)/.installed-dev
 
 .PHONY: demo test docs lint format bench clean
 
-# (Re)install only when pyproject.toml changed since the last install.
-$(STAMP): pyproject.toml
+$(STAMP_RUN): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e .
+	touch $(STAMP_RUN)
+
+$(STAMP_DEV): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e ".[dev]"
-	touch $(STAMP)
+	touch $(STAMP_DEV) $(STAMP_RUN)
 
-demo: $(STAMP)
+demo: $(STAMP_RUN)
 	$(BIN)/shinro-ctrl run
 
-test: $(STAMP)
+test: $(STAMP_DEV)
 	$(BIN)/python -m pytest -n auto -q
 
 # API docs site (mkdocs-material + mkdocstrings) into site/; --strict fails on any warning.
-docs: $(STAMP)
+docs: $(STAMP_DEV)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
-lint: $(STAMP)
+lint: $(STAMP_DEV)
 	$(BIN)/ruff check shinro_ctrl tests examples benchmarks
 	$(BIN)/ruff format --check shinro_ctrl tests examples benchmarks
 
-format: $(STAMP)
+format: $(STAMP_DEV)
 	$(BIN)/ruff format shinro_ctrl tests examples benchmarks
 	$(BIN)/ruff check --fix shinro_ctrl tests examples benchmarks
 
-bench: $(STAMP)
+bench: $(STAMP_DEV)
 	@for f in benchmarks/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 
 clean:
