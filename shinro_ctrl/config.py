@@ -37,7 +37,7 @@ __all__ = [
     "parse_scenario",
 ]
 
-TABLES = ("plant", "engine", "controller", "sim", "regression")
+TABLES = ("plant", "engine", "controller", "plan", "sim", "regression")
 ENGINE_KEYS = ("type", "model", "substeps")
 SIM_KEYS = ("duration", "initial_state", "reference", "track", "settle_tol", "measurement_noise", "seed")
 REFERENCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -120,6 +120,8 @@ class Scenario:
         plant, engine, controller, sim: The parsed tables (``engine`` None when standalone).
         regression: Metric → ``{"rel": r, "abs": a}`` tolerances.
         raw: The document as loaded (for saving the resolved config).
+        plan: The validated ``[plan]`` table (also passed to the controller as its
+            ``plan`` option), or None.
     """
 
     name: str
@@ -130,6 +132,7 @@ class Scenario:
     sim: SimConfig
     regression: dict[str, dict[str, float]]
     raw: dict[str, Any]
+    plan: dict[str, Any] | None = None
 
 
 class _Ctx:
@@ -454,6 +457,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
         if key in ct:
             ctx.vector("controller", key, ct[key], n if key == "x0" else probe.input_dim)
     controller_cfg = ControllerConfig(ccls.__name__, {k: v for k, v in ct.items() if k != "type"})
+    plan_cfg = _parse_plan(ctx, doc, controller_cfg, probe)
 
     # [sim]
     st = dict(doc.get("sim", {}))
@@ -504,7 +508,44 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
         regression[metric] = {k: ctx.number("regression", f"{metric}.{k}", v, minimum=0.0) for k, v in tol.items()}
 
     name = path.stem if path is not None else "<dict>"
-    return Scenario(name, path, plant_cfg, engine_cfg, controller_cfg, sim, regression, copy.deepcopy(dict(doc)))
+    if sim.initial_state is None and plan_cfg is not None and "start" in plan_cfg:
+        sim.initial_state = list(plan_cfg["start"])  # a planned run starts where its plan starts
+    return Scenario(
+        name, path, plant_cfg, engine_cfg, controller_cfg, sim, regression, copy.deepcopy(dict(doc)), plan_cfg
+    )
+
+
+def _parse_plan(ctx: _Ctx, doc: Mapping[str, Any], controller: ControllerConfig, probe: Any) -> dict[str, Any] | None:
+    """``[plan]`` (or ``plan`` inside ``[controller]``): validated, and handed to the controller as ``plan``."""
+    from shinro_ctrl.controllers import controller_class, controller_keys
+    from shinro_ctrl.errors import InvalidArgument
+    from shinro_ctrl.planning.spec import check_plan
+
+    takes_plan = "plan" in controller_keys(controller_class(controller.type))
+    table = "plan" if "plan" in doc else "controller"
+    if "plan" in doc and "plan" in controller.options:
+        raise ctx.error("controller", "'plan' is given twice: keep the [plan] table and remove 'plan' here")
+    spec = doc.get("plan", controller.options.get("plan"))
+    if spec is None:
+        if takes_plan:
+            raise ctx.error("", f"missing table [plan]: a {controller.type} controller tracks a planned trajectory")
+        return None
+    if not takes_plan:
+        raise ctx.error("plan", f"a {controller.type} controller takes no plan; remove [plan] or use TVLQR")
+    try:
+        plan = check_plan(spec, probe.state_dim, probe.input_dim)
+    except InvalidArgument as exc:
+        raise ctx.error(table, str(exc)) from None
+    if "start" in plan:
+        lo, hi = probe.state_limits()
+        for i, v in enumerate(plan["start"]):
+            if not lo[i] <= v <= hi[i]:
+                raise ctx.error(
+                    table,
+                    f"'start' {probe.state_names[i]} = {v:g} is outside the plant's limits [{lo[i]:g}, {hi[i]:g}]",
+                )
+    controller.options["plan"] = plan
+    return plan
 
 
 def _parse_reference(ctx: _Ctx, ref: Any, n: int) -> dict[str, Any]:

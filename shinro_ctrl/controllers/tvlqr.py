@@ -53,7 +53,7 @@ __all__ = ["TVLQR", "riccati_backward", "trajectory_jacobians"]
 def trajectory_jacobians(plant: Any, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact continuous Jacobians at every sample of a trajectory, in one CasADi ``map`` call.
 
-    The Jacobian Function of ``plant.symbolic(params=True)`` (SX) is mapped
+    The Jacobian Function of ``plant.symbolic()`` (SX) is mapped
     over the ``K`` samples inside an MX Function (mapping on SX would unroll
     it), which is evaluated once.
 
@@ -68,12 +68,10 @@ def trajectory_jacobians(plant: Any, x: np.ndarray, u: np.ndarray) -> tuple[np.n
     n, m = plant.state_dim, plant.input_dim
     K = x.shape[0]
     xs, us = cs.SX.sym("x", n), cs.SX.sym("u", m)
-    ps = cs.SX.sym("p", len(plant.param_names))
-    xdot = plant.symbolic(params=True)(xs, us, ps)
-    jac = cs.Function("jac_xu", [xs, us, ps], [cs.densify(cs.jacobian(xdot, xs)), cs.densify(cs.jacobian(xdot, us))])
+    xdot = plant.symbolic()(xs, us)  # the plant's parameters as constants
+    jac = cs.Function("jac_xu", [xs, us], [cs.densify(cs.jacobian(xdot, xs)), cs.densify(cs.jacobian(xdot, us))])
     Xm, Um = cs.MX.sym("X", n, K), cs.MX.sym("U", m, K)
-    p = np.array([plant.params()[k] for k in plant.param_names])
-    A_all, B_all = jac.map(K)(Xm, Um, cs.DM(p))
+    A_all, B_all = jac.map(K)(Xm, Um)
     mapped = cs.Function("jac_traj", [Xm, Um], [A_all, B_all])
     A, B = mapped(np.ascontiguousarray(x.T), np.ascontiguousarray(u.T))
     A = np.asarray(A).reshape(n, K, n).transpose(1, 0, 2)

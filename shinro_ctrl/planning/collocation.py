@@ -51,6 +51,9 @@ __all__ = ["COSTS", "TrajectoryOptimizer"]
 COSTS = ("effort", "time")
 TIME_REGULARIZATION = 1e-3  # effort weight of the "time" preset: keeps a bang-bang optimum unique
 DEFAULT_DURATION = (0.1, 10.0)
+# IPOPT stops after which one retry with the adaptive barrier update often succeeds (crude initial guesses
+# of swing-ups stall the default monotone update into a local infeasibility now and then).
+RETRY_STATUSES = ("Infeasible_Problem_Detected", "Restoration_Failed", "Maximum_Iterations_Exceeded")
 
 
 class TrajectoryOptimizer:
@@ -66,6 +69,12 @@ class TrajectoryOptimizer:
         tol: IPOPT's convergence tolerance; the constraint tolerance is the same.
         max_iter: IPOPT's iteration limit.
         verbose: Let IPOPT print its log (default quiet, its output captured).
+        ipopt: Extra IPOPT options (e.g. ``{"mu_strategy": "adaptive"}``), applied last.
+
+    A solve that IPOPT stops as locally infeasible, in a failed restoration or
+    at the iteration limit is retried once from the same guess with IPOPT's
+    adaptive barrier update (the status then says so; the iterations of both
+    attempts are counted).
 
     Attributes:
         solver: The ``casadi.Function`` returned by ``nlpsol``.
@@ -86,6 +95,7 @@ class TrajectoryOptimizer:
         tol: float = 1e-8,
         max_iter: int = 1000,
         verbose: bool = False,
+        ipopt: Mapping[str, Any] | None = None,
     ):
         if method not in METHODS:
             raise InvalidArgument(f"method: unknown transcription {method!r}{did_you_mean(method, METHODS)}")
@@ -102,7 +112,7 @@ class TrajectoryOptimizer:
         self.x_min, self.x_max = bound_pair("x_min", "x_max", x_min, x_max, self.n)
         self.verbose = bool(verbose)
         t0 = time.perf_counter()
-        self._build(float(tol), int(max_iter))
+        self._build(float(tol), int(max_iter), dict(ipopt or {}))
         self.build_time = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ build
@@ -111,7 +121,7 @@ class TrajectoryOptimizer:
         """Number of input columns: one per knot, or one per interval when held."""
         return self.knots - 1 if self.method == "multiple_shooting" else self.knots
 
-    def _build(self, tol: float, max_iter: int) -> None:
+    def _build(self, tol: float, max_iter: int, extra: dict[str, Any]) -> None:
         n, m, N, nu = self.n, self.m, self.knots, self._nu
         f = self.plant.symbolic()
         T = cs.SX.sym("T")
@@ -156,9 +166,16 @@ class TrajectoryOptimizer:
                 "constr_viol_tol": tol,
                 "max_iter": max_iter,
                 "honor_original_bounds": "yes",
+                **extra,
             },
         }
-        self.solver = cs.nlpsol("planner", "ipopt", {"x": w, "f": J, "g": g, "p": weights}, opts)
+        self._nlp = {"x": w, "f": J, "g": g, "p": weights}
+        self._opts = opts
+        try:
+            self.solver = cs.nlpsol("planner", "ipopt", self._nlp, opts)
+        except RuntimeError as exc:  # an unknown or ill-typed IPOPT option
+            raise InvalidArgument(f"ipopt: {' '.join(str(exc).split())[-300:]}") from None
+        self._fallback: cs.Function | None = None
         self._defects = cs.Function("defects", [w], [D])
         self._nw = int(w.shape[0])
 
@@ -312,17 +329,25 @@ class TrajectoryOptimizer:
         w0 = self._guess(initial_guess, x_start, x_goal, lo, hi)
 
         t0 = time.perf_counter()
+        solver = self.solver
+        iters = 0
         with _captured(not self.verbose) as out:
-            try:
-                sol = self.solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=weights)
-            except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function)
-                sol, error = None, str(exc)
-            else:
-                error = None
+            for attempt in range(2):
+                try:
+                    sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=weights)
+                except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function)
+                    sol, error = None, str(exc)
+                else:
+                    error = None
+                stats = solver.stats()
+                status = str(stats.get("return_status", "unknown"))
+                iters += int(stats.get("iter_count", 0))
+                if attempt == 1 or status not in RETRY_STATUSES or "mu_strategy" in self._opts["ipopt"]:
+                    break
+                solver = self._adaptive_solver()
         elapsed = time.perf_counter() - t0
-        stats = self.solver.stats()
-        status = str(stats.get("return_status", "unknown"))
-        iters = int(stats.get("iter_count", -1))
+        if solver is not self.solver:
+            status += " (after a retry with mu_strategy 'adaptive')"
         if sol is None:
             raise PlanningFailed(f"IPOPT stopped with an evaluation error after {iters} iterations: {error}")
         wv = np.asarray(sol["x"], dtype=float).ravel()
@@ -351,6 +376,13 @@ class TrajectoryOptimizer:
             input_names=self.input_names,
             xdot_right=xdot_right,
         )
+
+    def _adaptive_solver(self) -> cs.Function:
+        """The same NLP with IPOPT's adaptive barrier update (built on first need)."""
+        if self._fallback is None:
+            opts = {**self._opts, "ipopt": {**self._opts["ipopt"], "mu_strategy": "adaptive"}}
+            self._fallback = cs.nlpsol("planner_adaptive", "ipopt", self._nlp, opts)
+        return self._fallback
 
     def _failure(self, status, iters, D, T, X, U, lbx, ubx, log) -> str:
         """The PlanningFailed message: IPOPT's status and the worst constraint at its last iterate."""
