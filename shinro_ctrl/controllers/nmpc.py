@@ -420,7 +420,8 @@ class NonlinearMPC(Controller):
         N, n = self.N, self.n
         np.subtract(self._X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
         np.subtract(self._U, self.u0, out=self._du.reshape(N, self.m))
-        self.qp.condense(self._At, self._Bt, self._D, self._e, self._du)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by feedback
+            self.qp.condense(self._At, self._Bt, self._D, self._e, self._du)
         self.qp.set_bounds(self._U, self._X[1:])
 
     def _shift(self) -> None:
@@ -655,8 +656,18 @@ class NonlinearMPC(Controller):
         message = (
             f"NonlinearMPC: the QP failed ({status}, DAQP exit flag {flag}) at x = {np.array2string(x, precision=4)}"
         )
-        if flag == -1:
+        if not (np.all(np.isfinite(self.qp.H)) and np.all(np.isfinite(self.qp.g))):
+            message += (
+                "; the predicted trajectory diverged (the QP data are not finite): the model no longer "
+                "describes the plant well enough, or the horizon is too long for it"
+            )
+        elif flag == -1:
             message += "; the linearized hard state bounds cannot be met (use soft=True or looser x_min/x_max)"
+        elif flag == -5:
+            message += (
+                "; the condensed Hessian is numerically indefinite (ill-conditioned: a strongly unstable "
+                "prediction over a long horizon)"
+            )
         self.last = NMPCSolution(
             status=status, iterations=0, kkt_residual=math.nan, qp_status=status, qp_iterations=0,
             time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=0.0, time_other_s=0.0,

@@ -209,8 +209,9 @@ class CondensedLTV:
             ``(z (nvar,), exitflag, iterations)``; ``z[:N m]`` is ``ΔU``. The
             dual solution is kept in ``lam``.
         """
-        np.matmul(self.Gx, dx0, out=self.g)
-        self.g += self.g0
+        with np.errstate(over="ignore", invalid="ignore"):
+            np.matmul(self.Gx, dx0, out=self.g)
+            self.g += self.g0
         nv, r = self.nvar, self.rows.size
         if r:
             off = self.xbar_rows + self.Phi_rows @ dx0
