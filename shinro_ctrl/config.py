@@ -452,6 +452,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     except ConfigError as exc:
         raise ctx.error("controller", str(exc)) from None
     ctx.check_keys("controller", ct, ("type", *controller_keys(ccls)))
+    _bryson_weights(ctx, ct, n, probe.input_dim)
     ctx.check_types("controller", ct, signature_annotations(ccls.from_plant, 1))
     for key in ("x0", "u0"):
         if key in ct:
@@ -546,6 +547,24 @@ def _parse_plan(ctx: _Ctx, doc: Mapping[str, Any], controller: ControllerConfig,
                 )
     controller.options["plan"] = plan
     return plan
+
+
+def _bryson_weights(ctx: _Ctx, ct: dict[str, Any], n: int, m: int) -> None:
+    """``Q = { bryson = [x_max...] }`` / ``R = { bryson = [u_max...] }`` become diagonals ``1/x_max²`` in place."""
+    from shinro_ctrl.analysis.weights import bryson_diagonal
+    from shinro_ctrl.errors import InvalidArgument
+
+    for key, size in (("Q", n), ("R", m)):
+        value = ct.get(key)
+        if not isinstance(value, Mapping):
+            continue
+        if set(value) != {"bryson"}:
+            raise ctx.error("controller", f"'{key}' as a table takes only 'bryson' (largest deviations), got {value!r}")
+        limits = ctx.vector("controller", f"{key}.bryson", value["bryson"], size, finite=False)
+        try:
+            ct[key] = bryson_diagonal(f"{key}.bryson", limits, allow_inf=key == "Q").tolist()
+        except InvalidArgument as exc:
+            raise ctx.error("controller", str(exc)) from None
 
 
 def _parse_reference(ctx: _Ctx, ref: Any, n: int) -> dict[str, Any]:
