@@ -37,9 +37,21 @@ __all__ = [
     "parse_scenario",
 ]
 
-TABLES = ("plant", "engine", "controller", "plan", "sim", "regression")
+TABLES = ("plant", "engine", "controller", "plan", "sim", "estimator", "regression")
 ENGINE_KEYS = ("type", "model", "substeps")
-SIM_KEYS = ("duration", "initial_state", "reference", "track", "settle_tol", "measurement_noise", "seed")
+SIM_KEYS = (
+    "duration",
+    "initial_state",
+    "reference",
+    "track",
+    "settle_tol",
+    "measurement_noise",
+    "seed",
+    "measured",
+    "sensor_noise",
+    "process_noise",
+    "disturbance",
+)
 REFERENCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # kind: (required keys, optional keys)
     "constant": ((), ("value",)),
@@ -57,7 +69,12 @@ METRICS = (
     "constraint_violations",
     "max_violation",
     "solve_time_median_s",
+    "estimation_rms",
 )
+
+
+#: ``[sim] disturbance``: a table or a list of tables (parsed into DisturbanceSpec; checked structurally here).
+DisturbanceTables = list
 
 
 @dataclass
@@ -99,6 +116,13 @@ class SimConfig:
         measurement_noise: Standard deviations ``(n,)`` of Gaussian noise added
             to the state the controller sees (seeded by ``seed``).
         seed: Seed of every random draw of the run.
+        measured: Names of the measured states, in the order of ``y`` (default all).
+        sensor_noise: Standard deviations ``(p,)`` of the Gaussian noise on ``y``.
+        process_noise: Standard deviations ``(m,)`` of the Gaussian noise added
+            to the applied input (the controller does not see it).
+        disturbance: Parsed ``disturbance`` entries
+            (:class:`~shinro_ctrl.disturbances.DisturbanceSpec`); see
+            :mod:`shinro_ctrl.disturbances`.
     """
 
     duration: float = 5.0
@@ -108,6 +132,23 @@ class SimConfig:
     settle_tol: float = 0.01
     measurement_noise: list[float] | None = None
     seed: int = 0
+    measured: list[str] | None = None
+    sensor_noise: list[float] | None = None
+    process_noise: list[float] | None = None
+    disturbance: DisturbanceTables | None = None
+
+
+@dataclass
+class EstimatorConfig:
+    """``[estimator]``: the estimator class name and the keyword arguments of its ``from_plant``.
+
+    ``measured`` comes from ``[sim] measured``; ``Qn`` and ``Rn``, when the
+    table leaves them out, from ``[sim] process_noise`` and ``sensor_noise``
+    (variances: the standard deviations squared).
+    """
+
+    type: str
+    options: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -133,6 +174,7 @@ class Scenario:
     regression: dict[str, dict[str, float]]
     raw: dict[str, Any]
     plan: dict[str, Any] | None = None
+    estimator: EstimatorConfig | None = None
 
 
 class _Ctx:
@@ -405,6 +447,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     pt = dict(doc["plant"])
     if "type" not in pt:
         raise ctx.error("plant", "missing key 'type' (a plant class name such as 'CartPole')")
+    ctx.check_types("plant", {"type": pt["type"]}, {})
     try:
         cls = plant_class(str(pt["type"]))
     except ConfigError as exc:
@@ -445,6 +488,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     ct = dict(doc["controller"])
     if "type" not in ct:
         raise ctx.error("controller", "missing key 'type' (LQR, LinearMPC or IKQP)")
+    ctx.check_types("controller", {"type": ct["type"]}, {})
     from shinro_ctrl.controllers import controller_class, controller_keys
 
     try:
@@ -493,10 +537,12 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
         sim.measurement_noise = ctx.vector("sim", "measurement_noise", st["measurement_noise"], n)
         if any(v < 0 for v in sim.measurement_noise):
             raise ctx.error("sim", "'measurement_noise' standard deviations must be >= 0")
+    _parse_output_feedback(ctx, st, sim, probe)
     if "seed" in st:
         if isinstance(st["seed"], bool) or not isinstance(st["seed"], int) or st["seed"] < 0:
             raise ctx.error("sim", f"'seed' must be a non-negative integer, got {st['seed']!r}")
         sim.seed = st["seed"]
+    estimator_cfg = _parse_estimator(ctx, doc, sim, probe)
 
     # [regression]
     regression: dict[str, dict[str, float]] = {}
@@ -511,9 +557,11 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     name = path.stem if path is not None else "<dict>"
     if sim.initial_state is None and plan_cfg is not None and "start" in plan_cfg:
         sim.initial_state = list(plan_cfg["start"])  # a planned run starts where its plan starts
-    return Scenario(
+    scenario = Scenario(
         name, path, plant_cfg, engine_cfg, controller_cfg, sim, regression, copy.deepcopy(dict(doc)), plan_cfg
     )
+    scenario.estimator = estimator_cfg
+    return scenario
 
 
 def _parse_plan(ctx: _Ctx, doc: Mapping[str, Any], controller: ControllerConfig, probe: Any) -> dict[str, Any] | None:
@@ -613,3 +661,73 @@ def _parse_reference(ctx: _Ctx, ref: Any, n: int) -> dict[str, Any]:
             raise ctx.error("sim.reference", f"'interpolation' must be 'linear' or 'hold', got {interp!r}")
         out["interpolation"] = interp
     return out
+
+
+def _parse_output_feedback(ctx: _Ctx, st: Mapping[str, Any], sim: SimConfig, probe: Any) -> None:
+    """``[sim] measured``, ``sensor_noise``, ``process_noise`` and ``disturbance``."""
+    names = probe.state_names
+    if "measured" in st:
+        measured = st["measured"]
+        if not isinstance(measured, list) or not measured or not all(isinstance(v, str) for v in measured):
+            raise ctx.error("sim", f"'measured' must be a non-empty list of state names, got {measured!r}")
+        for v in measured:
+            if v not in names:
+                hint = did_you_mean(v, names)
+                raise ctx.error(
+                    "sim",
+                    f"'measured': unknown state '{v}'{hint if 'did you mean' in hint else ''} "
+                    f"(valid: {', '.join(names)})",
+                )
+        if len(set(measured)) != len(measured):
+            raise ctx.error("sim", f"'measured' lists a state twice: {measured!r}")
+        sim.measured = list(measured)
+    p = len(sim.measured) if sim.measured is not None else probe.state_dim
+    for key, size in (("sensor_noise", p), ("process_noise", probe.input_dim)):
+        if key in st:  # one standard deviation per measured state / per input
+            values = ctx.vector("sim", key, st[key], size)
+            bad = [i for i, v in enumerate(values) if v < 0]
+            if bad:
+                raise ctx.error("sim", f"'{key}' standard deviations must be >= 0, got {values[bad[0]]:g} at {bad[0]}")
+            setattr(sim, key, values)
+    if sim.sensor_noise is not None and sim.measurement_noise is not None:
+        raise ctx.error("sim", "give 'sensor_noise' (on the measured outputs) or 'measurement_noise', not both")
+    if "disturbance" in st:
+        from shinro_ctrl.disturbances import parse_disturbances
+
+        try:
+            sim.disturbance = parse_disturbances(st["disturbance"], probe, "[sim] disturbance")
+        except ConfigError as exc:
+            raise ctx.error("", str(exc)) from None
+
+
+def _parse_estimator(ctx: _Ctx, doc: Mapping[str, Any], sim: SimConfig, probe: Any) -> EstimatorConfig | None:
+    """``[estimator]``: the class, its keys (``from_plant``'s keywords but ``measured``) and their types."""
+    if "estimator" not in doc:
+        if sim.measured is not None and len(sim.measured) < probe.state_dim:
+            raise ctx.error(
+                "sim",
+                f"'measured' = {sim.measured} leaves states unmeasured; add an [estimator] table "
+                "(type = \"KalmanFilter\", \"ExtendedKalmanFilter\" or \"Luenberger\")",
+            )
+        return None
+    import inspect
+
+    from shinro_ctrl.estimators import estimator_class
+
+    et = dict(doc["estimator"])
+    if "type" not in et:
+        raise ctx.error("estimator", "missing key 'type' (KalmanFilter, ExtendedKalmanFilter, Luenberger or FullState)")
+    try:
+        ecls = estimator_class(str(et["type"]))
+    except ConfigError as exc:
+        raise ctx.error("estimator", str(exc)) from None
+    params = list(inspect.signature(ecls.from_plant).parameters.values())[1:]
+    keys = tuple(q.name for q in params if q.kind == q.KEYWORD_ONLY and q.name != "measured")  # measured: [sim]
+    loop_keys = {"initial_estimate": "list[float]", "P0": "Any"}  # read by the loop (output_feedback.LOOP_KEYS)
+    ctx.check_keys("estimator", et, ("type", *keys, *loop_keys))
+    ctx.check_types("estimator", et, {**signature_annotations(ecls.from_plant, 1), **loop_keys})
+    if "initial_estimate" in et:
+        ctx.vector("estimator", "initial_estimate", et["initial_estimate"], probe.state_dim)
+    if ecls.__name__ == "FullState" and sim.measured is not None and len(sim.measured) < probe.state_dim:
+        raise ctx.error("estimator", "FullState needs every state measured; remove [sim] measured or pick a filter")
+    return EstimatorConfig(ecls.__name__, {k: v for k, v in et.items() if k != "type"})

@@ -23,6 +23,7 @@ import numpy as np
 from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
 from shinro_ctrl.files import atomic_write, dump_json, dump_toml
+from shinro_ctrl.output_feedback import estimation_metrics, loop_signals, uses_estimation
 from shinro_ctrl.progress import Progress
 
 MAX_STEPS = 10_000_000  # trajectories are kept in memory: 10 M steps of a 12-state plant is about 2 GB
@@ -166,8 +167,10 @@ def compute_metrics(
         ``settle_tol``; ``inf`` if it never does), ``max_abs_input``,
         ``constraint_violations`` (steps at which an input or state bound, or
         a plant limit, is exceeded by more than 1e-9 relative),
-        ``max_violation`` (the largest such excess) and
-        ``solve_time_median_s`` (median controller call).
+        ``max_violation`` (the largest such excess),
+        ``solve_time_median_s`` (median controller call), and for a step or
+        initial-condition response ``overshoot`` and ``rise_time`` (see
+        :func:`response_metrics`).
     """
     e = np.linalg.norm(x[:, tracked] - ref[:, tracked], axis=1)
     outside = np.nonzero(e > settle_tol)[0]
@@ -192,12 +195,38 @@ def compute_metrics(
         "constraint_violations": int(np.count_nonzero(viol > 0)),
         "max_violation": float(viol.max()),
         "solve_time_median_s": float(np.median(solve_times)) if solve_times is not None and solve_times.size else 0.0,
+        **response_metrics(t, x[:, tracked], ref[:, tracked], settle_tol),
     }
+
+
+def response_metrics(t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: float = 0.01) -> dict[str, float]:
+    """``overshoot`` [%] and ``rise_time`` [s] of a step or initial-condition response (else ``{}``).
+
+    Meaningful when the reference ``ref (T+1, k)`` is constant (the run recovers
+    from its initial deviation) or changes once (a step; measured from the
+    step). The response is that of the tracked state with the largest
+    deviation from the new reference at the start, and it must exceed
+    ``settle_tol``; see :func:`shinro_ctrl.analysis.step_metrics` (overshoot
+    past the reference, 10–90 % rise time, ``inf`` if 90 % is never reached).
+    """
+    from shinro_ctrl.analysis.response import step_metrics
+
+    changes = np.flatnonzero(np.any(ref[1:] != ref[:-1], axis=1))
+    if changes.size > 1 or x.shape[1] == 0:
+        return {}
+    k0 = int(changes[0]) + 1 if changes.size else 0
+    d0 = x[k0] - ref[k0]
+    j = int(np.argmax(np.abs(d0)))
+    if not abs(d0[j]) > settle_tol or k0 >= len(t) - 1 or not np.all(np.isfinite(x[k0:, j])):
+        return {}
+    target = float(ref[k0, j])
+    m = step_metrics(t[k0:] - t[k0], x[k0:, j], initial=float(x[k0, j]), final=target, target=target)
+    return {"overshoot": m.overshoot, "rise_time": m.rise_time}
 
 
 def format_metrics(metrics: dict[str, float]) -> str:
     """A two-column table of metrics."""
-    units = {"settling_time": "s", "solve_time_median_s": "s"}
+    units = {"settling_time": "s", "solve_time_median_s": "s", "rise_time": "s", "overshoot": "%"}
     rows = []
     for k, v in metrics.items():
         if isinstance(v, float) and math.isinf(v):
@@ -227,6 +256,13 @@ class SimResult:
         solve_times: Controller call times ``(T,)`` [s].
         scenario: The scenario name; ``loop``: ``"standalone"`` or ``"mujoco"``.
         config: The resolved scenario document.
+        x_hat: State estimates the controller was fed ``(T + 1, n)`` (the
+            true state for full-state feedback without noise).
+        y: Measurements ``(T + 1, p)`` (measured states plus sensor noise).
+        measured: Names of the columns of ``y``.
+        disturbance: Disturbances ``(T, k)`` held over each step (see
+            :mod:`shinro_ctrl.disturbances`); ``disturbance_labels`` names
+            the columns.
     """
 
     t: np.ndarray
@@ -245,12 +281,20 @@ class SimResult:
     scenario: str = "<dict>"
     loop: str = "standalone"
     config: dict[str, Any] = field(default_factory=dict)
+    x_hat: np.ndarray | None = None
+    y: np.ndarray | None = None
+    measured: tuple[str, ...] = ()
+    disturbance: np.ndarray | None = None
+    disturbance_labels: list[str] = field(default_factory=list)
 
     def save(self, directory: str | Path) -> Path:
         """Write ``result.npz``, ``metrics.json`` and ``scenario.toml`` into ``directory`` (atomically)."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         arrays = {"t": self.t, "x": self.x, "u": self.u, "ref": self.ref, "solve_times": self.solve_times}
+        for key in ("x_hat", "y", "disturbance"):
+            if getattr(self, key) is not None:
+                arrays[key] = getattr(self, key)
         atomic_write(d / "result.npz", lambda f: np.savez(f, **arrays), binary=True)
         dump_json(d / "metrics.json", {"scenario": self.scenario, "loop": self.loop, "metrics": self.metrics})
         atomic_write(d / "scenario.toml", lambda f: f.write(dump_toml(self.config)))
@@ -264,10 +308,18 @@ class SimResult:
         import matplotlib.pyplot as plt
 
         n, m = self.x.shape[1], self.u.shape[1]
-        fig, axes = plt.subplots(n + m, 1, figsize=(8, 1.6 * (n + m) + 0.8), sharex=True, squeeze=False)
+        nd = len(self.disturbance_labels) if self.disturbance is not None else 0
+        rows = n + m + nd
+        fig, axes = plt.subplots(rows, 1, figsize=(8, 1.6 * rows + 0.8), sharex=True, squeeze=False)
+        estimated = self.x_hat is not None and not np.array_equal(self.x_hat, self.x)
         for i in range(n):
             ax = axes[i, 0]
-            ax.plot(self.t, self.x[:, i], color="C0", lw=1.4, label="state")
+            if self.y is not None and self.state_names[i] in self.measured and estimated:
+                col = self.y[:, self.measured.index(self.state_names[i])]
+                ax.plot(self.t, col, color="0.6", lw=0.6, alpha=0.8, label="measurement")
+            ax.plot(self.t, self.x[:, i], color="C0", lw=1.4, label="true state")
+            if estimated:
+                ax.plot(self.t, self.x_hat[:, i], color="C4", lw=1.0, ls="-.", label="estimate")
             ax.plot(self.t, self.ref[:, i], color="C1", lw=1.0, ls="--", label="reference")
             for b in (self.x_min, self.x_max):
                 if b is not None and np.isfinite(b[i]):
@@ -282,6 +334,11 @@ class SimResult:
                 if b is not None and np.isfinite(b[j]):
                     ax.axhline(b[j], color="C3", lw=0.8, ls=":", label="bound")
             ax.set_ylabel(self.input_names[j], rotation=0, ha="right", va="center")
+            ax.grid(alpha=0.3)
+        for j in range(nd):
+            ax = axes[n + m + j, 0]
+            ax.step(tu, self.disturbance[:, j], where="post", color="C5", lw=1.2, label="disturbance")
+            ax.set_ylabel(self.disturbance_labels[j], rotation=0, ha="right", va="center")
             ax.grid(alpha=0.3)
         handles = {}
         for ax in axes[:, 0]:
@@ -345,7 +402,11 @@ class RobotSim:
             raise type(exc)(f"{src}: [controller] {exc}") from exc
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{src}: [controller] {exc}") from exc
-        self.estimator = self._default_estimator()
+        from shinro_ctrl.output_feedback import build_estimator
+
+        self.estimator, self.initial_estimate, self.initial_covariance = build_estimator(
+            scenario, self.plant, self.controller, src
+        )
         self.operating_point = self._operating_point()
         sim = scenario.sim
         self.initial_state = (
@@ -466,11 +527,18 @@ class RobotSim:
         x = plant.get_state()
         X[0] = x
         est = self.estimator
-        est.reset(x)
+        est.reset(x if self.initial_estimate is None else self.initial_estimate, self.initial_covariance)
         estimate = est.update
         # y = C x (+ noise): the rows of the identity at the estimator's measured indices
         measured = None if tuple(est.measured) == tuple(range(n)) else np.asarray(est.measured, dtype=np.intp)
         u_prev = self._operating_input()
+        # Output feedback (output_feedback.py): sensor/process noise and disturbances drawn once, before the loop.
+        p = n if measured is None else measured.shape[0]
+        sig = loop_signals(self.scenario, plant, t, p)
+        sensor, extra, forces = sig.sensor, sig.extra_input, sig.forces
+        X_hat = np.empty((steps + 1, n))
+        Y = np.empty((steps + 1, p))
+        engine = self.engine
         bar = Progress(steps, f"{self.scenario.name} ({self.loop})", progress, unit="steps")
         clock = time.perf_counter
         # Controllers that look ahead (LQR feed-forward, MPC) get the next `preview` samples too.
@@ -485,13 +553,23 @@ class RobotSim:
                 y = x + noise * rng.standard_normal(n) if noise is not None else x
                 if measured is not None:
                     y = y[measured]
+                if sensor is not None:
+                    y = y + sensor[k]
+                Y[k] = y
                 x_hat = estimate(y, u_prev)  # the controller sees the estimate, never the plant's state
+                X_hat[k] = x_hat[:n]  # an offset-free estimator returns [x̂; d̂]
                 t0 = clock()
                 u = ctrl(x_hat, r)
                 solve[k] = clock() - t0
                 U[k] = u
                 u_prev = u
-                plant.step(u)
+                for body, F, _ in forces:
+                    if engine is not None:
+                        engine.set_body_force(body, F[k])
+                plant.step(u if extra is None else u + extra[k])  # the plant feels noise and disturbances
+                for _, F, G in forces:
+                    if engine is None:  # standalone: the force's effect over the step, dt · G F
+                        plant.state = plant.state + dt * (G @ F[k])
                 x = plant.get_state()
                 X[k + 1] = x
                 if limit is not None:
@@ -502,6 +580,12 @@ class RobotSim:
             raise type(exc)(f"{self.scenario.name} ({self.loop}) at t = {t[k]:.4g} s: {exc}") from exc
         finally:
             bar.close()
+            if forces and engine is not None:
+                engine.clear_body_forces()
+        y = x + noise * rng.standard_normal(n) if noise is not None else x
+        y = y[measured] if measured is not None else y
+        Y[steps] = y + sensor[steps] if sensor is not None else y
+        X_hat[steps] = estimate(Y[steps], u_prev)[:n]
         R[steps] = ref(t[steps])
         bounds = {
             name: _bound(value, size)
@@ -523,6 +607,8 @@ class RobotSim:
             solve_times=solve,
             **bounds,
         )
+        if uses_estimation(self.scenario):
+            metrics.update(estimation_metrics(X, X_hat, tuple(plant.state_names)))
         return SimResult(
             t=t,
             x=X,
@@ -536,6 +622,11 @@ class RobotSim:
             scenario=self.scenario.name,
             loop=self.loop,
             config=self.resolved_config(duration),
+            x_hat=X_hat,
+            y=Y,
+            measured=tuple(plant.state_names[i] for i in (est.measured if measured is not None else range(n))),
+            disturbance=sig.disturbance.values,
+            disturbance_labels=list(sig.disturbance.labels),
             **bounds,
         )
 
@@ -563,7 +654,14 @@ class RobotSim:
         }
         if s.sim.measurement_noise:
             sim["measurement_noise"] = s.sim.measurement_noise
+        for key in ("measured", "sensor_noise", "process_noise"):
+            if getattr(s.sim, key) is not None:
+                sim[key] = getattr(s.sim, key)
+        if s.sim.disturbance:
+            sim["disturbance"] = [d.as_table() for d in s.sim.disturbance]
         doc["sim"] = sim
+        if s.estimator is not None:
+            doc["estimator"] = {"type": s.estimator.type, **s.estimator.options}
         if s.regression:
             doc["regression"] = s.regression
         return doc

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -250,7 +251,7 @@ class LQR(Controller):
         u_min: Any = None,
         u_max: Any = None,
         feedforward: bool = False,
-        integral: Any = None,
+        integral: Sequence[str] | None = None,
     ) -> LQR:
         """Design on ``plant`` linearized at ``(x0, u0)`` (default its equilibrium).
 
