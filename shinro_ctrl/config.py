@@ -455,6 +455,14 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     ctx.check_keys("plant", pt, ("type", *cls.config_keys()))
     ctx.check_types("plant", pt, signature_annotations(cls.__init__, 1))
     params = {k: v for k, v in pt.items() if k != "type"}
+    if cls.__name__ == "MjcfPlant" and str(pt["type"]) != "MjcfPlant":  # type = "robot.xml": the model file
+        if "model" in params:
+            raise ctx.error("plant", f"'type' is the model file {pt['type']!r}: remove 'model' (or type = MjcfPlant)")
+        params["model"] = str(pt["type"])
+    if cls.__name__ == "MjcfPlant" and path is not None and isinstance(params.get("model"), str):
+        beside = path.parent / params["model"]  # a model path relative to the scenario file
+        if not Path(params["model"]).is_absolute() and beside.is_file():
+            params["model"] = str(beside.resolve())
     try:
         probe = cls.from_config(params)
     except ConfigError as exc:

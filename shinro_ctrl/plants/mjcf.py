@@ -90,8 +90,9 @@ class MjcfPlant(Plant):
     edit the file.
 
     Args:
-        model: MJCF/URDF path, or the name of a shipped asset
-            (``"furuta_pendulum.xml"``).
+        model: MJCF/URDF path, or the name of a shipped asset; default the
+            shipped Furuta pendulum ``"furuta_pendulum.xml"`` (so that
+            ``MjcfPlant()`` works like every other plant's defaults).
         actuators: Names of the actuators that are the inputs, in this order;
             None: all, in the model's order. Actuators left out get control 0.
         dt: Step [s]; default the model's ``opt.timestep``.
@@ -110,7 +111,7 @@ class MjcfPlant(Plant):
 
     def __init__(
         self,
-        model: str | os.PathLike,
+        model: str | os.PathLike = "furuta_pendulum.xml",
         *,
         actuators: Sequence[str] | None = None,
         dt: float | None = None,
