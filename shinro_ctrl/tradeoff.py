@@ -1,0 +1,420 @@
+"""LQR weight trade-off: what a faster loop costs in input, margin and damping.
+
+``shinro-ctrl design lqr CONFIG --tradeoff KEY=LO:HI --points N`` sweeps one
+weight over ``N`` log-spaced values. For each value it designs the LQR on the
+scenario's plant, computes the loop margins and the closed-loop damping
+(:mod:`shinro_ctrl.analysis`), and runs the scenario's nonlinear closed loop
+(standalone, or MuJoCo with ``engine="mujoco"``). Keys:
+
+* ``R`` / ``Q``: the scenario's whole matrix times the value (a multiplier);
+* ``R[i]``, ``Q[i]`` or ``Q.theta`` (a state name), ``R.force`` (an input
+  name): the diagonal entry itself takes the value.
+
+Points run in a local process pool (``forkserver`` workers, as
+:mod:`shinro_ctrl.sweep`); each worker parses the scenario once. The table
+depends only on the scenario, the key, the range and ``points``: never on
+the worker count. Outputs (``out``): ``tradeoff.csv`` (one row per point),
+``tradeoff.json`` (rows, the scenario's current design, the elapsed time)
+and ``tradeoff.png`` (tracking RMS against peak input, coloured by disk
+margin, the Pareto front joined, the current design starred), written
+atomically.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import math
+import re
+import time
+from collections.abc import Mapping
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shinro_ctrl.config import load_scenario
+from shinro_ctrl.errors import InvalidArgument, ShinroError
+from shinro_ctrl.files import atomic_write, dump_json
+
+__all__ = ["COLUMNS", "TradeoffResult", "parse_tradeoff", "run_tradeoff"]
+
+#: Columns of ``tradeoff.csv`` after the swept value.
+COLUMNS = (
+    "gain_margin_low",
+    "gain_margin_high",
+    "phase_margin_deg",
+    "disk_margin",
+    "Ms",
+    "zeta_min",
+    "wn_max",
+    "rms_error",
+    "max_abs_input",
+    "settling_time",
+    "overshoot",
+    "rise_time",
+)
+_KEY = re.compile(r"^(Q|R)(?:\[(\d+)\]|\.([A-Za-z_][\w]*))?$")
+#: Exceptions a point may raise that are recorded in its row (anything else is a bug and propagates).
+POINT_ERRORS: tuple[type[BaseException], ...] = (ShinroError, ValueError, ArithmeticError, np.linalg.LinAlgError)
+
+
+def parse_tradeoff(text: str) -> tuple[str, float, float]:
+    """``"R=1e-3:1e2"`` → ``("R", 0.001, 100.0)``.
+
+    Raises:
+        InvalidArgument: not ``KEY=LO:HI``, a key other than ``Q``, ``R``,
+            ``Q[i]``, ``R[i]``, ``Q.name``, ``R.name``, or a range that is not
+            ``0 < LO < HI`` (finite).
+    """
+    if not isinstance(text, str) or "=" not in text or ":" not in text.split("=", 1)[1]:
+        raise InvalidArgument(f"--tradeoff: expected KEY=LO:HI such as R=1e-3:1e2, got {text!r}")
+    key, rng = text.split("=", 1)
+    key = key.strip()
+    if not _KEY.match(key):
+        raise InvalidArgument(f"--tradeoff: key must be Q, R, Q[i], R[i] or Q.<state>, got {key!r}")
+    lo_s, hi_s = rng.split(":", 1)
+    try:
+        lo, hi = float(lo_s), float(hi_s)
+    except ValueError:
+        raise InvalidArgument(f"--tradeoff: LO and HI must be numbers, got {rng!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise InvalidArgument(f"--tradeoff: expected 0 < LO < HI (log-spaced), got {lo:g}:{hi:g}")
+    return key, lo, hi
+
+
+def _weight(doc: Mapping[str, Any], which: str, size: int) -> np.ndarray:
+    from shinro_ctrl.validation import weight_matrix
+
+    value = doc["controller"].get(which)
+    if value is None:
+        raise InvalidArgument(f"--tradeoff: the scenario's [controller] has no {which}")
+    return weight_matrix(which, value, size, definite=which == "R")
+
+
+def _apply(doc: dict[str, Any], key: str, value: float, names: tuple[tuple[str, ...], tuple[str, ...]]) -> dict:
+    """A copy of the (parsed, Bryson-resolved) document with the weight ``key`` set by ``value``."""
+    m = _KEY.match(key)
+    which, index, name = m.group(1), m.group(2), m.group(3)
+    labels = names[0] if which == "Q" else names[1]
+    W = _weight(doc, which, len(labels))
+    if index is None and name is None:
+        W = W * value
+    else:
+        if name is not None:
+            if name not in labels:
+                raise InvalidArgument(f"--tradeoff: unknown {'state' if which == 'Q' else 'input'} '{name}' in {key}")
+            i = labels.index(name)
+        else:
+            i = int(index)
+            if i >= len(labels):
+                raise InvalidArgument(f"--tradeoff: {key} is out of range ({which} is {len(labels)} × {len(labels)})")
+        W = W.copy()
+        W[i, i] = value
+    out = copy.deepcopy(doc)
+    out["controller"][which] = W.tolist()
+    return out
+
+
+@dataclass(frozen=True)
+class _Job:
+    doc: dict[str, Any]
+    source: str | None
+    engine: str | None
+    key: str
+    values: tuple[float, ...]
+    indices: tuple[int, ...]
+
+
+def _evaluate(doc: dict[str, Any], source: str | None, engine: str | None) -> dict[str, float]:
+    """Design, analyse and run one weight setting."""
+    from shinro_ctrl.analysis.design import feedback_gain
+    from shinro_ctrl.analysis.margins import loop_margins
+    from shinro_ctrl.analysis.poles import pole_table
+    from shinro_ctrl.config import parse_scenario
+    from shinro_ctrl.sim import RobotSim
+
+    path = Path(source) if source else None
+    sim = RobotSim(parse_scenario(doc, source=source or "<dict>", path=path), engine=engine)
+    A, B, K, dt = feedback_gain(sim.controller)
+    lm = loop_margins((A, B), K, dt=dt)
+    poles = pole_table(np.linalg.eigvals(A - B @ K), dt)
+    with np.errstate(all="ignore"):
+        metrics = sim.run(progress=False).metrics
+    return {
+        "gain_margin_low": min(c.gain_margin_low for c in lm.channels),
+        "gain_margin_high": min(c.gain_margin_high for c in lm.channels),
+        "phase_margin_deg": min(c.phase_margin for c in lm.channels),
+        "disk_margin": lm.disk_margin,
+        "Ms": lm.Ms,
+        "zeta_min": poles.zeta_min,
+        "wn_max": poles.wn_range[1],
+        "rms_error": metrics["rms_error"],
+        "max_abs_input": metrics["max_abs_input"],
+        "settling_time": metrics["settling_time"],
+        "overshoot": metrics.get("overshoot", math.nan),
+        "rise_time": metrics.get("rise_time", math.nan),
+    }
+
+
+def _names(doc: Mapping[str, Any]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    from shinro_ctrl.plants import plant_class
+
+    pt = dict(doc["plant"])
+    plant = plant_class(str(pt.pop("type"))).from_config(pt)
+    return tuple(plant.state_names), tuple(plant.input_names)
+
+
+def _run_job(job: _Job) -> list[tuple[int, dict[str, float], str]]:
+    """Worker entry point (module level, so it pickles by reference)."""
+    names = _names(job.doc)
+    out = []
+    for i, v in zip(job.indices, job.values, strict=True):
+        try:
+            out.append((i, _evaluate(_apply(job.doc, job.key, v, names), job.source, job.engine), ""))
+        except POINT_ERRORS as exc:
+            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            out.append((i, dict.fromkeys(COLUMNS, math.nan), f"{type(exc).__name__}: {msg}"))
+    return out
+
+
+@dataclass
+class TradeoffResult:
+    """The trade-off table.
+
+    Attributes:
+        key: The swept weight (``"R"``, ``"Q[2]"``, ``"Q.theta"``, …).
+        values: Swept values ``(N,)``, increasing.
+        rows: Per point, :data:`COLUMNS` → value (NaN where the point failed).
+        errors: Per point, the error text ("" when it succeeded).
+        current: The scenario's own design (same columns), and ``current_value``
+            its value of the key (1 for a multiplier).
+        engine: ``"standalone"`` or ``"mujoco"``.
+        elapsed_s: Wall time of the sweep [s].
+        paths: Files written (when ``out`` was given).
+    """
+
+    key: str
+    values: np.ndarray
+    rows: list[dict[str, float]]
+    errors: list[str]
+    current: dict[str, float]
+    current_value: float
+    engine: str
+    elapsed_s: float = 0.0
+    paths: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def multiplier(self) -> bool:
+        """True when the key scales a whole matrix (``Q``, ``R``) rather than setting one entry."""
+        return self.key in ("Q", "R")
+
+    def column(self, name: str) -> np.ndarray:
+        """One column ``(N,)``."""
+        return np.array([r[name] for r in self.rows], dtype=float)
+
+    def to_csv(self) -> str:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow([self.key, *COLUMNS, "error"])
+        for v, r, e in zip(self.values, self.rows, self.errors, strict=True):
+            w.writerow([repr(float(v)), *(repr(float(r[c])) for c in COLUMNS), e])
+        return buf.getvalue()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "key": self.key,
+            "engine": self.engine,
+            "columns": [self.key, *COLUMNS],
+            "rows": [
+                {self.key: float(v), **r, "error": e}
+                for v, r, e in zip(self.values, self.rows, self.errors, strict=True)
+            ],
+            "current": {self.key: self.current_value, **self.current},
+            "elapsed_s": self.elapsed_s,
+        }
+
+    def plot(self, path: str | Path) -> Path:
+        """Tracking RMS against peak input, coloured by disk margin (PNG)."""
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(7.5, 5.2), dpi=110, layout="constrained")
+        FigureCanvasAgg(fig)
+        ax = fig.add_subplot()
+        x, y, c = self.column("max_abs_input"), self.column("rms_error"), self.column("disk_margin")
+        ok = np.isfinite(x) & np.isfinite(y)
+        front = _pareto(x, y, ok)
+        ax.plot(x[front], y[front], color="0.6", lw=1.0, zorder=1, label="Pareto front")
+        sc = ax.scatter(x[ok], y[ok], c=c[ok], cmap="viridis", s=46, edgecolors="k", linewidths=0.5, zorder=2)
+        fig.colorbar(sc, ax=ax, label="disk margin α (simultaneous)")
+        idx = np.flatnonzero(ok)
+        sym = "×" if self.multiplier else "="
+        for k in idx[:: max(1, len(idx) // 6)]:
+            ax.annotate(
+                f"{self.key}{sym}{self.values[k]:.3g}",
+                (x[k], y[k]),
+                xytext=(6, 4),
+                textcoords="offset points",
+                fontsize=7,
+            )
+        cur = self.current
+        if math.isfinite(cur.get("max_abs_input", math.nan)) and math.isfinite(cur.get("rms_error", math.nan)):
+            ax.plot(
+                [cur["max_abs_input"]],
+                [cur["rms_error"]],
+                "*",
+                color="tab:red",
+                ms=16,
+                mec="k",
+                zorder=3,
+                label=f"scenario's design ({self.key}{sym}{self.current_value:.3g})",
+            )
+        if ok.any() and np.nanmax(x[ok]) / max(np.nanmin(x[ok]), 1e-300) > 20:
+            ax.set_xscale("log")
+        if ok.any() and np.nanmax(y[ok]) / max(np.nanmin(y[ok]), 1e-300) > 20:
+            ax.set_yscale("log")
+        ax.set_xlabel("peak input max |u|")
+        ax.set_ylabel("tracking RMS error")
+        what = f"{self.key} × the scenario's" if self.multiplier else self.key
+        ax.set_title(f"LQR trade-off over {what} ({len(self.values)} points, {self.engine} loop)")
+        ax.grid(True, color="0.88", lw=0.6)
+        ax.legend(fontsize=8, loc="upper right")
+        p = Path(path)
+        atomic_write(p, lambda f: fig.savefig(f, format="png"), binary=True)
+        return p
+
+    def save(self, directory: str | Path) -> dict[str, Path]:
+        """Write ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png`` into ``directory``."""
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        text = self.to_csv()
+        self.paths = {
+            "csv": atomic_write(d / "tradeoff.csv", lambda f: f.write(text)),
+            "json": dump_json(d / "tradeoff.json", self.to_dict()),
+            "png": self.plot(d / "tradeoff.png"),
+        }
+        return self.paths
+
+    def summary(self) -> str:
+        """A text table of the sweep."""
+        head = (
+            f"  {self.key:>10s} {'rms err':>9s} {'max|u|':>9s} {'disk α':>7s} {'PM [°]':>7s} {'ζ_min':>6s} {'Ms':>6s}"
+        )
+        lines = [f"trade-off over {self.key}, {len(self.values)} points ({self.engine}), {self.elapsed_s:.2f} s", head]
+        for v, r, e in zip(self.values, self.rows, self.errors, strict=True):
+            if e:
+                lines.append(f"  {v:10.4g}  failed: {e}")
+                continue
+            lines.append(
+                f"  {v:10.4g} {r['rms_error']:9.4g} {r['max_abs_input']:9.4g} {r['disk_margin']:7.3f} "
+                f"{r['phase_margin_deg']:7.1f} {r['zeta_min']:6.3f} {r['Ms']:6.3f}"
+            )
+        for k, p in self.paths.items():
+            lines.append(f"  {k}: {p}")
+        return "\n".join(lines)
+
+
+def _pareto(x: np.ndarray, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Indices of the points no other point beats in both (smaller x and smaller y), sorted by x."""
+    idx = [
+        i
+        for i in np.flatnonzero(ok)
+        if not any(x[j] <= x[i] and y[j] <= y[i] and (x[j] < x[i] or y[j] < y[i]) for j in np.flatnonzero(ok))
+    ]
+    return np.array(sorted(idx, key=lambda i: x[i]), dtype=int)
+
+
+_POOL_PRELOAD = ["shinro_ctrl.tradeoff", "shinro_ctrl.sim", "shinro_ctrl.plants", "shinro_ctrl.controllers", "control"]
+
+
+def run_tradeoff(
+    config: str | Path,
+    key: str,
+    lo: float,
+    hi: float,
+    *,
+    points: int = 20,
+    engine: str | None = None,
+    out: str | Path | None = None,
+    workers: int = 2,
+) -> TradeoffResult:
+    """Sweep one LQR weight over ``points`` log-spaced values (see the module docstring).
+
+    Args:
+        config: Scenario path or shipped name (an LQR scenario).
+        key: ``"R"``, ``"Q"`` (multipliers), ``"Q[i]"``, ``"R[i]"``, ``"Q.<state>"``, ``"R.<input>"`` (entries).
+        lo, hi: Range, ``0 < lo < hi``.
+        points: Number of values, >= 2.
+        engine: ``"standalone"``, ``"mujoco"``, or None (the scenario's loop).
+        out: Folder for ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png``.
+        workers: Local worker processes (1: in this process).
+
+    Raises:
+        InvalidArgument: a bad key, range, point count or worker count; a scenario whose controller is not an LQR.
+    """
+    parse_tradeoff(f"{key}={lo!r}:{hi!r}")
+    if isinstance(points, bool) or not isinstance(points, int) or points < 2:
+        raise InvalidArgument(f"points must be an integer >= 2, got {points!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InvalidArgument(f"workers must be an integer >= 1, got {workers!r}")
+    scenario = load_scenario(config)
+    if scenario.controller.type != "LQR":
+        raise InvalidArgument(
+            f"{scenario.name}: the trade-off sweeps LQR weights, the scenario has {scenario.controller.type}"
+        )
+    doc = copy.deepcopy(scenario.raw)
+    doc["controller"] = {"type": "LQR", **scenario.controller.options}  # Bryson tables resolved
+    source = str(scenario.path) if scenario.path else None
+    names = _names(doc)
+    _apply(doc, key, lo, names)  # a bad key fails here, before any work
+    values = np.logspace(math.log10(lo), math.log10(hi), points)
+    loop = engine or ("mujoco" if scenario.engine is not None else "standalone")
+    m = _KEY.match(key)
+    if m.group(2) is None and m.group(3) is None:
+        current_value = 1.0
+    else:
+        which = m.group(1)
+        labels = names[0] if which == "Q" else names[1]
+        i = int(m.group(2)) if m.group(2) is not None else labels.index(m.group(3))
+        current_value = float(_weight(doc, which, len(labels))[i, i])
+
+    t0 = time.perf_counter()
+    n_tasks = min(points, workers * 2) if workers > 1 else 1
+    chunks = np.array_split(np.arange(points), n_tasks)
+    jobs = [
+        _Job(doc, source, engine, key, tuple(float(values[i]) for i in c), tuple(int(i) for i in c)) for c in chunks
+    ]
+    results: list[tuple[int, dict[str, float], str]] = []
+    if workers == 1:
+        for job in jobs:
+            results.extend(_run_job(job))
+        current = _evaluate(doc, source, engine)
+    else:
+        import multiprocessing
+
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(_POOL_PRELOAD)
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            futures = [pool.submit(_run_job, job) for job in jobs]
+            cur_future = pool.submit(_evaluate, doc, source, engine)
+            for f in futures:
+                results.extend(f.result())
+            current = cur_future.result()
+    results.sort(key=lambda r: r[0])
+    result = TradeoffResult(
+        key,
+        values,
+        [r[1] for r in results],
+        [r[2] for r in results],
+        current,
+        current_value,
+        loop,
+        time.perf_counter() - t0,
+    )
+    if out is not None:
+        result.save(out)
+    return result
