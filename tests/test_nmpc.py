@@ -64,8 +64,8 @@ def test_stage_jacobians_equal_complex_step(make):
     assert np.ptp(X, axis=0).max() > 1e-3  # a genuine trajectory, not one point
     for k in range(N):
         Fk, A, B = complex_step_rk4_jacobians(plant, X[k], U[k], ctrl.dt)
-        np.testing.assert_allclose(ctrl._At[k].T, A, rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(ctrl._Bt[k].T, B, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(ctrl._A[k], A, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(ctrl._B[k], B, rtol=1e-10, atol=1e-12)
         np.testing.assert_allclose(ctrl._D[k], Fk - X[k + 1], rtol=1e-10, atol=1e-12)
 
 

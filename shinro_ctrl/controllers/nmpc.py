@@ -254,17 +254,15 @@ class NonlinearMPC(Controller):
                 new[q] = xs[q] + self.dt * new[v]
             x_next = cs.vertcat(*new)
         self.F = cs.Function("F", [xs, us], [x_next], ["x", "u"], ["x_next"])
-        stage = cs.Function(
-            "stage",
-            [xs, us],
-            [x_next, cs.densify(cs.jacobian(x_next, xs)), cs.densify(cs.jacobian(x_next, us))],
-        )
+        xn = cs.SX.sym("x_next", n)
+        # G_k = [A_k, B_k, d_k] (n, n + m + 1), output transposed so that its column-major storage is G_k row-major
+        G = cs.horzcat(cs.jacobian(x_next, xs), cs.jacobian(x_next, us), x_next - xn)
+        stage = cs.Function("stage", [xs, us, xn], [cs.densify(G).T])
         N = self.N
         X = cs.MX.sym("X", n, N + 1)
         U = cs.MX.sym("U", m, N)
-        Fk, Ak, Bk = stage.map(N)(X[:, :N], U)
-        #: All stages at once: defects (n, N), A_k side by side (n, N n), B_k side by side (n, N m).
-        self.linearization = cs.Function("lin", [X, U], [Fk - X[:, 1:], Ak, Bk], ["X", "U"], ["D", "A", "B"])
+        #: All stages at once: ``G_kᵀ`` side by side, ``(n + m + 1, N n)`` (stored as ``(N, n, n + m + 1)``).
+        self.linearization = cs.Function("lin", [X, U], [stage.map(N)(X[:, :N], U, X[:, 1:])], ["X", "U"], ["G"])
 
         # ----------------------------------------------------- terminal weight
         if Qf is None:
@@ -280,22 +278,21 @@ class NonlinearMPC(Controller):
         # ------------------------------------------------------ numeric buffers
         self._X = np.zeros((N + 1, n))
         self._U = np.zeros((N, m))
-        self._D = np.zeros((N, n))
-        self._At = np.zeros((N, n, n))
-        self._Bt = np.zeros((N, m, n))
+        self._G = np.zeros((N, n, n + m + 1))  # [A_k, B_k, d_k] of every stage
+        self._A = self._G[:, :, :n]  # views: A_k (N, n, n), B_k (N, n, m), defects d_k (N, n)
+        self._B = self._G[:, :, n : n + m]
+        self._D = self._G[:, :, n + m]
         self._buf, self._eval = self.linearization.buffer()
         self._buf.set_arg(0, memoryview(self._X))
         self._buf.set_arg(1, memoryview(self._U))
-        self._buf.set_res(0, memoryview(self._D))
-        self._buf.set_res(1, memoryview(self._At))
-        self._buf.set_res(2, memoryview(self._Bt))
+        self._buf.set_res(0, memoryview(self._G))
         self._e = np.zeros(N * n)
         self._du = np.zeros(N * m)
         self._ref = self.x0.copy()
         self._ipopt: Any = None
         if self.solver == "daqp":
             self.qp = CondensedLTV(
-                n, m, N, self.W, self.R, self.u_min, self.u_max, self.x_min, self.x_max,
+                self._G, self.W, self.R, self.u_min, self.u_max, self.x_min, self.x_max,
                 soft=self.soft, soft_weights=self.soft_weights,
             )  # fmt: skip
         else:
@@ -421,7 +418,7 @@ class NonlinearMPC(Controller):
         np.subtract(self._X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
         np.subtract(self._U, self.u0, out=self._du.reshape(N, self.m))
         with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by feedback
-            self.qp.condense(self._At, self._Bt, self._D, self._e, self._du)
+            self.qp.condense(self._e, self._du)
         self.qp.set_bounds(self._U, self._X[1:])
 
     def _shift(self) -> None:
@@ -621,7 +618,7 @@ class NonlinearMPC(Controller):
         for k in range(N - 1, -1, -1):
             lam_k = self.W[k] @ Xp[k] + nu_rows[k]
             if k + 1 < N:
-                lam_k += self._At[k + 1] @ lam_next
+                lam_k += lam_next @ self._A[k + 1]
             big = max(big, float(np.max(np.abs(lam_k))))
             lam_next = lam_k
         return big
@@ -630,12 +627,12 @@ class NonlinearMPC(Controller):
         self._mu = max(self._mu, 1.5 * self._multiplier_bound(dX) + 1e-6)
         mu = self._mu
         X0, U0 = self._X.copy(), self._U.copy()
-        D0 = self._D.copy()
-        phi0 = self.objective(X0, U0) + mu * float(np.abs(D0).sum())
+        defect0 = float(np.abs(self._D).sum())
+        phi0 = self.objective(X0, U0) + mu * defect0
         E = X0 - self._ref
         grad = float(np.einsum("ki,ij,kj->", E[1:-1], self.Q, dX[:-1])) + float(E[-1] @ self.Qf @ dX[-1])
         grad += float(np.einsum("ki,ij,kj->", U0 - self.u0, self.R, dU))
-        slope = grad - mu * float(np.abs(D0).sum())
+        slope = grad - mu * defect0
         alpha = 1.0
         for _ in range(30):
             self._X[1:] = X0[1:] + alpha * dX
@@ -648,7 +645,6 @@ class NonlinearMPC(Controller):
             alpha *= 0.5
         self._X[:] = X0
         self._U[:] = U0
-        self._D[:] = D0
         return alpha
 
     def _fail(self, x: np.ndarray, flag: int, t_start: float) -> None:

@@ -61,9 +61,8 @@ class CondensedLTV:
     """Condensed LTV QP with fixed dimensions, refilled in place each time.
 
     Args:
-        n: States.
-        m: Inputs.
-        N: Horizon (stages).
+        G: The stage matrices ``(N, n, n + m + 1)``, ``G[k] = [A_k, B_k, d_k]``: a buffer the caller
+            refills before each :meth:`condense` (it is bound here, views are made once).
         W: Stage state weights ``(N, n, n)`` for ``x_1 … x_N`` (the last one is
             the terminal weight).
         R: Input weight ``(m, m)``.
@@ -76,9 +75,7 @@ class CondensedLTV:
 
     def __init__(
         self,
-        n: int,
-        m: int,
-        N: int,
+        G: np.ndarray,
         W: np.ndarray,
         R: np.ndarray,
         u_min: np.ndarray,
@@ -90,6 +87,8 @@ class CondensedLTV:
         soft_weights: tuple[float, float] = (1e2, 1e2),
         daqp_settings: dict[str, Any] | None = None,
     ):
+        N, n, w_ = G.shape
+        m = w_ - n - 1
         self.n, self.m, self.N = n, m, N
         self.W = np.ascontiguousarray(W, dtype=float)
         self.R = np.asarray(R, dtype=float)
@@ -107,8 +106,16 @@ class CondensedLTV:
         xlo = np.tile(x_min[self.bounded], N)
         xhi = np.tile(x_max[self.bounded], N)
         self._xlo, self._xhi = xlo, xhi
-        # [c | Φ | Γ] stage blocks (N, n, 1 + n + N m); zeros above the block diagonal stay zero
-        self.M3 = np.zeros((N, n, 1 + n + nu))
+        # [c | Φ | Γ] stage blocks (N, n, 1 + n + N m) by M_{k+1} = G_k Z_k with the augmented
+        # Z_k = [M_k; E_k; e_0ᵀ] (E_k = I_m at the columns of Δu_k): one matmul per stage, every view made once
+        C = 1 + n + nu
+        self.Z = np.zeros((N + 1, n + m + 1, C))
+        self.Z[0, :n, 1 : 1 + n] = np.eye(n)
+        for k in range(N):
+            self.Z[k, n : n + m, 1 + n + k * m : 1 + n + (k + 1) * m] = np.eye(m)
+            self.Z[k, n + m, 0] = 1.0
+        self._stages = [(G[k], self.Z[k], self.Z[k + 1, :n]) for k in range(N)]
+        self.M3 = np.zeros((N, n, C))
         self.M = self.M3.reshape(N * n, 1 + n + nu)
         self._I = np.eye(n)
         self.QG = np.empty((N, n, 1 + n + nu))
@@ -145,31 +152,19 @@ class CondensedLTV:
         self.dX = np.empty(N * n)
         self.lam = np.zeros(self.nvar + nrow)
 
-    def condense(self, At: np.ndarray, Bt: np.ndarray, D: np.ndarray, e: np.ndarray, du_ref: np.ndarray) -> None:
-        """Build ``[c | Φ | Γ]``, ``H``, ``g_0`` and ``G_x`` for the current linearization.
+    def condense(self, e: np.ndarray, du_ref: np.ndarray) -> None:
+        """Build ``[c | Φ | Γ]``, ``H``, ``g_0`` and ``G_x`` for the linearization now in ``G``.
 
         Args:
-            At: Transposed state Jacobians ``(N, n, n)``: ``At[k] = A_kᵀ``.
-            Bt: Transposed input Jacobians ``(N, m, n)``: ``Bt[k] = B_kᵀ``.
-            D: Defects ``(N, n)``: ``D[k] = F(x̄_k, ū_k) − x̄_{k+1}``.
             e: State errors ``(N n,)``: ``x̄_{k+1} − r_{k+1}`` stacked.
             du_ref: Input errors ``(N m,)``: ``ū_k − u_ref`` stacked.
         """
-        n, m, N, nu = self.n, self.m, self.N, self.nu
+        n, N, nu = self.n, self.N, self.nu
+        mm = np.matmul
+        for g, z, out in self._stages:
+            mm(g, z, out=out)
         M3 = self.M3
-        prev = None
-        for k in range(N):
-            wk = 1 + n + k * m  # columns that can be nonzero before B_k enters
-            Ak = At[k].T
-            blk = M3[k]
-            if prev is None:
-                blk[:, 0] = 0.0
-                blk[:, 1 : 1 + n] = Ak
-            else:
-                np.matmul(Ak, prev[:, :wk], out=blk[:, :wk])
-            blk[:, 0] += D[k]
-            blk[:, wk : wk + m] = Bt[k].T
-            prev = blk
+        np.copyto(M3, self.Z[1:, :n])
         np.matmul(self.W, M3, out=self.QG)
         QG = self.QG.reshape(N * n, 1 + n + nu)
         G = self.M[:, 1 + n :]
