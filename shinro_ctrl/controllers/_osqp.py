@@ -244,6 +244,15 @@ class OsqpQP:
         else:
             self.solver.warm_start(x=x, y=y)
 
+    def update_settings(self, **settings: Any) -> None:
+        """Change settings between solves (e.g. tighter ``eps_abs``/``eps_rel`` for one re-solve).
+
+        Only the settings OSQP allows to change after set-up (tolerances,
+        ``max_iter``, ``polishing``, ``time_limit``, …); kept in :attr:`settings`.
+        """
+        self.solver.update_settings(**settings)
+        self.settings.update(settings)
+
     def update_rho(self, rho: float) -> None:
         """Set the ADMM step ``rho`` (OSQP adapts it between solves when ``adaptive_rho``)."""
         if self._raw is not None:

@@ -43,6 +43,21 @@ measured state into the initial-state rows of
 ``l``/``u`` (and the previous input into the first rate rows), rewrites ``q``
 only when the reference changes, warm-starts primal and dual variables from
 the previous solution shifted by one stage, and solves.
+
+**Backends** (``solver=``). ``"osqp"`` solves the sparse form above; its
+default settings polish the ADMM solution (an exact solve of the KKT system
+on the identified active set), and a solve that ends "solved inaccurate",
+unpolished or at the iteration limit is re-solved from its own iterate with
+tightened tolerances (and, when the problem is small enough, settled by the
+condensed solver) before anything is reported. ``"daqp"`` solves the
+condensed, input-only QP of ``controllers/qp/condensed.py`` (inputs around
+the DARE's pre-stabilizing feedback, state bounds as dense rows, soft bounds
+as slacks) with DAQP's dual active-set method: the exact optimum, warm-started
+from the previous working set. ``"auto"`` (default) picks ``"daqp"`` while
+the condensed problem is small (:func:`choose_solver`), else ``"osqp"``.
+Either way ``MPCInfeasible`` is raised only with an infeasibility certificate
+(OSQP's, or the elastic LP's behind DAQP's infeasible flag), naming the
+constraint group and stage; an interrupted solve re-raises ``KeyboardInterrupt``.
 """
 
 from __future__ import annotations
@@ -58,6 +73,7 @@ import scipy.sparse as sp
 from shinro_ctrl.controllers._osqp import OsqpQP
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqr import riccati
+from shinro_ctrl.controllers.qp.condensed import MAX_DENSE_SIZE, CondensedQP, DenseSolveInfo, condensed_size
 from shinro_ctrl.controllers.qp.diagnose import diagnose, fmt
 from shinro_ctrl.controllers.qp.options import DEFAULT_OSQP_SETTINGS, PLANT_GIVEN, MPCOptions
 from shinro_ctrl.controllers.qp.sparse import INF as _INF
@@ -66,10 +82,63 @@ from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError
 from shinro_ctrl.linearization import discretize
 from shinro_ctrl.validation import as_vector, state_space, weight_matrix
 
-__all__ = ["DEFAULT_OSQP_SETTINGS", "MAX_QP_SIZE", "QP", "LinearMPC", "MPCOptions", "MPCSolution", "RowGroup"]
+__all__ = [
+    "DEFAULT_OSQP_SETTINGS",
+    "MAX_QP_SIZE",
+    "QP",
+    "LinearMPC",
+    "MPCOptions",
+    "MPCSolution",
+    "RowGroup",
+    "choose_solver",
+]
 
 _SOLVED = "solved"
 _fmt = fmt
+
+#: ``solver="auto"`` uses DAQP while the condensed QP has at most this many
+#: input variables ``N·m`` (and fits :data:`~.qp.condensed.MAX_DENSE_SIZE`).
+#: Measured with ``benchmarks/mpc.py --crossover`` (median call, warm closed
+#: loop, both backends exact): see :func:`choose_solver`.
+AUTO_DAQP_MAX_INPUTS = 400
+
+#: Tightened tolerances of the OSQP re-solve after an inaccurate or unpolished solve.
+_REFINE = {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 100_000, "polishing": True}
+
+
+def choose_solver(n: int, m: int, N: int, opts: MPCOptions) -> str:
+    """The backend ``solver="auto"`` picks for a resolved :class:`MPCOptions`.
+
+    DAQP's condensed QP costs ``O((N m)²)`` per warm call and ``O(N³ m² n)``
+    to build, OSQP's sparse one ``O(N (n + m)²)`` per ADMM iteration plus the
+    polish; measured (``benchmarks/mpc.py --crossover``) DAQP is faster on the
+    shipped scenarios and up to ``N·m`` of a few hundred (cart-pole ``N = 200``:
+    0.16 vs 0.9 ms; quadrotor ``N = 100``, ``N·m = 400``: see the docs). Rule:
+    ``"daqp"`` when ``N·m <= AUTO_DAQP_MAX_INPUTS`` and the dense matrices fit
+    :data:`~.qp.condensed.MAX_DENSE_SIZE`, else ``"osqp"``.
+
+    Args:
+        n: States.
+        m: Inputs.
+        N: Horizon.
+        opts: The resolved options (bounds decide the number of dense rows).
+    """
+    if opts.solver != "auto":
+        return opts.solver
+    return "daqp" if N * m <= AUTO_DAQP_MAX_INPUTS and _dense_size(n, m, N, opts) <= MAX_DENSE_SIZE else "osqp"
+
+
+def _dense_size(n: int, m: int, N: int, opts: MPCOptions) -> int:
+    bounded = np.isfinite
+    return condensed_size(
+        n,
+        m,
+        N,
+        u_rows=int(np.count_nonzero(bounded(opts.u_min) | bounded(opts.u_max))),
+        rate_rows=0 if opts.du_max is None else int(np.count_nonzero(bounded(opts.du_max))),
+        x_rows=int(np.count_nonzero(bounded(opts.x_min) | bounded(opts.x_max))),
+        soft=bool(opts.soft),
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,10 +146,13 @@ class MPCSolution:
     """The outcome of one :class:`LinearMPC` call.
 
     Attributes:
-        status: OSQP's status string (``"solved"``, ``"primal infeasible"``, …).
-        iterations: ADMM iterations.
+        status: The backend's status (OSQP's string, ``"solved"``,
+            ``"primal infeasible"``, …, or DAQP's exit flag name).
+        iterations: ADMM iterations (OSQP, re-solve included) or active-set
+            iterations (DAQP).
         solve_time_s: Wall time of the whole call [s], Python work included.
-        osqp_solve_time_s: OSQP's own solve time [s].
+        osqp_solve_time_s: The QP solver's own solve time [s] (OSQP's or
+            DAQP's; the name predates the DAQP backend).
         objective: Value of the MPC cost (constant reference terms included);
             NaN when the solve failed.
         states: Predicted states ``(N + 1, n)`` in absolute units.
@@ -91,6 +163,12 @@ class MPCSolution:
         message: Why the solve failed (empty when solved).
         max_slack: Largest slack of the soft state bounds over the horizon,
             i.e. the planned bound violation (0 for hard bounds).
+        backend: ``"osqp"`` or ``"daqp"``.
+        active_set_size: Inequality constraints active at the solution
+            (nonzero multipliers; -1 when not solved).
+        kkt_residual: KKT residual of the returned solution: OSQP's
+            ``max(prim_res, dual_res)``, or the condensed QP's stationarity,
+            feasibility and complementarity residual (NaN when not solved).
     """
 
     status: str
@@ -104,10 +182,13 @@ class MPCSolution:
     fallback_used: bool = False
     message: str = ""
     max_slack: float = 0.0
+    backend: str = "osqp"
+    active_set_size: int = -1
+    kkt_residual: float = math.nan
 
 
 class LinearMPC(Controller):
-    r"""Linear MPC on a sparse QP, solved by one warm-started OSQP object.
+    r"""Linear MPC solved exactly: a condensed QP by DAQP, or the sparse QP by one warm-started OSQP object.
 
     With ``δx = x − x0``, ``δu = u − u0`` and references ``r_k``, ``ū`` (in
     absolute units; default ``x0``, ``u0``) each call solves
@@ -168,6 +249,11 @@ class LinearMPC(Controller):
             equilibrium.
         fallback: None (raise on failure) or ``"shift"`` (apply the previous
             plan shifted by one step and flag it).
+        solver: QP backend: ``"auto"`` (default; :func:`choose_solver`:
+            ``"daqp"`` up to ``N·m = 400`` input variables, else ``"osqp"``),
+            ``"daqp"`` (condensed input-only QP, dense dual active set,
+            exact) or ``"osqp"`` (sparse QP, ADMM + polishing, exact unless a
+            polish fails on a problem too large for the condensed check).
         osqp_settings: Overrides of :data:`DEFAULT_OSQP_SETTINGS`; unknown
             keys raise ``ValueError`` listing the valid ones.
         state_names: Names of the states for messages (default ``x[i]``).
@@ -181,6 +267,8 @@ class LinearMPC(Controller):
         P_f: Terminal cost matrix ``(n, n)``.
         last: :class:`MPCSolution` of the latest call (None before the first).
         groups: The :class:`RowGroup` blocks of ``A_con``, by name.
+        solver: The backend in use, ``"osqp"`` or ``"daqp"`` (``"auto"`` resolved).
+        dense: The :class:`~.qp.condensed.CondensedQP` (None on the OSQP backend).
 
     Raises:
         ValueError: wrong shapes (``expected (n, m) but found (p, q)``),
@@ -248,8 +336,38 @@ class LinearMPC(Controller):
         self._osqp = OsqpQP(
             "MPC problem or its osqp_settings", self._P, self._q, self._A, self._l, self._u, self.osqp_settings
         )
+        self.solver = choose_solver(n, m, N, opts)
+        self.dense: CondensedQP | None = self._condensed() if self.solver == "daqp" else None
+        self._referee: CondensedQP | None = self.dense  # settles OSQP solves that stay inexact
+        self._dense_ref = False  # the condensed QP holds a reference (not the operating point)
         self._solved_since_setup = False
         self.reset()
+
+    def _condensed(self) -> CondensedQP:
+        """The condensed QP of this controller's model, bounds and weights (DARE gain as pre-stabilizer)."""
+        o = self.options
+        return CondensedQP(
+            self.A,
+            self.B,
+            self.Q,
+            self.R,
+            self.P_f,
+            self.N,
+            K=self.K,
+            x_op=self.x0,
+            u_op=self.u0,
+            offset=self.offset,
+            u_min=self.u_min,
+            u_max=self.u_max,
+            x_min=self.x_min,
+            x_max=self.x_max,
+            du_max=self.du_max,
+            soft=self.soft,
+            soft_weight_l1=self.soft_weight_l1,
+            soft_weight_quad=self.soft_weight_quad,
+            state_names=o.state_names,
+            input_names=o.input_names,
+        )
 
     @classmethod
     def option_keys(cls) -> tuple[str, ...]:
@@ -348,6 +466,7 @@ class LinearMPC(Controller):
         rate = self.groups.get("rate bounds")
         self._rate0 = None if rate is None else slice(rate.start, rate.start + rate.width)
         self._zshift, self._yshift = s.zshift, s.yshift
+        self._ineq0 = self.groups["dynamics"].stop  # rows from here on are inequalities
         nx = (N + 1) * n
 
         # ---- reusable buffers
@@ -425,6 +544,8 @@ class LinearMPC(Controller):
         self._plan_x: np.ndarray | None = None
         self._plan_age = 0
         self.last: MPCSolution | None = None
+        if self.dense is not None:
+            self.dense.reset()  # cold working set: a reset controller repeats a run exactly
         if self._solved_since_setup:
             # OSQP keeps internal state between solves (adaptive rho and its factorization), so a
             # reset controller must start from a fresh solver to repeat a run exactly.
@@ -456,6 +577,8 @@ class LinearMPC(Controller):
             x = as_vector("x", x, self.n)  # raises with the standard message
         elif not np.isfinite(x).all():
             raise NonFiniteError(f"x must be finite, got {_fmt(x)}")
+        if self.dense is not None:
+            return self._call_dense(x, ref, u_ref, t0)
         n = self.n
         np.subtract(x, self.x0, out=self._dx0)
         self._dx0u[:] = self._dx0
@@ -484,6 +607,11 @@ class LinearMPC(Controller):
         if self._warm:
             qp.warm_start(self._zws, self._yws)
         sol, info = qp.solve()
+        iterations = info.iter
+        if info.status != _SOLVED or (info.status_polish != 1 and qp.settings["polishing"]):
+            sol, info, iterations, settled = self._refine(x, sol, info, ref, u_ref)
+            if settled is not None:
+                return settled
         if info.status != _SOLVED:
             return self._failed(x, info, sol, t0)
 
@@ -503,7 +631,7 @@ class LinearMPC(Controller):
         self._plan_x, self._plan_u, self._plan_age = states, inputs, 0
         self.last = MPCSolution(
             info.status,
-            info.iter,
+            iterations,
             time.perf_counter() - t0,
             info.solve_time,
             info.obj_val + self._q_const,
@@ -513,8 +641,55 @@ class LinearMPC(Controller):
             False,
             "",
             float(z[self._is].max()) if self._has_slack else 0.0,
+            "osqp",
+            int(np.count_nonzero(sol.y[self._ineq0 :])),
+            max(info.prim_res, info.dual_res),
         )
         return u_out
+
+    def _refine(self, x: np.ndarray, sol: Any, info: Any, ref: Any, u_ref: Any) -> tuple[Any, Any, int, Any]:
+        """Settle an OSQP solve that is not exact yet: interrupted, inaccurate, unpolished or out of iterations.
+
+        An interrupted solve re-raises ``KeyboardInterrupt``; a certified
+        infeasibility ("primal infeasible") is returned as is. Otherwise OSQP
+        re-solves from its own iterate with tolerances 1e-9 and polishing; if
+        the result is still not a polished "solved", the condensed solver
+        settles the step when the problem fits it (its exact optimum, or its
+        certified infeasibility).
+
+        Returns:
+            ``(sol, info, iterations, settled)``: OSQP's final result and the
+            total ADMM iterations, and the input when the condensed solver
+            answered (``last`` already set), else None.
+        """
+        if info.status == "interrupted":
+            raise KeyboardInterrupt("OSQP solve interrupted")
+        iterations = info.iter
+        if info.status == "primal infeasible":
+            return sol, info, iterations, None
+        qp = self._osqp
+        z, y = np.array(sol.x, dtype=float), np.array(sol.y, dtype=float)
+        if np.all(np.isfinite(z)) and np.all(np.isfinite(y)):
+            qp.warm_start(z, y)
+        saved = {k: qp.settings[k] for k in _REFINE}
+        qp.update_settings(**_REFINE)
+        try:
+            sol, info = qp.solve()
+        finally:
+            qp.update_settings(**saved)
+        iterations += info.iter
+        if info.status == "interrupted":
+            raise KeyboardInterrupt("OSQP solve interrupted")
+        if (info.status == _SOLVED and info.status_polish == 1) or info.status == "primal infeasible":
+            return sol, info, iterations, None
+        if self._referee is None and _dense_size(self.n, self.m, self.N, self.options) <= MAX_DENSE_SIZE:
+            self._referee = self._condensed()
+        if self._referee is None:
+            return sol, info, iterations, None  # too large for the condensed check: the tightened solve stands
+        t0 = time.perf_counter()
+        u = self._call_dense(x, ref, u_ref, t0, self._referee)
+        self._shift_warm_start(np.array(sol.x, dtype=float), np.array(sol.y, dtype=float))
+        return sol, info, iterations, u
 
     # ============================================================ internals
     def _check_ref(self, ref: Any) -> np.ndarray | None:
@@ -599,10 +774,76 @@ class LinearMPC(Controller):
         np.minimum(u, self.u_max, out=u)
         np.maximum(u, self.u_min, out=u)
 
+    def _call_dense(self, x: np.ndarray, ref: Any, u_ref: Any, t0: float, dq: CondensedQP | None = None) -> np.ndarray:
+        """One call on the condensed QP (``dq``: the referee of an inexact OSQP solve; default :attr:`dense`)."""
+        own = dq is None
+        dq = self.dense if dq is None else dq
+        assert dq is not None
+        if ref is None and u_ref is None and self.u_ref is None:
+            if self._dense_ref or not own:
+                dq.set_reference()
+                self._dense_ref = False if own else self._dense_ref
+        else:
+            r, ur = self._check_ref(ref), self._check_uref(u_ref)
+            if not own or not (self._dense_ref and _same(r, self._ref_cache) and _same(ur, self._uref_cache)):
+                dq.set_reference(r, ur)
+                if own:
+                    self._dense_ref = True
+                    self._ref_cache = None if r is None else r.copy()
+                    self._uref_cache = None if ur is None else ur.copy()
+        info = dq.solve(x, self._u_prev)
+        if not own and self.dense is None:
+            dq.set_reference()  # the referee's next use starts from the operating point again
+        if not info.solved:
+            return self._failed_dense(x, info, t0, dq)
+        states, inputs, max_slack = dq.plan()
+        u_out = inputs[0].copy()
+        self._clip(u_out)
+        self._u_prev = self._u_prev_buf  # a private copy: the caller may modify what we return
+        self._u_prev_buf[:] = u_out
+        if self._rate0 is not None:
+            self._fill_rate0(u_out, self._l, self._u)
+        self._plan_x, self._plan_u, self._plan_age = states, inputs, 0
+        self.last = MPCSolution(
+            info.status,
+            info.iterations,
+            time.perf_counter() - t0,
+            info.solve_time_s,
+            info.objective,
+            states,
+            inputs,
+            u_out,
+            False,
+            "",
+            max_slack,
+            "daqp",
+            info.active_set_size,
+            info.kkt_residual,
+        )
+        return u_out
+
+    def _failed_dense(self, x: np.ndarray, info: DenseSolveInfo, t0: float, dq: CondensedQP) -> np.ndarray:
+        where = f"(DAQP status '{info.status}', {info.iterations} iterations) at x = {_fmt(x)}"
+        why = dq.explain_infeasibility(x, self._u_prev) if info.exitflag == -1 or info.exitflag < 0 else None
+        if why is not None:
+            message = f"MPC problem infeasible {where}: {why}"
+        else:
+            message = (
+                f"MPC problem not solved {where}: no infeasibility certificate (an elastic LP finds the "
+                "constraints feasible); the solver failed numerically"
+            )
+        return self._give_up(x, info.status, info.iterations, info.solve_time_s, message, t0, "daqp")
+
     def _failed(self, x: np.ndarray, info: Any, sol: Any, t0: float) -> np.ndarray:
         message = diagnose(x, info, sol, self._A, self._l, self._u, self._group_list)
         # the next attempt starts from the shifted warm start, not the failed iterate
         self._shift_warm_start(self._zws.copy(), self._yws.copy())
+        return self._give_up(x, info.status, info.iter, info.solve_time, message, t0, "osqp")
+
+    def _give_up(
+        self, x: np.ndarray, status: str, iterations: int, solver_time: float, message: str, t0: float, backend: str
+    ) -> np.ndarray:
+        """Raise :class:`MPCInfeasible` with ``message``, or apply the shifted previous plan (``fallback="shift"``)."""
         age = self._plan_age + 1
         if self.fallback != "shift" or self._plan_u is None or age >= self.N:
             if self.fallback == "shift":
@@ -612,16 +853,17 @@ class LinearMPC(Controller):
                     else f"; fallback 'shift' exhausted the previous plan ({self.N} steps)"
                 )
             self.last = MPCSolution(
-                info.status,
-                info.iter,
+                status,
+                iterations,
                 time.perf_counter() - t0,
-                info.solve_time,
+                solver_time,
                 math.nan,
                 np.full((self.N + 1, self.n), np.nan),
                 np.full((self.N, self.m), np.nan),
                 np.full(self.m, np.nan),
                 False,
                 message,
+                backend=backend,
             )
             raise MPCInfeasible(message)
         self._plan_age = age
@@ -633,16 +875,17 @@ class LinearMPC(Controller):
             self._fill_rate0(u_out, self._l, self._u)
         idx = np.minimum(np.arange(self.N + 1) + age, self.N)
         self.last = MPCSolution(
-            info.status,
-            info.iter,
+            status,
+            iterations,
             time.perf_counter() - t0,
-            info.solve_time,
+            solver_time,
             math.nan,
             self._plan_x[idx],
             self._plan_u[np.minimum(idx[:-1], self.N - 1)],
             u_out,
             True,
             message,
+            backend=backend,
         )
         return u_out
 
@@ -653,6 +896,8 @@ class LinearMPC(Controller):
         dt = "" if self.dt is None else f", dt = {self.dt:g} s"
         lines = [
             f"LinearMPC: n = {self.n} states, m = {self.m} inputs, horizon N = {self.N}{dt}",
+            f"backend: {self.solver} (solver = '{self.options.solver}')"
+            + (f"; {self.dense.describe()}" if self.dense is not None else ""),
             f"QP: {self.n_var} variables, {self.n_con} constraints, nnz(P) = {nnzP}, nnz(A) = {nnzA}",
             "constraint groups: "
             + ", ".join(f"{g.name} [{g.start}:{g.stop}] ({g.width} x {g.stages} stages)" for g in self._group_list),

@@ -76,6 +76,7 @@ __all__ = [
     "DenseQP",
     "DenseRowGroup",
     "DenseSolveInfo",
+    "condensed_size",
     "prestabilizing_gain",
 ]
 
@@ -83,7 +84,7 @@ __all__ = [
 DAQP_STATUS: dict[int, str] = {
     2: "solved (soft optimal)",
     1: "solved",
-    -1: "infeasible",
+    -1: "primal infeasible",
     -2: "cycling",
     -3: "unbounded",
     -4: "iteration limit",
@@ -206,6 +207,22 @@ class DenseQP:
     lower: np.ndarray
     upper: np.ndarray
     const: float
+
+
+def condensed_size(n: int, m: int, N: int, *, u_rows: int, rate_rows: int, x_rows: int, soft: bool) -> int:
+    """Dense matrix entries a :class:`CondensedQP` holds (the quantity :data:`MAX_DENSE_SIZE` caps).
+
+    Args:
+        n, m, N: States, inputs, horizon.
+        u_rows: Bounded inputs per stage.
+        rate_rows: Rate-bounded inputs per stage.
+        x_rows: Bounded states per stage.
+        soft: Soft state bounds (one slack and two rows per bounded state and stage).
+    """
+    ns = N * x_rows if soft else 0
+    nv = N * m
+    rows = N * (u_rows + rate_rows + x_rows * (2 if soft else 1))
+    return (N + 1) * n * nv + (ns + nv) ** 2 + rows * (ns + nv + n)
 
 
 def prestabilizing_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -379,7 +396,7 @@ class CondensedQP:
         ns = N * w if self.soft else 0
         nv = N * m
         rows = N * self._ub.size + N * self._rb.size + N * w * (2 if self.soft else 1)
-        size = (N + 1) * n * nv + (ns + nv) ** 2 + rows * (ns + nv + n)
+        size = condensed_size(n, m, N, u_rows=self._ub.size, rate_rows=self._rb.size, x_rows=w, soft=self.soft)
         if size > MAX_DENSE_SIZE:
             raise InvalidArgument(
                 f"horizon {N} makes the condensed QP too large: {size:,} dense matrix entries "

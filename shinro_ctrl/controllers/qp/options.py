@@ -22,7 +22,7 @@ import numpy as np
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.validation import as_vector, bound_pair, bound_vector, check_positive, weight_matrix
 
-__all__ = ["DEFAULT_OSQP_SETTINGS", "PLANT_GIVEN", "MPCOptions"]
+__all__ = ["DEFAULT_OSQP_SETTINGS", "PLANT_GIVEN", "SOLVERS", "MPCOptions"]
 
 #: Defaults tuned for closed-loop control of the cart-pole benchmark (see
 #: API-NOTES and benchmarks/mpc.py). eps <= 1e-4 keeps the first move within
@@ -37,7 +37,7 @@ DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
     "eps_abs": 1e-4,
     "eps_rel": 1e-4,
     "warm_starting": True,
-    "polishing": False,
+    "polishing": True,  # exactness: the polished solution is the QP's optimum (the first move within 1e-7)
     "check_termination": 5,
     "check_dualgap": False,
     "alpha": 1.3,
@@ -46,6 +46,9 @@ DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
     "max_iter": 10000,
     "verbose": False,
 }
+
+#: QP backends of LinearMPC: ``"auto"`` picks by problem size (see ``LinearMPC``).
+SOLVERS = ("auto", "osqp", "daqp")
 
 #: Options ``from_plant`` fills in from the plant (a scenario cannot set them).
 PLANT_GIVEN = ("dt", "offset", "state_names", "input_names")
@@ -71,6 +74,8 @@ class MPCOptions:
         u_ref: Default input reference ``(m,)`` in absolute units (default ``u0``).
         offset: Affine term ``d`` ``(n,)`` of the model; zero at an equilibrium.
         fallback: None (raise on failure) or ``"shift"``.
+        solver: QP backend, ``"auto"``, ``"osqp"`` (sparse) or ``"daqp"``
+            (condensed, dense active set).
         osqp_settings: Overrides of :data:`DEFAULT_OSQP_SETTINGS` (after
             :meth:`resolve`: the merged settings).
         state_names: Names of the states for messages (default ``x[i]``).
@@ -92,6 +97,7 @@ class MPCOptions:
     u_ref: Any = None
     offset: Any = None
     fallback: str | None = None
+    solver: str = "auto"
     osqp_settings: Mapping[str, Any] | None = None
     state_names: Any = None
     input_names: Any = None
@@ -125,6 +131,8 @@ class MPCOptions:
             raise InvalidArgument(f"soft_weight_quad must be > 0 and finite, got {self.soft_weight_quad!r}")
         if self.fallback not in (None, "shift"):
             raise InvalidArgument(f"fallback must be None or 'shift', got {self.fallback!r}")
+        if self.solver not in SOLVERS:
+            raise InvalidArgument(f"solver must be one of {', '.join(map(repr, SOLVERS))}, got {self.solver!r}")
         tc = self.terminal_cost
         if isinstance(tc, str):
             if tc not in ("dare", "Q"):
