@@ -350,3 +350,53 @@ def test_analyze_cartpole_lqr():
     text = a.format()
     for word in ("ζ_min", "controllability rank 4/4", "GM low", "Ms = ", "step: x"):
         assert word in text
+
+
+# ------------------------------------------------- scenario keys, run metrics
+
+
+def test_bryson_scenario_keys():
+    from shinro_ctrl.config import parse_scenario
+    from shinro_ctrl.errors import ConfigError
+    from shinro_ctrl.sim import RobotSim
+
+    doc = {
+        "plant": {"type": "CartPole"},
+        "controller": {"type": "LQR", "Q": {"bryson": [0.5, 1, 0.2, math.inf]}, "R": {"bryson": [5]}},
+    }
+    sim = RobotSim.from_config(doc)
+    Q, R = bryson([0.5, 1, 0.2, math.inf], [5])
+    ref = LQR.from_plant(sim.plant, Q, R)
+    np.testing.assert_allclose(sim.controller.K, ref.K, rtol=1e-12)
+    for bad, msg in (
+        ({"bryson": [0, 1, 1, 1]}, "positive"),
+        ({"brysn": [1, 1, 1, 1]}, "only 'bryson'"),
+        ({"bryson": [1, 1]}, "4 values"),
+    ):
+        doc["controller"]["Q"] = bad
+        with pytest.raises(ConfigError, match=msg):
+            parse_scenario(doc)
+    doc["controller"]["Q"] = [1, 1, 1, 1]
+    doc["controller"]["R"] = {"bryson": [math.inf]}
+    with pytest.raises(ConfigError, match="finite"):
+        parse_scenario(doc)
+
+
+def test_run_metrics_overshoot_and_rise_time():
+    from shinro_ctrl.sim import RobotSim, response_metrics
+
+    res = RobotSim.from_config("cartpole_lqr.toml").run()
+    # the angle (largest initial error, 0.2 rad) decays to 0 and swings past it
+    i = res.state_names.index("theta")
+    ref = step_metrics(res.t, res.x[:, i], final=0.0, target=0.0)
+    assert res.metrics["overshoot"] == pytest.approx(ref.overshoot) and res.metrics["overshoot"] > 0
+    assert res.metrics["rise_time"] == pytest.approx(ref.rise_time)
+    # a moving reference has no step response; a step of the reference is measured from the step
+    t = np.arange(201) * 0.01
+    x = np.zeros((201, 1))
+    r = np.zeros((201, 1))
+    assert response_metrics(t, x, np.sin(t)[:, None]) == {}
+    r[100:] = 1.0
+    x[100:, 0] = 1 - np.exp(-(t[100:] - 1.0) / 0.1)
+    m = response_metrics(t, x, r)
+    assert m["overshoot"] == 0.0 and m["rise_time"] == pytest.approx(0.1 * math.log(9), abs=0.011)
