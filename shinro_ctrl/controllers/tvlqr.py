@@ -98,13 +98,16 @@ def riccati_backward(
     gains = np.empty((K, m, n))
     S = np.empty((K + 1, n, n))
     S[K] = Qf
+    Sn = S[K]
     for k in range(K - 1, -1, -1):
-        Ak, Bk, Sn = A[k], B[k], S[k + 1]
+        Ak, Bk = A[k], B[k]
         SB = Sn @ Bk
-        G = np.linalg.solve(R + Bk.T @ SB, SB.T @ Ak)
+        H = R + Bk.T @ SB
+        g = SB.T @ Ak
+        G = g / H[0, 0] if m == 1 else np.linalg.solve(H, g)  # one input: skip LAPACK's per-call overhead
         gains[k] = G
-        Sk = Q + Ak.T @ Sn @ (Ak - Bk @ G)
-        S[k] = 0.5 * (Sk + Sk.T)
+        Sk = Q + Ak.T @ (Sn @ (Ak - Bk @ G))
+        Sn = S[k] = 0.5 * (Sk + Sk.T)
     return gains, S
 
 

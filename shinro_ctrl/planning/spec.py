@@ -13,6 +13,10 @@ Keys (all optional except ``start`` and ``goal`` when no ``file`` is given)::
     substeps = 1                      # RK4 steps per interval (multiple_shooting)
     file = "plan.npz"                 # load a saved Trajectory instead of solving
 
+Solved plans are kept in a small cache keyed by the plant's class, parameters,
+``dt`` and the table, so a sweep that rebuilds the controller on the same
+nominal plant for every sample plans once.
+
 The last knot's input is pinned to the equilibrium input at the goal when the
 goal is an equilibrium (so the regulator that takes over starts from rest).
 """
@@ -31,6 +35,9 @@ from shinro_ctrl.planning.trajectory import METHODS, Trajectory
 from shinro_ctrl.validation import did_you_mean
 
 __all__ = ["BOUND_KEYS", "PLAN_KEYS", "check_plan", "equilibrium_input", "make_plan"]
+
+_CACHE: dict[str, Trajectory] = {}
+_CACHE_SIZE = 8
 
 PLAN_KEYS = ("start", "goal", "knots", "method", "duration", "cost", "bounds", "substeps", "file")
 BOUND_KEYS = ("u_min", "u_max", "x_min", "x_max")
@@ -183,6 +190,9 @@ def make_plan(plant: Any, spec: Mapping[str, Any]) -> Trajectory:
                 f"{traj.state_dim} and {traj.input_dim}"
             )
         return traj
+    key = repr((type(plant).__name__, sorted(plant.params().items()), plant.dt, sorted(spec.items())))
+    if key in _CACHE:
+        return _CACHE[key]
     bounds = spec.get("bounds", {})
     opt = TrajectoryOptimizer(
         plant,
@@ -200,4 +210,8 @@ def make_plan(plant: Any, spec: Mapping[str, Any]) -> Trajectory:
                 f"infeasible plan: the input that holds the goal, {np.array2string(u_goal, precision=4)}, "
                 "is outside u_min/u_max"
             )
-    return opt.solve(spec["start"], goal, duration=spec.get("duration"), cost=spec.get("cost", "effort"), u_goal=u_goal)
+    traj = opt.solve(spec["start"], goal, duration=spec.get("duration"), cost=spec.get("cost", "effort"), u_goal=u_goal)
+    if len(_CACHE) >= _CACHE_SIZE:
+        _CACHE.pop(next(iter(_CACHE)))
+    _CACHE[key] = traj
+    return traj

@@ -18,7 +18,7 @@ Outside ``[t_0, t_N]`` both interpolants hold their end values.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +67,6 @@ class Trajectory:
     state_names: tuple[str, ...] = ()
     input_names: tuple[str, ...] = ()
     xdot_right: np.ndarray | None = None
-    _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float)
