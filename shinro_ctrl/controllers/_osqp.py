@@ -39,6 +39,7 @@ from shinro_ctrl.validation import closest, unknown_keys
 __all__ = ["OsqpQP", "merge_settings", "setup_solver", "valid_settings"]
 
 _LOCK = threading.Lock()  # fd 1 is process-wide: one redirected set-up at a time
+_OSQP_SIGINT = int(osqp.SolverStatus.OSQP_SIGINT)  # OSQP's own Ctrl-C handler stopped the solve
 
 
 def _c_fflush() -> Any:
@@ -261,10 +262,19 @@ class OsqpQP:
             self.solver.update_settings(rho=rho)
 
     def solve(self) -> tuple[Any, Any]:
-        """Solve; returns ``(solution, info)`` (``.x``, ``.y``, ``.prim_inf_cert``; ``.status``, ``.iter``, …)."""
+        """Solve; returns ``(solution, info)`` (``.x``, ``.y``, ``.prim_inf_cert``; ``.status``, ``.iter``, …).
+
+        Raises:
+            KeyboardInterrupt: OSQP caught Ctrl-C (status ``interrupted``): the interruption ends the
+                command, it is never reported as an infeasible or failed solve.
+        """
         raw = self._raw
         if raw is not None:
             raw.solve()
-            return raw.solution, raw.info
-        sol = self.solver.solve(raise_error=False)
-        return sol, sol.info
+            info = raw.info
+        else:
+            sol = self.solver.solve(raise_error=False)
+            info = sol.info
+        if info.status_val == _OSQP_SIGINT:
+            raise KeyboardInterrupt("OSQP solve interrupted")
+        return (raw.solution if raw is not None else sol), info
