@@ -165,3 +165,37 @@ def _with(**tables) -> dict:
 def test_scenario_bad_input(doc, match):
     with pytest.raises(ConfigError, match=match):
         RobotSim.from_config(doc)
+
+
+def test_offset_free_mpc_holds_the_quadrotor_against_wind_and_plain_mpc_does_not():
+    doc = _doc("quadrotor_wind_mpc_mujoco")
+    sim = RobotSim.from_config(doc)
+    assert sim.loop == "mujoco" and sim.estimator.disturbance_model == "input"
+    res = sim.run()
+    late = res.t >= 7.0
+    offset_free = np.abs(res.x[late, :3] - res.ref[late, :3]).mean(axis=0)
+    assert offset_free.max() < 1e-2
+    np.testing.assert_allclose(res.disturbance[res.t[:-1] >= 1.0, 0], 0.3)
+
+    plain = copy.deepcopy(doc)
+    del plain["controller"]["disturbance_model"], plain["estimator"], plain["sim"]["measured"]
+    plain["sim"]["sensor_noise"] = [0.001] * 12  # full state, same kind of noise
+    res = RobotSim.from_config(plain).run()
+    drift = np.abs(res.x[late, :3] - res.ref[late, :3]).mean(axis=0)
+    assert drift[0] > 5e-2  # settles downwind
+
+
+def test_offset_free_call_with_zero_disturbance_is_the_plain_mpc():
+    from shinro_ctrl.controllers import LinearMPC
+    from shinro_ctrl.plants import CartPole
+
+    plant = CartPole()
+    kw = dict(horizon=20, u_min=[-5.0], u_max=[5.0])
+    free = LinearMPC.from_plant(plant, [10, 1, 100, 1], [0.1], disturbance_model="input", **kw)
+    plain = LinearMPC.from_plant(plant, [10, 1, 100, 1], [0.1], **kw)
+    x = np.array([0.1, 0.0, 0.05, 0.0])
+    np.testing.assert_allclose(free(np.r_[x, 0.0]), plain(x), rtol=1e-9, atol=1e-12)
+    u = free(np.r_[x, 0.3])  # the effective input v = u + d is what the plain MPC returns
+    np.testing.assert_allclose(u, np.clip(plain(x) - 0.3, -5, 5), rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="disturbance_model must be None or 'input'"):
+        LinearMPC.from_plant(plant, [10, 1, 100, 1], [0.1], disturbance_model="output", **kw)

@@ -73,6 +73,7 @@ import scipy.sparse as sp
 from shinro_ctrl.controllers._osqp import OsqpQP
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqr import riccati
+from shinro_ctrl.controllers.offset_free import offset_free_call
 from shinro_ctrl.controllers.qp.condensed import MAX_DENSE_SIZE, CondensedQP, DenseSolveInfo, condensed_size
 from shinro_ctrl.controllers.qp.diagnose import diagnose, fmt
 from shinro_ctrl.controllers.qp.options import DEFAULT_OSQP_SETTINGS, PLANT_GIVEN, MPCOptions
@@ -315,6 +316,7 @@ class LinearMPC(Controller):
         self.du_max, self.soft = opts.du_max, opts.soft
         self.soft_weight_l1, self.soft_weight_quad = opts.soft_weight_l1, opts.soft_weight_quad
         self.u_ref, self.fallback = opts.u_ref, opts.fallback
+        self.disturbance_model = opts.disturbance_model  # "input": offset-free (controllers/offset_free.py)
         self.state_names, self.input_names = opts.state_names, opts.input_names
         self.osqp_settings = opts.osqp_settings
         self._check_size()
@@ -556,7 +558,8 @@ class LinearMPC(Controller):
         """Solve the MPC problem at state ``x`` and return the first input.
 
         Args:
-            x: Measured state ``(n,)`` [absolute units].
+            x: Measured state ``(n,)`` [absolute units]; with
+                ``disturbance_model="input"`` also ``[x̂; d̂]`` ``(n + m,)``.
             ref: Target state ``(n,)`` or trajectory ``(N + 1, n)`` over the
                 horizon [absolute]; default the operating point ``x0``.
             u_ref: Input reference ``(m,)`` [absolute]; default the
@@ -571,6 +574,8 @@ class LinearMPC(Controller):
             MPCInfeasible: OSQP reported infeasibility or hit its iteration or
                 time limit (and no ``fallback="shift"`` plan is left).
         """
+        if self.disturbance_model is not None and np.shape(x) == (self.n + self.m,):
+            return offset_free_call(self, x, ref, u_ref)  # [x̂; d̂] from a disturbance-augmented estimator
         t0 = time.perf_counter()
         x = np.asarray(x, dtype=float)
         if x.shape != (self.n,):

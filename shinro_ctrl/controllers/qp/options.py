@@ -74,6 +74,9 @@ class MPCOptions:
         u_ref: Default input reference ``(m,)`` in absolute units (default ``u0``).
         offset: Affine term ``d`` ``(n,)`` of the model; zero at an equilibrium.
         fallback: None (raise on failure) or ``"shift"``.
+        disturbance_model: None, or ``"input"`` for offset-free MPC: the
+            controller then takes ``[x̂; d̂]`` ``(n + m,)`` from an estimator
+            with a constant input disturbance ``d̂`` (see ``controllers/offset_free.py``).
         solver: QP backend, ``"auto"``, ``"osqp"`` (sparse) or ``"daqp"``
             (condensed, dense active set).
         osqp_settings: Overrides of :data:`DEFAULT_OSQP_SETTINGS` (after
@@ -97,6 +100,7 @@ class MPCOptions:
     u_ref: Any = None
     offset: Any = None
     fallback: str | None = None
+    disturbance_model: str | None = None
     solver: str = "auto"
     osqp_settings: Mapping[str, Any] | None = None
     state_names: Any = None
@@ -131,6 +135,8 @@ class MPCOptions:
             raise InvalidArgument(f"soft_weight_quad must be > 0 and finite, got {self.soft_weight_quad!r}")
         if self.fallback not in (None, "shift"):
             raise InvalidArgument(f"fallback must be None or 'shift', got {self.fallback!r}")
+        if self.disturbance_model not in (None, "input"):
+            raise InvalidArgument(f"disturbance_model must be None or 'input', got {self.disturbance_model!r}")
         if self.solver not in SOLVERS:
             raise InvalidArgument(f"solver must be one of {', '.join(map(repr, SOLVERS))}, got {self.solver!r}")
         tc = self.terminal_cost
