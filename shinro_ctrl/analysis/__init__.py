@@ -7,7 +7,7 @@
 * :func:`bryson`: Bryson's-rule weights ``Q = diag(1/x_max²)``, ``R = diag(1/u_max²)``.
 
 python-control is imported only inside the functions that need it, so importing
-this package stays cheap (the scenario layer uses :mod:`.weights`).
+this package stays cheap (the scenario layer uses :mod:`shinro_ctrl.analysis.weights`).
 """
 
 from shinro_ctrl.analysis.design import DesignAnalysis, analyze_controller, feedback_gain
