@@ -1,4 +1,4 @@
-r"""Rotation helpers on SO(3) and SE(3) shared by the arm plant and the IK solvers.
+r"""Rotations on SO(3)/SE(3) and serial-chain kinematics shared by the arm plant and the IK solvers.
 
 Conventions:
 
@@ -27,12 +27,17 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import casadi as cs
 import numpy as np
 
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.backend import CasadiBackend, ScalarBackend
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 
 __all__ = [
     "IKResult",
+    "KinematicsBuffer",
+    "SerialChain",
+    "damped_least_squares",
     "euler_zyx_from_matrix",
     "euler_zyx_to_matrix",
     "pose_from_transform",
@@ -214,3 +219,237 @@ def so3_log_flat(r: list[float]) -> tuple[float, float, float]:
         n = (-n[0], -n[1], -n[2])
     norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
     return theta * n[0] / norm, theta * n[1] / norm, theta * n[2] / norm
+
+
+# ------------------------------------------------------------------ serial chains
+_AXES = ("x", "y", "z")
+_SCALAR = ScalarBackend()
+_CASADI = CasadiBackend()
+
+
+class SerialChain:
+    r"""Forward kinematics and Jacobians of a serial chain of revolute joints (numeric and CasADi).
+
+    Joint ``i`` turns about one principal axis (``x``, ``y`` or ``z``) of its
+    own frame, and that frame is its parent's frame translated by the link
+    offset ``o_i`` and then rotated by ``q_i``:
+
+    .. math::
+
+        T_i = T_{i-1}\, \mathrm{Trans}(o_i)\, \mathrm{Rot}(a_i, q_i), \qquad
+        T_{ee} = T_n\, \mathrm{Trans}(o_{ee}).
+
+    Joint ``i`` sits at :math:`p_i = p_{i-1} + R_{i-1} o_i` and turns about
+    the world axis :math:`z_i = R_i e_{a_i}`. The geometric Jacobian ``(6, n)``
+    (world frame, position rows first) has columns
+    :math:`[z_i \times (p_{ee} - p_i);\ z_i]`. The chain is written once
+    (:meth:`chain`) against a scalar backend: on Python floats it is the
+    numeric FK, on ``casadi.SX`` symbols the symbolic FK from which the exact
+    Jacobian and the compiled evaluator (:meth:`evaluator`) are built. Used by
+    :class:`~shinro_ctrl.plants.ArmRobot` and
+    :class:`~shinro_ctrl.controllers.ik_qp.IKQP`.
+
+    Args:
+        offsets: Link offsets ``(n, 3)`` [m], each in the parent joint's frame.
+        axes: ``n`` axis letters (``"x"``, ``"y"`` or ``"z"``).
+        ee_offset: End-effector offset ``(3,)`` [m] in the last joint's frame.
+    """
+
+    def __init__(self, offsets: Any, axes: Any, ee_offset: Any = (0.0, 0.0, 0.0)):
+        self.offsets = [tuple(float(v) for v in row) for row in np.asarray(offsets, dtype=float)]
+        self.axes = tuple(axes)
+        for i, a in enumerate(self.axes):
+            if a not in _AXES:
+                raise InvalidArgument(f"rot_axes[{i}] must be one of 'x', 'y', 'z', got {a!r}")
+        if len(self.axes) != len(self.offsets):
+            raise InvalidArgument(f"rot_axes: expected {len(self.offsets)} axes but found {len(self.axes)}")
+        self.n = len(self.axes)
+        self._axis_index = [_AXES.index(a) for a in self.axes]
+        self.ee = tuple(float(v) for v in ee_offset)
+        self._sym: tuple | None = None
+        self._fk_fun: Any = None
+        self._exact_fun: Any = None
+        self._fast: KinematicsBuffer | None = None
+
+    def chain(self, bk: Any, q: Any) -> tuple[list, list, list, list]:
+        """The kinematic chain against a scalar backend.
+
+        Args:
+            bk: ``ScalarBackend`` (Python floats) or ``CasadiBackend`` (SX scalars).
+            q: ``n`` joint angles (floats or SX scalars).
+
+        Returns:
+            ``(p_ee, cols, positions, axes)``: end-effector position (3 scalars), the three
+            columns of ``R_ee`` (each 3 scalars), and per joint its world position and
+            world axis (lists of 3 scalars).
+        """
+        c = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]  # columns of R
+        p = [0.0, 0.0, 0.0]
+        positions, axes = [], []
+        for i in range(self.n):
+            p = _add_rotated(p, c, self.offsets[i])
+            k = self._axis_index[i]
+            a, b = (k + 1) % 3, (k + 2) % 3
+            cq, sq = bk.cos(q[i]), bk.sin(q[i])
+            ca, cb = c[a], c[b]
+            c[a] = [cq * ca[r] + sq * cb[r] for r in range(3)]
+            c[b] = [cq * cb[r] - sq * ca[r] for r in range(3)]
+            positions.append(p)
+            axes.append(c[k])
+        return _add_rotated(p, c, self.ee), c, positions, axes
+
+    @staticmethod
+    def geometric_columns(p_ee: list, positions: list, axes: list) -> list[list]:
+        """Columns ``[z_i × (p_ee − p_i); z_i]`` of the geometric Jacobian (lists of 6 scalars)."""
+        cols = []
+        for p, z in zip(positions, axes, strict=True):
+            dx, dy, dz = p_ee[0] - p[0], p_ee[1] - p[1], p_ee[2] - p[2]
+            cols.append([z[1] * dz - z[2] * dy, z[2] * dx - z[0] * dz, z[0] * dy - z[1] * dx, z[0], z[1], z[2]])
+        return cols
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        """``(T_ee (4, 4), joint positions [(3,)] [m], joint world axes [(3,)])`` at joints ``q (n,)``."""
+        p, c, positions, axes = self.chain(_SCALAR, np.asarray(q, dtype=float).tolist())
+        T = np.eye(4)
+        T[:3, :3] = np.array(c).T
+        T[:3, 3] = p
+        return T, [np.array(v) for v in positions], [np.array(v) for v in axes]
+
+    def symbolic(self) -> tuple:
+        """``(q, p (3, 1), R (3, 3), J_geometric (6, n))`` as CasADi SX, built once."""
+        if self._sym is None:
+            qs = cs.SX.sym("q", self.n)
+            p, c, positions, axes = self.chain(_CASADI, [qs[i] for i in range(self.n)])
+            P = cs.vertcat(*p)
+            R = cs.horzcat(*[cs.vertcat(*col) for col in c])
+            J = cs.horzcat(*[cs.vertcat(*col) for col in self.geometric_columns(p, positions, axes)])
+            self._sym = (qs, P, R, J)
+        return self._sym
+
+    def symbolic_fk(self) -> Any:
+        """The FK as a CasADi ``Function`` named ``"fk"``: ``q (n,) -> (p (3,), R (3, 3))``."""
+        if self._fk_fun is None:
+            qs, p, R, _ = self.symbolic()
+            self._fk_fun = cs.Function("fk", [qs], [p, R], ["q"], ["p", "R"])
+        return self._fk_fun
+
+    def exact_jacobian(self, q: np.ndarray) -> np.ndarray:
+        r"""CasADi derivative of the symbolic FK ``(6, n)``.
+
+        Angular rows :math:`\mathrm{vee}(\partial R/\partial q_i\, R^\top)`.
+        """
+        if self._exact_fun is None:
+            qs, p, R, _ = self.symbolic()
+            Jp = cs.jacobian(p, qs)
+            Rt = R.T
+            cols = []
+            for i in range(self.n):
+                S = cs.reshape(cs.jacobian(cs.vec(R), qs[i]), 3, 3) @ Rt  # ∂R/∂q_i Rᵀ (skew)
+                cols.append(cs.vertcat(S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]) / 2)
+            self._exact_fun = cs.Function("jac_exact", [qs], [cs.densify(cs.vertcat(Jp, cs.horzcat(*cols)))])
+        return np.array(self._exact_fun(q), dtype=float)
+
+    def fd_jacobian(self, q: np.ndarray, eps: float) -> np.ndarray:
+        """Central differences of the FK ``(6, n)`` with step ``eps`` [rad]; angular rows from the log map."""
+        J = np.empty((6, self.n))
+        for i in range(self.n):
+            qp, qm = q.copy(), q.copy()
+            qp[i] += eps
+            qm[i] -= eps
+            Tp, _, _ = self.fk(qp)
+            Tm, _, _ = self.fk(qm)
+            J[:3, i] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
+            J[3:, i] = so3_log(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * eps)
+        return J
+
+    def evaluator(self) -> KinematicsBuffer:
+        """The compiled evaluator of ``(p, R, J)`` at a joint vector (the IK hot path), built once."""
+        if self._fast is None:
+            self._fast = KinematicsBuffer(self)
+        return self._fast
+
+
+def _add_rotated(p: list, c: list, o: tuple[float, float, float]) -> list:
+    """``p + R o`` for ``R`` given by columns ``c``, skipping zero offset components."""
+    out = list(p)
+    for j in range(3):
+        if o[j] != 0.0:
+            col = c[j]
+            out = [out[r] + col[r] * o[j] for r in range(3)]
+    return out
+
+
+class KinematicsBuffer:
+    """``q -> (p (3,), R (3, 3), J (6, n))`` through a CasADi buffer (about 1 µs).
+
+    The compiled function is the symbolic form of :meth:`SerialChain.chain` and
+    :meth:`SerialChain.geometric_columns`, so it equals the geometric Jacobian. Outputs are
+    written into arrays this object owns (CasADi writes column-major nonzeros, so the
+    function returns transposes, whose column-major layout is numpy's row-major one); the
+    returned arrays are overwritten by the next call.
+    """
+
+    def __init__(self, chain: SerialChain):
+        qs, p, R, J = chain.symbolic()
+        n = chain.n
+        f = cs.Function("fk_jac", [qs], [cs.densify(p), cs.densify(R.T), cs.densify(J.T)])
+        self._q = np.zeros(n)
+        self.p = np.zeros(3)
+        self.R = np.zeros((3, 3))
+        self.J = np.zeros((6, n))
+        self._buf, self._eval = f.buffer()
+        self._buf.set_arg(0, memoryview(self._q))
+        self._buf.set_res(0, memoryview(self.p))
+        self._buf.set_res(1, memoryview(self.R.reshape(-1)))
+        self._buf.set_res(2, memoryview(self.J.reshape(-1)))
+
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self._q[:] = q
+        self._eval()
+        if not math.isfinite(self.p[0] + self.p[1] + self.p[2]):
+            raise NonFiniteError(f"joint angles must be finite, got {np.array2string(q, precision=4)}")
+        return self.p, self.R, self.J
+
+
+def damped_least_squares(
+    error_jacobian: Any,
+    q: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    *,
+    max_iters: int,
+    max_step: float,
+    lam: float,
+    converged: Any,
+) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+    r"""The damped-least-squares IK loop (one for the analytic and the engine kinematics).
+
+    Each iteration evaluates ``(e, J) = error_jacobian(q)``, stops when
+    ``converged(e)`` or after ``max_iters`` steps, else takes
+    :math:`\Delta q = J^\top (J J^\top + \lambda^2 I)^{-1} e`, clamps every
+    component to ``±max_step`` and clips ``q`` to ``[lo, hi]``.
+
+    Args:
+        error_jacobian: ``q (n,) -> (e (k,), J (k, n))``.
+        q: Start ``(n,)`` [rad].
+        lo: Lower joint limits ``(n,)``.
+        hi: Upper joint limits ``(n,)``.
+        max_iters: Largest number of steps.
+        max_step: Largest joint change per step [rad].
+        lam: Damping ``λ``.
+        converged: ``e -> bool``.
+
+    Returns:
+        ``(q, steps, e, J)`` at the last evaluation.
+    """
+    it = 0
+    lam2: np.ndarray | None = None
+    while True:
+        e, J = error_jacobian(q)
+        if converged(e) or it >= max_iters:
+            return q, it, e, J
+        if lam2 is None:
+            lam2 = float(lam) ** 2 * np.eye(J.shape[0])
+        dq = J.T @ np.linalg.solve(J @ J.T + lam2, e)
+        q = np.clip(q + np.clip(dq, -max_step, max_step), lo, hi)
+        it += 1

@@ -402,6 +402,7 @@ class RobotSim:
             raise type(exc)(f"{src}: [controller] {exc}") from exc
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{src}: [controller] {exc}") from exc
+        _install_ik(self.plant, self.controller)
         from shinro_ctrl.output_feedback import build_estimator
 
         self.estimator, self.initial_estimate, self.initial_covariance = build_estimator(
@@ -445,6 +446,7 @@ class RobotSim:
         sim = copy.copy(self)
         sim.plant = plant_class(self.scenario.plant.type).from_config({**self.scenario.plant.params, **overrides})
         sim.engine = self._attach_engine(sim.plant) if self.engine is not None else None
+        _install_ik(sim.plant, sim.controller)
         return sim
 
     @classmethod
@@ -665,6 +667,18 @@ class RobotSim:
         if s.regression:
             doc["regression"] = s.regression
         return doc
+
+
+def _install_ik(plant: Any, controller: Any) -> None:
+    """An arm driven by a differential-IK controller turns its twists into that controller's joint targets.
+
+    The scenario layer wires the two (a controller never changes its plant): ``ArmRobot.ik``
+    is the IK its ``step`` uses, and an :class:`~shinro_ctrl.controllers.ik_qp.IKQP` is one.
+    """
+    from shinro_ctrl.plants import ArmRobot
+
+    if isinstance(plant, ArmRobot) and type(controller).__name__ == "IKQP":
+        plant.ik = controller
 
 
 def _bound(value: Any, size: int) -> np.ndarray | None:

@@ -271,7 +271,7 @@ class IKQP(Controller):
         self._sample_hi = np.minimum(self.hi, math.pi)
 
         # Compiled kinematics + QP terms: q -> p, R, J, upper(P), (J^T W)^T.
-        qs, p, R, J = arm._symbolic_chain()
+        qs, p, R, J = arm.chain.symbolic()  # the core SerialChain's CasADi FK and geometric Jacobian
         Jt = J[:k, :]
         ws = cs.SX.sym("w", k)
         lam = cs.SX.sym("lam")
@@ -339,10 +339,12 @@ class IKQP(Controller):
         osqp_settings: dict[str, Any] | None = None,
         control_iters: int = 3,
     ) -> IKQP:
-        """Build the controller of a scenario for an arm, and install it as the arm's IK.
+        """Build the controller of a scenario for an arm (same options as the constructor).
 
-        Same options as the constructor. Setting ``plant.ik`` makes ``plant.step(u)`` turn
-        the twist this controller returns back into the joint targets it computed.
+        The controller never changes the plant. To make ``plant.step(u)`` turn the twist
+        this controller returns back into exactly the joint targets it computed, the
+        caller installs it as the arm's IK (``plant.ik = ik``); :class:`~shinro_ctrl.sim.RobotSim`
+        does so for a scenario.
         """
         ik = cls(
             plant,
@@ -355,7 +357,6 @@ class IKQP(Controller):
             osqp_settings=osqp_settings,
             control_iters=control_iters,
         )
-        plant.ik = ik
         return ik
 
     # ------------------------------------------------------------- internals

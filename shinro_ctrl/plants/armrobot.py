@@ -1,24 +1,9 @@
 r"""A serial-link arm driven in Cartesian space: FK, three Jacobians, IK, MuJoCo mode.
 
-Kinematics. Joint ``i`` turns about one principal axis (``x``, ``y`` or
-``z``) of its own frame, and that frame is its parent's frame translated by
-the link offset ``o_i`` and then rotated by ``q_i``:
-
-.. math::
-
-    T_i = T_{i-1}\, \mathrm{Trans}(o_i)\, \mathrm{Rot}(a_i, q_i), \qquad
-    T_{ee} = T_n\, \mathrm{Trans}(o_{ee}).
-
-Joint ``i`` sits at :math:`p_i = p_{i-1} + R_{i-1} o_i` and turns about the
-world axis :math:`z_i = R_i e_{a_i}`. The geometric Jacobian ``(6, n)``, world
-frame, position rows first, has columns :math:`[z_i \times (p_{ee} - p_i);\ z_i]`:
-its angular rows map joint rates to the world angular velocity (not to Euler
-angle rates).
-
-The chain is written once (:meth:`ArmRobot._chain`) against a scalar backend:
-evaluated on Python floats it is the numeric FK, on ``casadi.SX`` symbols it
-is the symbolic FK from which the exact Jacobian is differentiated and the
-fast compiled evaluator used by the IK solvers is built.
+Kinematics: :class:`~shinro_ctrl.kinematics.SerialChain` (core) holds the
+chain ``T_i = T_{i-1} Trans(o_i) Rot(a_i, q_i)``, its numeric and CasADi FK,
+the geometric, exact and finite-difference Jacobians and the compiled
+evaluator the IK solvers use; the arm owns one as :attr:`ArmRobot.chain`.
 
 Plant model. The state is the end-effector pose ``[x, y, z, roll, pitch,
 yaw]`` (m, ZYX Euler rad) and the input a twist ``[vx, vy, vz, roll_rate,
@@ -30,9 +15,6 @@ target pose, solves IK for it and commands the joints.
 from __future__ import annotations
 
 import copy
-import functools
-import math
-import tomllib
 from collections.abc import Sequence
 from dataclasses import asdict, is_dataclass
 from typing import Any
@@ -40,10 +22,12 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
-from shinro_ctrl.backend import CasadiBackend, ScalarBackend
-from shinro_ctrl.errors import ConfigError, InvalidArgument, NonFiniteError
+from shinro_ctrl.errors import ConfigError, InvalidArgument
 from shinro_ctrl.kinematics import (
     IKResult,
+    KinematicsBuffer,
+    SerialChain,
+    damped_least_squares,
     euler_zyx_from_matrix,
     euler_zyx_to_matrix,
     pose_to_transform,
@@ -51,20 +35,37 @@ from shinro_ctrl.kinematics import (
     so3_log_flat,
 )
 from shinro_ctrl.plants.base import MjcfPatch, Plant
-from shinro_ctrl.resources import config_path
 from shinro_ctrl.validation import as_matrix, as_vector, check_positive
 
-__all__ = ["ARM6_JOINTS", "ArmRobot", "shipped_arm6"]
+__all__ = ["ARM6", "ARM6_JOINTS", "ArmRobot", "shipped_arm6"]
 
-_SCALAR = ScalarBackend()
-_CASADI = CasadiBackend()
 _AXES = ("x", "y", "z")
+_TAU = 6.283185307179586
 
 #: The shipped MJCF arm (``assets/arm6.xml``): its joints, axes and the body of each joint.
 ARM6_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
 ARM6_AXES = ("z", "y", "y", "y", "z", "x")
 ARM6_BODIES = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
 ARM6_SITE = "ee_site"
+
+#: The shipped 6-DOF arm (UR5 link lengths, axes z y y y z x), matched to ``assets/arm6.xml``: the
+#: geometry ``ArmRobot()`` builds. ``configs/arm6.toml`` repeats it as a scenario (a test checks they agree);
+#: nothing is read from a file, so a local ``arm6.toml`` never changes the arm.
+ARM6: dict[str, Any] = {
+    "num_dof": 6,
+    "dt": 0.002,
+    "joint_names": list(ARM6_JOINTS),
+    "rot_axes": list(ARM6_AXES),
+    "joint_offsets": [
+        [0.0, 0.0, 0.089159],
+        [0.0, 0.13585, 0.0],
+        [0.0, -0.1197, 0.425],
+        [0.39225, 0.0, 0.0],
+        [0.0, 0.093, 0.0],
+        [0.0, 0.0, -0.09465],
+    ],
+    "joint_limits": [[-_TAU, _TAU], [-1.6, 1.6], [-1.4, 1.4], [-_TAU, _TAU], [-_TAU, _TAU], [-_TAU, _TAU]],
+}
 
 
 class ArmRobot(Plant):
@@ -78,8 +79,9 @@ class ArmRobot(Plant):
     velocity-aware), else the damped pseudoinverse of
     :meth:`inverse_kinematics` (standalone) or :meth:`engine_ik` (engine).
 
-    ``ArmRobot()`` without geometry is the shipped arm of ``configs/arm6.toml`` /
-    ``assets/arm6.xml`` (UR5 link lengths, axes ``z y y y z x``).
+    ``ArmRobot()`` without geometry is the shipped arm :data:`ARM6` (a Python
+    constant, also in ``configs/arm6.toml``, matched to ``assets/arm6.xml``; UR5
+    link lengths, axes ``z y y y z x``).
 
     Args:
         num_dof: Number of joints ``n`` (>= 1).
@@ -103,9 +105,11 @@ class ArmRobot(Plant):
         axes: Tuple of the ``n`` axis letters.
         joint_names: Tuple of the ``n`` joint names.
         ee_offset: ``(3,)`` array [m].
+        chain: The :class:`~shinro_ctrl.kinematics.SerialChain` (FK, Jacobians).
         dt: Control step [s].
         ik: Optional IK solver used by :meth:`step` (anything with ``track(q, T) -> q``,
-            such as an ``IKQP`` built for this arm); None selects the damped pseudoinverse.
+            such as an ``IKQP`` built for this arm; the scenario layer sets it, never the
+            controller); None selects the damped pseudoinverse.
 
     Raises:
         InvalidArgument: a wrong shape (the message names the argument), ``dt <= 0``, a limit
@@ -187,16 +191,11 @@ class ArmRobot(Plant):
 
         self._lo = self.joint_limits[:, 0].copy()
         self._hi = self.joint_limits[:, 1].copy()
-        self._offsets = [tuple(float(v) for v in row) for row in self.joint_offsets]
-        self._axis_index = [_AXES.index(a) for a in self.axes]
-        self._ee = tuple(float(v) for v in self.ee_offset)
+        self.chain = SerialChain(self.joint_offsets, self.axes, self.ee_offset)
+        self._offsets = self.chain.offsets
         self.ik: Any = None
         self._q = np.clip(np.zeros(n), self._lo, self._hi)  # home pose (q = 0 where the limits allow)
         self._q_cmd = self._q.copy()
-        self._sym: tuple | None = None
-        self._fk_fun: cs.Function | None = None
-        self._exact_fun: cs.Function | None = None
-        self._fast: _KinematicsBuffer | None = None
         self._ee_frame: tuple[str, str] | None = None
         self._dofs: list[int] = []
         self.state = self._pose_of(self._q)
@@ -211,42 +210,6 @@ class ArmRobot(Plant):
         return self._pose_of(np.clip(np.zeros(self.num_dof), self._lo, self._hi)), np.zeros(6)
 
     # ---------------------------------------------------------- kinematics
-    def _chain(self, bk: Any, q: Sequence[Any]) -> tuple[list, list, list, list]:
-        """The kinematic chain, written once against a scalar backend.
-
-        Args:
-            bk: :class:`ScalarBackend` (Python floats) or :class:`CasadiBackend` (SX scalars).
-            q: ``n`` joint angles (floats or SX scalars).
-
-        Returns:
-            ``(p_ee, cols, positions, axes)``: end-effector position (3 scalars), the three
-            columns of ``R_ee`` (each 3 scalars), and per joint its world position and
-            world axis (lists of 3 scalars).
-        """
-        c = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]  # columns of R
-        p = [0.0, 0.0, 0.0]
-        positions, axes = [], []
-        for i in range(self.num_dof):
-            p = _add_rotated(p, c, self._offsets[i])
-            k = self._axis_index[i]
-            a, b = (k + 1) % 3, (k + 2) % 3
-            cq, sq = bk.cos(q[i]), bk.sin(q[i])
-            ca, cb = c[a], c[b]
-            c[a] = [cq * ca[r] + sq * cb[r] for r in range(3)]
-            c[b] = [cq * cb[r] - sq * ca[r] for r in range(3)]
-            positions.append(p)
-            axes.append(c[k])
-        return _add_rotated(p, c, self._ee), c, positions, axes
-
-    @staticmethod
-    def _geometric_columns(p_ee: list, positions: list, axes: list) -> list[list]:
-        """Columns ``[z_i × (p_ee − p_i); z_i]`` of the geometric Jacobian (lists of 6 scalars)."""
-        cols = []
-        for p, z in zip(positions, axes, strict=True):
-            dx, dy, dz = p_ee[0] - p[0], p_ee[1] - p[1], p_ee[2] - p[2]
-            cols.append([z[1] * dz - z[2] * dy, z[2] * dx - z[0] * dz, z[0] * dy - z[1] * dx, z[0], z[1], z[2]])
-        return cols
-
     def _joints(self, q: Any, name: str = "q") -> np.ndarray:
         return as_vector(name, q, self.num_dof)
 
@@ -260,12 +223,7 @@ class ArmRobot(Plant):
             ``(T_ee, positions, axes)``: ``T_ee (4, 4)``; ``positions``, a list of ``n``
             joint origins ``(3,)`` [m]; ``axes``, a list of ``n`` unit world axes ``(3,)``.
         """
-        q = self._joints(q)
-        p, c, positions, axes = self._chain(_SCALAR, q.tolist())
-        T = np.eye(4)
-        T[:3, :3] = np.array(c).T
-        T[:3, 3] = p
-        return T, [np.array(v) for v in positions], [np.array(v) for v in axes]
+        return self.chain.fk(self._joints(q))
 
     def ee_pose(self, q: Any) -> np.ndarray:
         """End-effector pose ``[x, y, z, roll, pitch, yaw]`` (6,) at joints ``q (n,)``."""
@@ -284,7 +242,7 @@ class ArmRobot(Plant):
         Args:
             q: Joint angles ``(n,)`` [rad].
             method: ``"geometric"`` (axes × lever arms, the fast default: the formula of
-                :meth:`_geometric_columns` compiled once with CasADi, a few µs), ``"exact"``
+                :meth:`SerialChain.geometric_columns` compiled once with CasADi, a few µs), ``"exact"``
                 (CasADi derivative of the symbolic FK; angular rows
                 :math:`\mathrm{vee}(\partial R/\partial q_i\, R^\top)`) or ``"fd"`` (central
                 differences of the FK with step ``eps``; angular rows from the log map).
@@ -294,53 +252,22 @@ class ArmRobot(Plant):
         if method == "geometric":
             return self._kinematics()(q)[2].copy()
         if method == "exact":
-            if self._exact_fun is None:
-                qs, p, R, _ = self._symbolic_chain()
-                Jp = cs.jacobian(p, qs)
-                Rt = R.T
-                cols = []
-                for i in range(self.num_dof):
-                    S = cs.reshape(cs.jacobian(cs.vec(R), qs[i]), 3, 3) @ Rt  # ∂R/∂q_i Rᵀ (skew)
-                    cols.append(cs.vertcat(S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]) / 2)
-                self._exact_fun = cs.Function("jac_exact", [qs], [cs.densify(cs.vertcat(Jp, cs.horzcat(*cols)))])
-            return np.array(self._exact_fun(q), dtype=float)
+            return self.chain.exact_jacobian(q)
         if method == "fd":
-            eps = check_positive("eps", eps)
-            J = np.empty((6, self.num_dof))
-            for i in range(self.num_dof):
-                qp, qm = q.copy(), q.copy()
-                qp[i] += eps
-                qm[i] -= eps
-                Tp, _, _ = self.forward_kinematics(qp)
-                Tm, _, _ = self.forward_kinematics(qm)
-                J[:3, i] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
-                J[3:, i] = so3_log(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * eps)
-            return J
+            return self.chain.fd_jacobian(q, check_positive("eps", eps))
         raise InvalidArgument(f"unknown Jacobian method {method!r}; valid: exact, fd, geometric")
 
     def _symbolic_chain(self) -> tuple:
-        """``(q, p (3, 1), R (3, 3), J_geometric (6, n))`` as CasADi SX, built once."""
-        if self._sym is None:
-            qs = cs.SX.sym("q", self.num_dof)
-            p, c, positions, axes = self._chain(_CASADI, [qs[i] for i in range(self.num_dof)])
-            P = cs.vertcat(*p)
-            R = cs.horzcat(*[cs.vertcat(*col) for col in c])
-            J = cs.horzcat(*[cs.vertcat(*col) for col in self._geometric_columns(p, positions, axes)])
-            self._sym = (qs, P, R, J)
-        return self._sym
+        """``(q, p (3, 1), R (3, 3), J_geometric (6, n))`` as CasADi SX (see :meth:`SerialChain.symbolic`)."""
+        return self.chain.symbolic()
 
     def symbolic_fk(self) -> cs.Function:
         """The FK as a CasADi ``Function`` named ``"fk"``: ``q (n,) -> (p (3,), R (3, 3))``."""
-        if self._fk_fun is None:
-            qs, p, R, _ = self._symbolic_chain()
-            self._fk_fun = cs.Function("fk", [qs], [p, R], ["q"], ["p", "R"])
-        return self._fk_fun
+        return self.chain.symbolic_fk()
 
-    def _kinematics(self) -> _KinematicsBuffer:
+    def _kinematics(self) -> KinematicsBuffer:
         """Compiled evaluator of ``(p, R, J)`` at a joint vector (the IK hot path)."""
-        if self._fast is None:
-            self._fast = _KinematicsBuffer(self)
-        return self._fast
+        return self.chain.evaluator()
 
     # ------------------------------------------------------------------ IK
     def inverse_kinematics(
@@ -380,21 +307,27 @@ class ArmRobot(Plant):
         kin = self._kinematics()
         pt = Tt[:3, 3].copy()
         Rt = Tt[:3, :3].copy()
-        lam2 = float(lam) ** 2 * np.eye(6)
-        it = 0
-        while True:
+        errs = [0.0, 0.0]
+
+        def error_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             p, R, J = kin(q)
             e = np.concatenate([pt - p, so3_log_flat((Rt @ R.T).ravel().tolist())])
-            pos_err, ori_err = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
-            converged = pos_err < tol and ori_err < tol
-            if converged or it >= max_iters:
-                break
-            dq = J.T @ np.linalg.solve(J @ J.T + lam2, e)
-            q = np.clip(q + np.clip(dq, -max_step, max_step), self._lo, self._hi)
-            it += 1
+            errs[0], errs[1] = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
+            return e, J
+
+        q, it, _, J = damped_least_squares(
+            error_jacobian,
+            q,
+            self._lo,
+            self._hi,
+            max_iters=max_iters,
+            max_step=max_step,
+            lam=lam,
+            converged=lambda e: errs[0] < tol and errs[1] < tol,
+        )
         if not full_output:
             return q
-        return IKResult(q, converged, it, pos_err, ori_err, J.copy(), 1)
+        return IKResult(q, errs[0] < tol and errs[1] < tol, it, errs[0], errs[1], J.copy(), 1)
 
     def engine_ik(
         self,
@@ -436,18 +369,27 @@ class ArmRobot(Plant):
         rows = 3 if Rt is None else 6
         saved = [(engine.get_joint_qpos(n), engine.get_joint_vel(n)) for n in self.joint_names]
         q = self._read_joints()
+
+        def error_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            for name, v in zip(self.joint_names, q.tolist(), strict=True):
+                engine.set_joint_qpos(name, v)
+            engine.forward()
+            p, R = self._engine_ee()
+            e = pt - p if Rt is None else np.concatenate([pt - p, so3_log(Rt @ R.T)])
+            return e, self._engine_jacobian()[:rows]
+
         try:
-            for _ in range(max_iters + 1):
-                p, R = self._engine_ee()
-                e = pt - p if Rt is None else np.concatenate([pt - p, so3_log(Rt @ R.T)])
-                if np.linalg.norm(e) < tol:
-                    break
-                J = self._engine_jacobian()[:rows]
-                dq = J.T @ np.linalg.solve(J @ J.T + lam**2 * np.eye(rows), e)
-                q = np.clip(q + np.clip(dq, -max_dq, max_dq), self._lo, self._hi)
-                for name, v in zip(self.joint_names, q.tolist(), strict=True):
-                    engine.set_joint_qpos(name, v)
-                engine.forward()
+            # max_iters + 1 steps at most: this loop has always stepped once more than it was asked to
+            q = damped_least_squares(
+                error_jacobian,
+                q,
+                self._lo,
+                self._hi,
+                max_iters=max_iters + 1,
+                max_step=max_dq,
+                lam=lam,
+                converged=lambda e: np.linalg.norm(e) < tol,
+            )[0]
         finally:
             for name, (qp, qv) in zip(self.joint_names, saved, strict=True):
                 engine.set_joint_qpos(name, qp)
@@ -712,16 +654,9 @@ class ArmRobot(Plant):
         return f"ArmRobot(num_dof={self.num_dof}, axes={''.join(self.axes)!r}, dt={self.dt:g}, {mode})"
 
 
-@functools.cache
-def _shipped_arm6_cached() -> dict:
-    with open(config_path("arm6.toml"), "rb") as fh:
-        plant = tomllib.load(fh)["plant"]
-    return {k: v for k, v in plant.items() if k != "type"}
-
-
 def shipped_arm6() -> dict:
-    """The ``[plant]`` table of ``configs/arm6.toml`` (a fresh copy), the default arm."""
-    return copy.deepcopy(_shipped_arm6_cached())
+    """The shipped arm's constructor arguments (a fresh copy of :data:`ARM6`), the default arm."""
+    return copy.deepcopy(ARM6)
 
 
 def _as_dict(config: Any) -> dict:
@@ -729,45 +664,3 @@ def _as_dict(config: Any) -> dict:
     if is_dataclass(config) and not isinstance(config, type):
         config = asdict(config)
     return {k: v for k, v in dict(config).items() if k != "type"}
-
-
-def _add_rotated(p: list, c: list, o: tuple[float, float, float]) -> list:
-    """``p + R o`` for ``R`` given by columns ``c``, skipping zero offset components."""
-    out = list(p)
-    for j in range(3):
-        if o[j] != 0.0:
-            col = c[j]
-            out = [out[r] + col[r] * o[j] for r in range(3)]
-    return out
-
-
-class _KinematicsBuffer:
-    """``q -> (p (3,), R (3, 3), J (6, n))`` through a CasADi buffer (about 1 µs).
-
-    The compiled function is the symbolic form of :meth:`ArmRobot._chain` and
-    :meth:`ArmRobot._geometric_columns`, so it equals the geometric Jacobian. Outputs are
-    written into arrays this object owns (CasADi writes column-major nonzeros, so the
-    function returns transposes, whose column-major layout is numpy's row-major one); the
-    returned arrays are overwritten by the next call.
-    """
-
-    def __init__(self, arm: ArmRobot):
-        qs, p, R, J = arm._symbolic_chain()
-        n = arm.num_dof
-        f = cs.Function("fk_jac", [qs], [cs.densify(p), cs.densify(R.T), cs.densify(J.T)])
-        self._q = np.zeros(n)
-        self.p = np.zeros(3)
-        self.R = np.zeros((3, 3))
-        self.J = np.zeros((6, n))
-        self._buf, self._eval = f.buffer()
-        self._buf.set_arg(0, memoryview(self._q))
-        self._buf.set_res(0, memoryview(self.p))
-        self._buf.set_res(1, memoryview(self.R.reshape(-1)))
-        self._buf.set_res(2, memoryview(self.J.reshape(-1)))
-
-    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        self._q[:] = q
-        self._eval()
-        if not math.isfinite(self.p[0] + self.p[1] + self.p[2]):
-            raise NonFiniteError(f"joint angles must be finite, got {np.array2string(q, precision=4)}")
-        return self.p, self.R, self.J

@@ -64,6 +64,9 @@ def perturbed_sim(nominal: Any, overrides: Mapping[str, float]) -> Any:
     if nominal.controller.stateful:  # memory between calls: a fresh controller per sample
         ccls = controller_class(scenario.controller.type)
         sim.controller = ccls.from_plant(nominal.plant, **scenario.controller.options)
+        from shinro_ctrl.sim import _install_ik
+
+        _install_ik(sim.plant, sim.controller)
     return sim
 
 
