@@ -195,3 +195,28 @@ def test_hold_and_argument_errors():
         NonlinearMPC.from_plant(plant, Q_CP, R_CP, horizon=10, solver="qpoases")
     with pytest.raises(InvalidArgument, match="Qf"):
         NonlinearMPC.from_plant(plant, Q_CP, R_CP, horizon=10, Qf="dare")
+
+
+def test_sparse_osqp_path_matches_condensed_daqp():
+    """The sparse multiple-shooting QP (OSQP, Ax updated in place) gives the condensed DAQP iterates."""
+    kw = dict(horizon=40, u_min=-40.0, u_max=40.0, x_min=X_BOUND[0], x_max=X_BOUND[1], soft=True)
+    runs = {}
+    for solver in ("daqp", "osqp"):
+        plant = cartpole()
+        ctrl = NonlinearMPC.from_plant(plant, Q_CP, R_CP, solver=solver, **kw)
+        plant.set_state([0.0, 0.0, np.pi, 0.0])
+        X = [plant.get_state()]
+        for _ in range(60):
+            X.append(plant.step(ctrl(X[-1])))
+        runs[solver] = np.array(X)
+    assert np.max(np.abs(runs["osqp"][-1])) < 0.5  # well into the balancing phase
+    np.testing.assert_allclose(runs["osqp"], runs["daqp"], rtol=0, atol=1e-5)
+    # and its SQP converges to IPOPT's solution too
+    x = np.array([0.05, 0.02, 0.03, -0.05])
+    ipopt = NonlinearMPC.from_plant(cartpole(), Q_CP, R_CP, solver="ipopt", tol=1e-10, **kw)
+    sqp = NonlinearMPC.from_plant(
+        cartpole(), Q_CP, R_CP, solver="osqp", iterations=200, cold_start="sqp", init_iterations=200, tol=1e-7,
+        osqp_settings={"eps_abs": 1e-10, "eps_rel": 1e-10}, **kw,
+    )  # fmt: skip
+    np.testing.assert_allclose(sqp(x), ipopt(x), rtol=1e-5)
+    assert sqp.last.status == "solved"

@@ -222,20 +222,22 @@ class OsqpQP:
             raw = getattr(self.solver, "_solver", None)
             self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
 
-    def update(self, q: Any, l: Any, u: Any, Px: Any = None) -> None:
-        """New ``q`` (None keeps it), ``l``, ``u`` and optionally the values ``Px`` of ``P``'s pattern."""
+    def update(self, q: Any, l: Any, u: Any, Px: Any = None, Ax: Any = None) -> None:
+        """New ``q`` (None keeps it), ``l``, ``u``; optionally new values ``Px`` / ``Ax`` of P's / A's pattern."""
         raw = self._raw
         if raw is not None:
             if raw.update_data_vec(q, l, u) != 0:  # pragma: no cover - sizes are fixed
                 raise RuntimeError("OSQP rejected the vector update")
-            if Px is not None:
-                raw.update_data_mat(Px, None, None, None)
+            if Px is not None or Ax is not None:
+                raw.update_data_mat(Px, None, Ax, None)
             return
         kwargs = {"l": l, "u": u}
         if q is not None:
             kwargs["q"] = q
         if Px is not None:
             kwargs["Px"] = Px
+        if Ax is not None:
+            kwargs["Ax"] = Ax
         self.solver.update(**kwargs)
 
     def warm_start(self, x: Any, y: Any) -> None:

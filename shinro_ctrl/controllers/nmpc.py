@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -43,13 +44,13 @@ import numpy as np
 import scipy.linalg
 
 from shinro_ctrl.controllers.base import Controller
-from shinro_ctrl.controllers.qp.ltv import DAQP_EXITFLAGS, CondensedLTV
+from shinro_ctrl.controllers.qp.ltv import CondensedLTV, SparseLTV
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, check_positive
 
 __all__ = ["NMPCSolution", "NonlinearMPC"]
 
-SOLVERS = ("auto", "daqp", "ipopt")
+SOLVERS = ("auto", "daqp", "osqp", "ipopt")
 INTEGRATORS = ("rk4", "semi_implicit")
 
 
@@ -65,7 +66,7 @@ class NMPCSolution:
         kkt_residual: KKT residual of the OCP at the last linearization point
             (stationarity and complementarity with the QP's multipliers, and
             the shooting defects), ∞-norm; IPOPT's final one for ``"ipopt"``.
-        qp_status: The last QP's status (DAQP's exit flag in words).
+        qp_status: The last QP's status (DAQP's exit flag in words, or OSQP's status).
         qp_iterations: Active-set iterations of the last QP.
         time_linearization_s: Defects and Jacobians (CasADi) [s].
         time_condensing_s: Building the condensed QP [s].
@@ -145,7 +146,10 @@ class NonlinearMPC(Controller):
             linearized at ``(x_ref, u_ref)``), or a matrix ``(n, n)``.
         iterations: SQP iterations per call (1 = real-time iteration).
         tol: KKT residual at which SQP (and IPOPT) stop.
-        solver: ``"auto"`` / ``"daqp"`` (condensed QP, DAQP) or ``"ipopt"``.
+        solver: ``"auto"`` / ``"daqp"`` (condensed QP, DAQP), ``"osqp"``
+            (the sparse multiple-shooting QP, OSQP with in-place value updates)
+            or ``"ipopt"`` (the OCP to convergence at every call).
+        osqp_settings: Overrides of the sparse QP's OSQP settings (``"osqp"`` only).
         integrator: ``"rk4"`` or ``"semi_implicit"`` (needs ``position_indices``).
         position_indices, velocity_indices: For ``"semi_implicit"``.
         init_iterations: SQP iterations allowed on a cold start with
@@ -187,6 +191,7 @@ class NonlinearMPC(Controller):
         iterations: int = 1,
         tol: float = 1e-6,
         solver: str = "auto",
+        osqp_settings: Mapping[str, Any] | None = None,
         integrator: str = "rk4",
         position_indices: tuple[int, ...] = (),
         velocity_indices: tuple[int, ...] = (),
@@ -290,10 +295,16 @@ class NonlinearMPC(Controller):
         self._du = np.zeros(N * m)
         self._ref = self.x0.copy()
         self._ipopt: Any = None
+        self.qp: Any
         if self.solver == "daqp":
             self.qp = CondensedLTV(
                 self._G, self.W, self.R, self.u_min, self.u_max, self.x_min, self.x_max,
                 soft=self.soft, soft_weights=self.soft_weights,
+            )  # fmt: skip
+        elif self.solver == "osqp":
+            self.qp = SparseLTV(
+                self._G, self.Q, self.W, self.R, self.u_min, self.u_max, self.x_min, self.x_max,
+                soft=self.soft, soft_weights=self.soft_weights, osqp_settings=osqp_settings,
             )  # fmt: skip
         else:
             self.qp = None
@@ -337,6 +348,7 @@ class NonlinearMPC(Controller):
         iterations: int = 1,
         tol: float = 1e-6,
         solver: str = "auto",
+        osqp_settings: Mapping[str, Any] | None = None,
         init_iterations: int = 30,
         cold_start: str = "ipopt",
     ) -> NonlinearMPC:
@@ -355,7 +367,7 @@ class NonlinearMPC(Controller):
             x0: Target state ``(n,)``; default ``plant.equilibrium()``.
             u0: Input reference ``(m,)``; default ``plant.equilibrium()``.
             u_min, u_max, x_min, x_max, soft, soft_weight_l1, soft_weight_quad,
-            Qf, iterations, tol, solver, init_iterations, cold_start: As for :class:`NonlinearMPC`.
+            Qf, iterations, tol, solver, osqp_settings, init_iterations, cold_start: As for :class:`NonlinearMPC`.
         """
         xe, ue = plant.equilibrium()
         x_ref = xe if x0 is None else x0
@@ -388,6 +400,7 @@ class NonlinearMPC(Controller):
             iterations=iterations,
             tol=tol,
             solver=solver,
+            osqp_settings=osqp_settings,
             integrator=integrator,
             position_indices=tuple(getattr(plant, "position_indices", ())),
             velocity_indices=tuple(getattr(plant, "velocity_indices", ())),
@@ -418,7 +431,7 @@ class NonlinearMPC(Controller):
         np.subtract(self._X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
         np.subtract(self._U, self.u0, out=self._du.reshape(N, self.m))
         with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by feedback
-            self.qp.condense(self._e, self._du)
+            self.qp.build(self._e, self._du)
         self.qp.set_bounds(self._U, self._X[1:])
 
     def _shift(self) -> None:
@@ -533,15 +546,15 @@ class NonlinearMPC(Controller):
         status = "rti"
         kkt = math.inf
         it = 0
-        flag = 1
+        qp_status = ""
         qp_it = 0
         while True:
             t0 = time.perf_counter()
-            z, flag, qp_it = self.qp.solve(dx0)
+            z, ok, qp_status, qp_it = self.qp.solve(dx0)
             t_qp += time.perf_counter() - t0
             it += 1
-            if flag not in (1, 2):
-                self._fail(x, flag, t_start)
+            if not ok:
+                self._fail(x, qp_status, t_start)
             kkt = max(self.qp.kkt(z), float(np.max(np.abs(self._D))), float(np.max(np.abs(dx0))))
             if it > 1 and kkt < self.tol:
                 status = "solved"
@@ -562,7 +575,7 @@ class NonlinearMPC(Controller):
             status=status,
             iterations=it,
             kkt_residual=kkt,
-            qp_status=DAQP_EXITFLAGS.get(flag, str(flag)),
+            qp_status=qp_status,
             qp_iterations=qp_it,
             time_linearization_s=t_lin,
             time_condensing_s=t_cond,
@@ -577,9 +590,8 @@ class NonlinearMPC(Controller):
         return u
 
     def _step(self, x: np.ndarray, z: np.ndarray, dx0: np.ndarray, *, line_search: bool) -> None:
-        N, n, m = self.N, self.n, self.m
-        dU = z[: N * m]
-        dX = self.qp.state_step(dU, dx0).reshape(N, n)
+        N, m = self.N, self.m
+        dU, dX = self.qp.step(z, dx0)
         if line_search:
             alpha = self._line_search(dX, dU.reshape(N, m), z)
         else:
@@ -606,12 +618,9 @@ class NonlinearMPC(Controller):
         """``‖λ‖_∞`` of the dynamics multipliers of the QP solution (backward recursion)."""
         N, n = self.N, self.n
         qp = self.qp
-        nu_rows = np.zeros((N, n))
-        r = qp.rows.size
-        if r:
-            lam = qp.lam[qp.nvar :]
-            v = lam[:r] + (lam[r:] if qp.soft else 0.0)
-            nu_rows.reshape(-1)[qp.rows] = v
+        if hasattr(qp, "dynamics_multipliers"):  # the sparse QP has them
+            return float(np.max(np.abs(qp.dynamics_multipliers())))
+        nu_rows = qp.state_bound_multipliers()
         Xp = self._X[1:] + dX - self._ref
         lam_next = np.zeros(n)
         big = 0.0
@@ -647,23 +656,11 @@ class NonlinearMPC(Controller):
         self._U[:] = U0
         return alpha
 
-    def _fail(self, x: np.ndarray, flag: int, t_start: float) -> None:
-        status = DAQP_EXITFLAGS.get(flag, f"exit flag {flag}")
-        message = (
-            f"NonlinearMPC: the QP failed ({status}, DAQP exit flag {flag}) at x = {np.array2string(x, precision=4)}"
-        )
-        if not (np.all(np.isfinite(self.qp.H)) and np.all(np.isfinite(self.qp.g))):
-            message += (
-                "; the predicted trajectory diverged (the QP data are not finite): the model no longer "
-                "describes the plant well enough, or the horizon is too long for it"
-            )
-        elif flag == -1:
-            message += "; the linearized hard state bounds cannot be met (use soft=True or looser x_min/x_max)"
-        elif flag == -5:
-            message += (
-                "; the condensed Hessian is numerically indefinite (ill-conditioned: a strongly unstable "
-                "prediction over a long horizon)"
-            )
+    def _fail(self, x: np.ndarray, status: str, t_start: float) -> None:
+        message = f"NonlinearMPC: the QP failed ({status}) at x = {np.array2string(x, precision=4)}"
+        reason = self.qp.explain()
+        if reason:
+            message += f"; {reason}"
         self.last = NMPCSolution(
             status=status, iterations=0, kkt_residual=math.nan, qp_status=status, qp_iterations=0,
             time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=0.0, time_other_s=0.0,
