@@ -239,6 +239,54 @@ def test_scenario_runs_in_both_loops():
     np.testing.assert_allclose(runs[0].x, runs[1].x, atol=1e-8)
 
 
+# ------------------------------------------------------------------------ URDF
+URDF = """<robot name="two_link">
+  <link name="base"/>
+  <link name="upper">
+    <inertial><origin xyz="0.02 0.01 0.2" rpy="0.1 0.2 0"/><mass value="1.2"/>
+      <inertia ixx="0.011" ixy="0.001" ixz="0.0005" iyy="0.013" iyz="-0.0007" izz="0.004"/></inertial>
+    <collision><origin xyz="0 0 0.2"/><geometry><cylinder radius="0.03" length="0.4"/></geometry></collision>
+  </link>
+  <link name="lower">
+    <inertial><origin xyz="0.0 -0.01 0.15" rpy="0 0.1 0.3"/><mass value="0.7"/>
+      <inertia ixx="0.006" ixy="0.0" ixz="0.0002" iyy="0.005" iyz="0.0" izz="0.002"/></inertial>
+  </link>
+  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/>
+    <origin xyz="0 0 0.5" rpy="0 0 0"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="3"/>
+    <dynamics damping="0.3"/></joint>
+  <joint name="elbow" type="continuous"><parent link="upper"/><child link="lower"/>
+    <origin xyz="0 0 0.4" rpy="0.2 0 0"/><axis xyz="1 0 0"/><dynamics damping="0.1"/></joint>
+</robot>"""
+
+
+def test_urdf_gets_a_motor_per_joint_and_matches_mujoco(tmp_path):
+    path = tmp_path / "two_link.urdf"
+    path.write_text(URDF)
+    plant = MjcfPlant(path)
+    assert plant.state_names == ("shoulder", "elbow", "shoulder_dot", "elbow_dot")
+    assert plant.input_names == ("shoulder", "elbow")
+    # unforced motion against MuJoCo's own compilation of the URDF (no actuators added there); MuJoCo writes the
+    # translated MJCF with 6 significant digits (the inertias' principal axes), hence 1e-5 here, while plant and
+    # engine, which load the same translated file, agree to 1e-9 (the crosscheck and the qacc tests)
+    m = mujoco.MjModel.from_xml_path(str(path))
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        x = np.r_[rng.uniform(-1.5, 1.5, 2), rng.uniform(-2, 2, 2)]
+        d.qpos[:], d.qvel[:] = x[:2], x[2:]
+        mujoco.mj_forward(m, d)
+        np.testing.assert_allclose(plant.dynamics(x, np.zeros(2))[2:], d.qacc, rtol=1e-5, atol=1e-9)
+    assert crosscheck(plant, [0.3, 0.2, 0.1, -0.2], [0.1, 0.2]).mujoco_max_rel_error < 1e-5
+    mt = mujoco.MjModel.from_xml_path(plant.model_path)  # the translated file, as the engine loads it
+    mt.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    dt = mujoco.MjData(mt)
+    x, u = np.array([0.4, -0.7, 1.0, -0.5]), np.array([2.0, -1.0])
+    dt.qpos[:], dt.qvel[:], dt.ctrl[:] = x[:2], x[2:], u
+    mujoco.mj_forward(mt, dt)
+    np.testing.assert_allclose(plant.dynamics(x, u)[2:], dt.qacc, rtol=1e-9)
+
+
 # ---------------------------------------------------------------------- errors
 BALL = """<mujoco><worldbody><body><joint name="wrist" type="ball"/><geom size="0.1"/></body></worldbody>
 <actuator><motor joint="wrist" gear="1 0 0"/></actuator></mujoco>"""

@@ -14,18 +14,20 @@ error naming the element.
 
 from __future__ import annotations
 
+import hashlib
 import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from shinro_ctrl.data_paths import asset_path, list_assets
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.multibody import ActuatorInfo, BodyInfo, JointInfo, ModelTree
-from shinro_ctrl.data_paths import asset_path, list_assets
 
-__all__ = ["load_model", "read_model_tree", "resolve_model_path"]
+__all__ = ["load_model", "read_model_tree", "resolve_model_path", "urdf_with_motors"]
 
 _JOINT_KINDS = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide"}
 _BAD_JOINTS = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball"}
@@ -56,6 +58,54 @@ def resolve_model_path(model: str | os.PathLike) -> Path:
         raise FileNotFoundError(
             f"model file not found: '{model}' (shipped assets: {', '.join(list_assets()) or 'none'})"
         ) from None
+
+
+def urdf_with_motors(path: str | os.PathLike) -> Path:
+    """An MJCF file for a URDF robot, with one motor on every hinge and slide joint.
+
+    URDF describes no actuators, so MuJoCo compiles a URDF without any. This
+    writes MuJoCo's translation of the URDF plus a motor (gain 1, gear 1,
+    named after its joint) per hinge/slide joint, with contacts disabled (the
+    symbolic model has none), to a cache file in the system's temporary
+    folder, keyed by the URDF's path and modification time. Mesh paths stay
+    relative to the URDF's folder. A URDF whose translation already has
+    actuators is returned unchanged. MuJoCo writes the translation with six
+    significant digits, so its inertias differ from the URDF's by about 1e-6
+    relative; plant and engine both load the translation and agree exactly.
+
+    Returns:
+        The path of the MJCF file to load (plant and engine alike).
+
+    Raises:
+        FileNotFoundError: no such file.
+        InvalidArgument: MuJoCo cannot read the URDF.
+    """
+    src = resolve_model_path(path)
+    try:
+        spec = mujoco.MjSpec.from_file(str(src))
+    except ValueError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InvalidArgument(f"MuJoCo cannot load URDF '{src}': {first}") from exc
+    if len(spec.actuators):
+        return src
+    for kind in ("meshdir", "texturedir"):
+        folder = Path(getattr(spec, kind) or ".")
+        setattr(spec, kind, str(folder if folder.is_absolute() else (src.parent / folder).resolve()))
+    for joint in spec.joints:
+        if int(joint.type) in _JOINT_KINDS and joint.name:
+            motor = spec.add_actuator()
+            motor.name = joint.name
+            motor.target = joint.name
+            motor.trntype = mujoco.mjtTrn.mjTRN_JOINT
+    spec.option.disableflags = int(spec.option.disableflags) | int(_DSBL.mjDSBL_CONTACT)
+    key = hashlib.sha1(f"{src}:{src.stat().st_mtime_ns}".encode()).hexdigest()[:12]
+    out = Path(tempfile.gettempdir()) / "shinro_ctrl_urdf" / f"{src.stem}-{key}.xml"
+    if not out.is_file():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(spec.to_xml(), encoding="utf-8")
+        os.replace(tmp, out)  # atomic: concurrent workers never read a half-written file
+    return out
 
 
 def load_model(model: str | os.PathLike) -> tuple[mujoco.MjModel, Path]:

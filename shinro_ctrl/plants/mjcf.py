@@ -84,6 +84,11 @@ class MjcfPlant(Plant):
     their gains and biases, ``general`` with fixed/affine gain and bias; see
     :mod:`shinro_ctrl.multibody`).
 
+    A URDF file carries no actuators: its inputs are joint torques (forces
+    for prismatic joints), one motor per joint named after the joint, in an
+    MJCF translation that both the plant and the engine load (see
+    ``shinro_ctrl.engine.model_tree.urdf_with_motors``).
+
     ``MjcfPlant`` has no float physical parameters: the model file is the
     parameter. ``param_names`` is empty, ``params()`` is ``{}`` and
     ``symbolic(params=True)`` takes an empty ``p``; to change the physics,
@@ -119,9 +124,11 @@ class MjcfPlant(Plant):
         u0: Any = None,
         backend: Any = None,
     ):
-        from shinro_ctrl.engine.model_tree import resolve_model_path
+        from shinro_ctrl.engine.model_tree import resolve_model_path, urdf_with_motors
 
         path = resolve_model_path(model)
+        if path.suffix.lower() == ".urdf":  # URDF has no actuators: a motor per joint, in a converted MJCF
+            path = urdf_with_motors(path)
         mtime = path.stat().st_mtime_ns
         tree, rb, key = _read(str(path), mtime)
         names = [a.name for a in tree.actuators]
