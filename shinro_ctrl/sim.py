@@ -300,66 +300,16 @@ class SimResult:
         atomic_write(d / "scenario.toml", lambda f: f.write(dump_toml(self.config)))
         return d
 
-    def plot(self, path: str | Path) -> Path:
-        """Plot states (with references and bounds) and inputs (with bounds) against time to a PNG."""
-        import matplotlib
+    def plot(self, path: str | Path, *, compare: SimResult | None = None) -> Path:
+        """Plot the run to a PNG (see :func:`shinro_ctrl.plots.plot_run`).
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        States with references, bounds and the settling band, inputs with bounds,
+        units on every axis, an x–y panel for planar tasks; ``compare`` (the other
+        loop's result) is drawn over it with the metric differences.
+        """
+        from shinro_ctrl.plots import plot_run
 
-        n, m = self.x.shape[1], self.u.shape[1]
-        nd = len(self.disturbance_labels) if self.disturbance is not None else 0
-        rows = n + m + nd
-        fig, axes = plt.subplots(rows, 1, figsize=(8, 1.6 * rows + 0.8), sharex=True, squeeze=False)
-        estimated = self.x_hat is not None and not np.array_equal(self.x_hat, self.x)
-        for i in range(n):
-            ax = axes[i, 0]
-            if self.y is not None and self.state_names[i] in self.measured and estimated:
-                col = self.y[:, self.measured.index(self.state_names[i])]
-                ax.plot(self.t, col, color="0.6", lw=0.6, alpha=0.8, label="measurement")
-            ax.plot(self.t, self.x[:, i], color="C0", lw=1.4, label="true state")
-            if estimated:
-                ax.plot(self.t, self.x_hat[:, i], color="C4", lw=1.0, ls="-.", label="estimate")
-            ax.plot(self.t, self.ref[:, i], color="C1", lw=1.0, ls="--", label="reference")
-            for b in (self.x_min, self.x_max):
-                if b is not None and np.isfinite(b[i]):
-                    ax.axhline(b[i], color="C3", lw=0.8, ls=":", label="bound")
-            ax.set_ylabel(self.state_names[i], rotation=0, ha="right", va="center")
-            ax.grid(alpha=0.3)
-        tu = self.t[:-1]
-        for j in range(m):
-            ax = axes[n + j, 0]
-            ax.step(tu, self.u[:, j], where="post", color="C2", lw=1.2, label="input")
-            for b in (self.u_min, self.u_max):
-                if b is not None and np.isfinite(b[j]):
-                    ax.axhline(b[j], color="C3", lw=0.8, ls=":", label="bound")
-            ax.set_ylabel(self.input_names[j], rotation=0, ha="right", va="center")
-            ax.grid(alpha=0.3)
-        for j in range(nd):
-            ax = axes[n + m + j, 0]
-            ax.step(tu, self.disturbance[:, j], where="post", color="C5", lw=1.2, label="disturbance")
-            ax.set_ylabel(self.disturbance_labels[j], rotation=0, ha="right", va="center")
-            ax.grid(alpha=0.3)
-        handles = {}
-        for ax in axes[:, 0]:
-            for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
-                handles.setdefault(lab, h)
-        fig.legend(handles.values(), handles.keys(), loc="upper right", ncol=4, fontsize=8)
-        metrics = self.metrics
-        fig.suptitle(
-            f"{self.scenario} ({self.loop})   rms error {metrics['rms_error']:.3g}   "
-            f"settling {format_metrics({'s': metrics['settling_time']}).split()[-1]} s",
-            x=0.02,
-            ha="left",
-            fontsize=10,
-        )
-        axes[-1, 0].set_xlabel("time [s]")
-        fig.tight_layout(rect=(0, 0, 1, 0.97))
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
-        plt.close(fig)
-        return path
+        return plot_run(self, path, compare=compare)
 
 
 # ------------------------------------------------------------------------ sim

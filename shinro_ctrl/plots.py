@@ -1,0 +1,347 @@
+"""Plots a control engineer reads: closed-loop runs (one loop, or standalone and MuJoCo overlaid).
+
+Every function draws on a fresh :class:`matplotlib.figure.Figure` with the Agg
+canvas and writes a PNG atomically; none touches pyplot's global state or
+calls ``matplotlib.use`` (the backend is the caller's choice).
+
+Units come from the plant's state and input names (:func:`unit_of`: a plant
+may also declare ``state_units`` / ``input_units``); figures keep at most
+:data:`MAX_ROWS` rows by grouping signals of one kind (position, attitude,
+velocity, rate, inputs by unit) on shared axes.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shinro_ctrl.files import atomic_write
+
+__all__ = ["MAX_ROWS", "plot_run", "signal_groups", "unit_of"]
+
+MAX_ROWS = 6
+PLANAR_KINDS = ("circle", "square", "waypoints")
+
+_ANGLE = re.compile(r"^(theta|phi|psi|alpha|beta|q|roll|pitch|yaw|angle|arm|pendulum|hinge|joint)(_?\d+)?$")
+_RATE = re.compile(
+    r"^((theta|phi|psi|alpha|beta|q|angle|arm|pendulum|hinge|joint)(_?\d+)?_dot|omega(_?\d+)?|[pqr]|\w+_rate)$"
+)
+_POSITION = re.compile(r"^(x|y|z|pos_?\w*|position\w*)(_?\d+)?$")
+_VELOCITY = re.compile(r"^(x_dot|y_dot|z_dot|v[xyz]?|vel\w*|velocity\w*|\w+_velocity)(_?\d+)?$")
+_FORCE = re.compile(r"^(f|force|thrust|f_?\w+)(_?\d+)?$", re.IGNORECASE)
+_TORQUE = re.compile(r"^(tau|torque|moment|motor|m)(_?\w+)?$", re.IGNORECASE)
+_KIND_TITLES = {"m": "position", "rad": "angle", "m/s": "velocity", "rad/s": "angular rate"}
+
+
+def unit_of(name: str, *, is_input: bool = False) -> str:
+    """The SI unit of a state or input from its name (``''`` when the name does not say).
+
+    ``x, y, z`` → m; ``x_dot, vx`` → m/s; ``theta, roll, q1`` → rad;
+    ``theta_dot, omega, p, q, r, *_rate`` → rad/s; inputs ``force, thrust`` → N,
+    ``tau*, torque, motor`` → N m.
+    """
+    n = name.strip().lower()
+    if is_input:
+        if _FORCE.match(n):
+            return "N"
+        if _TORQUE.match(n):
+            return "N m"
+    if _VELOCITY.match(n):
+        return "m/s"
+    if _RATE.match(n):
+        return "rad/s"
+    if _ANGLE.match(n):
+        return "rad"
+    if _POSITION.match(n):
+        return "m"
+    return ""
+
+
+def _units(names: Sequence[str], declared: Sequence[str] | None, *, is_input: bool) -> list[str]:
+    if declared is not None and len(declared) == len(names):
+        return [str(u) for u in declared]
+    return [unit_of(s, is_input=is_input) for s in names]
+
+
+def _label(name: str, unit: str) -> str:
+    return f"{name} [{unit}]" if unit else name
+
+
+def signal_groups(
+    state_names: Sequence[str],
+    input_names: Sequence[str],
+    *,
+    state_units: Sequence[str] | None = None,
+    input_units: Sequence[str] | None = None,
+    extra_rows: int = 0,
+    max_rows: int = MAX_ROWS,
+) -> list[tuple[str, str, list[tuple[str, int]]]]:
+    """The panels of a run plot: ``[(title, unit, [("x" | "u", index), ...]), ...]``.
+
+    One panel per signal when they fit in ``max_rows``; otherwise states of one
+    unit share a panel (the quadrotor: position, attitude, velocity, angular
+    rate), and inputs of one unit share one (thrust [N], torques [N m]).
+    """
+    su = _units(state_names, state_units, is_input=False)
+    iu = _units(input_names, input_units, is_input=True)
+    if len(state_names) + len(input_names) + extra_rows <= max_rows:
+        panels = [(_label(s, su[i]), su[i], [("x", i)]) for i, s in enumerate(state_names)]
+        panels += [(_label(s, iu[j]), iu[j], [("u", j)]) for j, s in enumerate(input_names)]
+        return panels
+    panels: list[tuple[str, str, list[tuple[str, int]]]] = []
+    for kind, names, units in (("x", state_names, su), ("u", input_names, iu)):
+        order: dict[str, list[tuple[str, int]]] = {}
+        for i, _ in enumerate(names):
+            order.setdefault(units[i], []).append((kind, i))
+        for unit, members in order.items():
+            if len(members) == 1:
+                title = names[members[0][1]]
+            elif kind == "x":
+                title = _KIND_TITLES.get(unit, "states")
+                if unit == "rad" and any(names[i] in ("roll", "pitch", "yaw") for _, i in members):
+                    title = "attitude"
+            else:
+                title = "inputs"
+            panels.append((f"{title} [{unit}]" if unit else title, unit, members))
+    return panels
+
+
+def _new_figure(width: float, height: float) -> Any:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _write_png(fig: Any, path: str | Path) -> Path:
+    path = Path(path)
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110, bbox_inches="tight"), binary=True)
+    return path
+
+
+def _fmt_metric(v: float) -> str:
+    if isinstance(v, float) and math.isinf(v):
+        return "never"
+    return f"{v:.3g}"
+
+
+def _settle_info(result: Any) -> tuple[float, float]:
+    sim = (result.config or {}).get("sim", {}) if isinstance(result.config, dict) else {}
+    tol = float(sim.get("settle_tol", 0.01)) if isinstance(sim, dict) else 0.01
+    return tol, float(result.metrics.get("settling_time", math.inf))
+
+
+def _planar_axes(result: Any) -> tuple[int, int] | None:
+    """The state pair of a planar task (a circle, square or waypoint reference in the plane of ``axes``)."""
+    sim = (result.config or {}).get("sim", {}) if isinstance(result.config, dict) else {}
+    ref = sim.get("reference", {}) if isinstance(sim, dict) else {}
+    if not isinstance(ref, dict) or ref.get("kind") not in PLANAR_KINDS:
+        return None
+    axes = ref.get("axes", [0, 1])
+    n = result.x.shape[1]
+    if len(axes) != 2 or not all(isinstance(a, int) and 0 <= a < n for a in axes):
+        return None
+    return int(axes[0]), int(axes[1])
+
+
+def plot_run(
+    result: Any,
+    path: str | Path,
+    *,
+    compare: Any = None,
+    state_units: Sequence[str] | None = None,
+    input_units: Sequence[str] | None = None,
+) -> Path:
+    """Plot a closed-loop run to a PNG: states, inputs and disturbances against time.
+
+    Each panel's y label carries its unit; the reference is dashed, bounds are
+    dotted red, the settling band ``r ± settle_tol`` on every tracked state is
+    shaded (with the settling time marked), the legend sits outside the data
+    to the right. Planar tasks (circle, square, waypoint references) get an
+    x–y panel. More than :data:`MAX_ROWS` signals are grouped by unit.
+
+    Args:
+        result: A :class:`~shinro_ctrl.sim.SimResult`.
+        path: The PNG to write.
+        compare: A second result of the same scenario (the other loop) drawn
+            over the first, with the metric differences in the title.
+        state_units, input_units: Units overriding the ones read from the names.
+
+    Returns:
+        ``path``.
+    """
+    runs = [result] if compare is None else [result, compare]
+    dist = result.disturbance if getattr(result, "disturbance", None) is not None else None
+    dist_labels = list(getattr(result, "disturbance_labels", []) or []) if dist is not None else []
+    panels = signal_groups(
+        result.state_names,
+        result.input_names,
+        state_units=state_units,
+        input_units=input_units,
+        extra_rows=1 if dist_labels else 0,
+    )
+    rows = len(panels) + (1 if dist_labels else 0)
+    planar = _planar_axes(result)
+    width = 12.5 if planar else 8.5
+    fig = _new_figure(width, 1.55 * rows + 1.2)
+    gs = fig.add_gridspec(
+        rows, 2 if planar else 1, width_ratios=(1.9, 1.0) if planar else None, hspace=0.12, wspace=0.4
+    )
+    axes = [fig.add_subplot(gs[0, 0])]
+    axes += [fig.add_subplot(gs[r, 0], sharex=axes[0]) for r in range(1, rows)]
+    tol, settling = _settle_info(result)
+    tracked = {result.state_names.index(s) for s in result.tracked if s in result.state_names}
+    run_styles = [{"ls": "-", "lw": 1.4}, {"ls": (0, (4, 2)), "lw": 1.3}]
+    multi = len(runs) > 1
+
+    for row, (title, _unit, members) in enumerate(panels):
+        ax = axes[row]
+        grouped = len(members) > 1
+        signal_handles = []
+        for c, (kind, i) in enumerate(members):
+            color = f"C{c % 10}" if grouped else ("C0" if kind == "x" else "C2")
+            name = (result.state_names if kind == "x" else result.input_names)[i]
+            for k, run in enumerate(runs):
+                label = name if grouped else ("state" if kind == "x" else "input")
+                if multi:
+                    label = f"{label} ({run.loop})"
+                if kind == "x":
+                    (h,) = ax.plot(run.t, run.x[:, i], color=color, label=label, **run_styles[k])
+                else:
+                    (h,) = ax.step(run.t[:-1], run.u[:, i], where="post", color=color, label=label, **run_styles[k])
+                signal_handles.append(h)
+            if kind == "x":
+                ax.plot(
+                    result.t,
+                    result.ref[:, i],
+                    color=color if grouped else "0.25",
+                    lw=0.9,
+                    ls="--",
+                    alpha=0.8,
+                    label="reference",
+                )
+                if i in tracked and np.isfinite(tol):
+                    ax.fill_between(
+                        result.t,
+                        result.ref[:, i] - tol,
+                        result.ref[:, i] + tol,
+                        color="C1",
+                        alpha=0.18,
+                        lw=0,
+                        label=f"settling band ±{tol:g}",
+                    )
+                bounds = (result.x_min, result.x_max)
+            else:
+                bounds = (result.u_min, result.u_max)
+            for b in bounds:
+                if b is not None and np.isfinite(b[i]):
+                    ax.axhline(b[i], color="C3", lw=0.9, ls=":", label="bound")
+        if any(kind == "x" and i in tracked for kind, i in members) and np.isfinite(settling) and settling > 0:
+            ax.axvline(settling, color="C1", lw=0.9, ls="-.", label=f"settled at {settling:.3g} s")
+        ax.set_ylabel(title, fontsize=9)
+        ax.grid(alpha=0.3)
+        _data_limits(ax, result, members)
+        if grouped:  # the signals of a shared panel are named beside it, outside the data
+            ax.legend(handles=signal_handles, loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=7, frameon=False)
+    if dist_labels:
+        ax = axes[-1]
+        for j, lab in enumerate(dist_labels):
+            ax.step(result.t[:-1], dist[:, j], where="post", color=f"C{(5 + j) % 10}", lw=1.2, label=lab)
+        ax.set_ylabel("disturbance", fontsize=9)
+        ax.grid(alpha=0.3)
+    for ax in axes[:-1]:
+        ax.tick_params(labelbottom=False)
+    axes[-1].set_xlabel("time [s]")
+
+    if planar:
+        i, j = planar
+        ax = fig.add_subplot(gs[:, 1])
+        for k, run in enumerate(runs):
+            label = f"path ({run.loop})" if multi else "path"
+            ax.plot(run.x[:, i], run.x[:, j], color="C0" if k == 0 else "C4", label=label, **run_styles[k])
+        ax.plot(result.ref[:, i], result.ref[:, j], color="0.25", ls="--", lw=0.9, label="reference")
+        ax.plot(result.x[0, i], result.x[0, j], "o", color="C2", ms=5, label="start")
+        ax.plot(result.x[-1, i], result.x[-1, j], "s", color="C3", ms=5, label="end")
+        su = _units(result.state_names, state_units, is_input=False)
+        ax.set_xlabel(_label(result.state_names[i], su[i]))
+        ax.set_ylabel(_label(result.state_names[j], su[j]))
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+        ax.set_title(f"{result.state_names[i]}–{result.state_names[j]} path", fontsize=9)
+
+    # one legend for the single-signal panels, outside the data (right of the figure)
+    handles: dict[str, Any] = {}
+    for ax, (_, _, members) in zip(axes, panels, strict=False):
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            if len(members) == 1 or not any(lab.startswith(n) for n in (*result.state_names, *result.input_names)):
+                handles.setdefault(lab, h)
+    if planar:
+        for h, lab in zip(*fig.axes[-1].get_legend_handles_labels(), strict=True):
+            handles.setdefault(lab, h)
+    if handles and any(len(members) > 1 for _, _, members in panels):  # the right margin holds signal names
+        fig.legend(
+            handles.values(),
+            handles.keys(),
+            loc="upper center",
+            bbox_to_anchor=(0.5, 0.0),
+            ncol=min(len(handles), 6),
+            fontsize=8,
+            frameon=False,
+        )
+    elif handles:
+        fig.legend(
+            handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(1.0, 0.93), fontsize=8, frameon=False
+        )
+    fig.suptitle(_title(result, compare), x=0.01, ha="left", fontsize=10)
+    fig.subplots_adjust(left=0.1, right=0.97, top=1 - 0.75 / (1.55 * rows + 1.2), bottom=0.6 / (1.55 * rows + 1.2))
+    return _write_png(fig, path)
+
+
+def _data_limits(ax: Any, result: Any, members: list[tuple[str, int]]) -> None:
+    """Y limits from the signals (not from a bound far away); bounds within reach stay visible."""
+    values = []
+    for kind, i in members:
+        if kind == "x":
+            values += [result.x[:, i], result.ref[:, i]]
+        else:
+            values.append(result.u[:, i])
+    data = np.concatenate([v[np.isfinite(v)] for v in values]) if values else np.zeros(1)
+    if data.size == 0:
+        return
+    lo, hi = float(data.min()), float(data.max())
+    if hi - lo < 2e-3:  # rounding-level wiggles are not drawn as motion: at least ±1e-3 around the data
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - 1e-3, mid + 1e-3
+    span = hi - lo
+    pad = 0.08 * span
+    lo, hi = lo - pad, hi + pad
+    for kind, i in members:
+        bounds = (result.x_min, result.x_max) if kind == "x" else (result.u_min, result.u_max)
+        for b in bounds:
+            if b is not None and np.isfinite(b[i]) and lo - span <= b[i] <= hi + span:
+                lo, hi = min(lo, b[i] - pad), max(hi, b[i] + pad)
+    ax.set_ylim(lo, hi)
+
+
+def _title(result: Any, compare: Any) -> str:
+    m = result.metrics
+    head = f"{result.scenario}"
+    if compare is None:
+        return (
+            f"{head} ({result.loop})   rms error {_fmt_metric(m['rms_error'])}   "
+            f"settling {_fmt_metric(m['settling_time'])} s   max |u| {_fmt_metric(m['max_abs_input'])}"
+        )
+    c = compare.metrics
+    parts = []
+    for key, label in (("rms_error", "rms error"), ("settling_time", "settling [s]"), ("max_abs_input", "max |u|")):
+        a, b = m.get(key, math.nan), c.get(key, math.nan)
+        diff = "—" if not (math.isfinite(a) and math.isfinite(b)) else f"{b - a:+.3g}"
+        parts.append(f"{label}: {_fmt_metric(a)} vs {_fmt_metric(b)} (Δ {diff})")
+    return f"{head}: {result.loop} (solid) vs {compare.loop} (dashed)\n" + "   ".join(parts)
