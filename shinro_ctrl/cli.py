@@ -337,6 +337,23 @@ def cmd_design(args: argparse.Namespace) -> int:
         if args.points < 2 or args.workers < 1:
             raise InvalidArgument(f"--points must be >= 2 and --workers >= 1, got {args.points} and {args.workers}")
         parse_tradeoff(args.tradeoff)
+        from shinro_ctrl.files import check_output_folder
+        from shinro_ctrl.tradeoff import OUTPUT_FILES
+
+        check_output_folder(args.out, OUTPUT_FILES, inputs=[args.config])
+    elif args.out or args.engine or args.points != 20 or args.workers != 2:
+        raise InvalidArgument("--out, --engine, --points and --workers go with --tradeoff KEY=LO:HI")
+    if args.report:
+        from pathlib import Path
+
+        from shinro_ctrl.files import check_output_file
+
+        report = Path(args.report)
+        if report.suffix.lower() not in (".html", ".htm"):
+            raise InvalidArgument(f"--report: expected a FILE.html, got '{report}'")
+        check_output_file(report, inputs=[args.config], what="--report")
+        if report.is_file() and report.stat().st_size and not report.read_bytes()[:15].lower() == b"<!doctype html>":
+            raise InvalidArgument(f"--report '{report}' exists and is not an HTML report; refusing to overwrite it")
     np.set_printoptions(precision=5, suppress=True, linewidth=120)
     if args.kind == "lqr":
         model = ctrl.model  # the Controller contract: the LinearModel designed on, or None

@@ -40,7 +40,10 @@ from shinro_ctrl.config import load_scenario
 from shinro_ctrl.errors import InvalidArgument, ShinroError
 from shinro_ctrl.files import atomic_write, dump_json
 
-__all__ = ["COLUMNS", "TradeoffResult", "parse_tradeoff", "run_tradeoff"]
+__all__ = ["COLUMNS", "OUTPUT_FILES", "TradeoffResult", "parse_tradeoff", "run_tradeoff"]
+
+#: The files a trade-off writes into its ``out`` folder.
+OUTPUT_FILES = ("tradeoff.csv", "tradeoff.json", "tradeoff.png")
 
 #: Columns of ``tradeoff.csv`` after the swept value.
 COLUMNS = (

@@ -123,3 +123,20 @@ def test_report_for_mimo_and_mpc(tmp_path, capsys):
     assert quad.read_text(encoding="utf-8").count("data:image/png;base64,") == 5
     assert main(["design", "mpc", "cartpole_mpc.toml"]) == 0
     assert "unconstrained first move" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--report", "cartpole_lqr.toml"], "FILE.html"),
+        (["--report", "notes.html"], "not an HTML report"),
+        (["--points", "5"], "go with --tradeoff"),
+    ],
+)
+def test_report_and_option_errors_are_one_line(extra, message, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.html").write_text("my notes", encoding="utf-8")
+    assert main(["design", "lqr", "cartpole_lqr.toml", *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+    assert (tmp_path / "notes.html").read_text(encoding="utf-8") == "my notes"
