@@ -24,7 +24,7 @@ from shinro_ctrl.engine import MujocoEngine
 from shinro_ctrl.errors import InvalidArgument, UnknownName
 from shinro_ctrl.linearization import complex_step_jacobians
 from shinro_ctrl.plants import DoublePendulum, MjcfPlant, plant_class, plant_from_name
-from shinro_ctrl.resources import asset_path
+from shinro_ctrl.resources import asset_path, config_path
 
 # Hinge and slide joints, full inertia tensors (rotated principal axes and fullinertia), off-axis centres of
 # mass, damping, armature, a spring with a reference, a body with two joints, a welded body between joints, a
@@ -285,6 +285,27 @@ def test_urdf_gets_a_motor_per_joint_and_matches_mujoco(tmp_path):
     dt.qpos[:], dt.qvel[:], dt.ctrl[:] = x[:2], x[2:], u
     mujoco.mj_forward(mt, dt)
     np.testing.assert_allclose(plant.dynamics(x, u)[2:], dt.qacc, rtol=1e-9)
+
+
+# ------------------------------------------------------------ shipped scenarios
+@pytest.mark.parametrize("name", ["furuta_lqr_mujoco", "panda_hold_lqr_mujoco", "panda_mpc_move_mujoco"])
+def test_shipped_scenarios_settle_in_both_loops_within_the_torque_limits(name):
+    from shinro_ctrl.sim import RobotSim
+
+    runs = {e: RobotSim.from_config(config_path(name), engine=e) for e in ("standalone", "mujoco")}
+    results = {e: sim.run() for e, sim in runs.items()}
+    x_star = runs["mujoco"].operating_point
+    for loop, r in results.items():
+        assert np.abs(r.x[-1] - x_star).max() < 1e-3, loop
+        assert r.metrics["settling_time"] < 2.0, loop
+        assert r.metrics["constraint_violations"] == 0, loop
+    if name == "panda_mpc_move_mujoco":  # the torque limits bind, and hold exactly
+        lim = np.array([0.87] * 4 + [0.24] * 3)
+        u = results["mujoco"].u
+        assert np.all(np.abs(u) <= lim + 1e-12)
+        assert np.isclose(np.abs(u), lim, rtol=0, atol=1e-9).any()
+    # the standalone step is MuJoCo's semi-implicit Euler on the same physics: the loops agree closely
+    np.testing.assert_allclose(results["standalone"].x, results["mujoco"].x, atol=1e-6)
 
 
 # ---------------------------------------------------------------------- errors
