@@ -13,6 +13,7 @@ import math
 import re
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -83,6 +84,7 @@ def side_by_side(blocks: Sequence[tuple[str, np.ndarray]], gap: str = "   ") -> 
 
 # ------------------------------------------------------------ argument checks
 RUN_FILES = ("result.npz", "metrics.json", "scenario.toml", "run.png")
+RUN_FILES_BOTH = ("standalone", "mujoco", "run.png")
 SWEEP_FILES = ("sweep.csv", "sweep.json", "sweep.png")
 CROSSCHECK_PLANTS = ("pendulum", "cartpole", "double_pendulum", "quadrotor")  # plants with a MuJoCo state map
 MAX_SAMPLES = 1_000_000
@@ -228,8 +230,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise InvalidArgument(f"--duration must be a positive finite number of seconds, got {args.duration:g}")
     inputs = [config_path(args.config) if args.config else None, getattr(args, "plan", None)]
+    both = args.engine == "both"
+    if both and args.video:
+        raise InvalidArgument("--video renders one loop: give --engine standalone or --engine mujoco")
     if args.out:
-        check_output_folder(args.out, RUN_FILES, inputs=inputs)
+        check_output_folder(args.out, RUN_FILES_BOTH if both else RUN_FILES, inputs=inputs)
     if args.plot:
         check_output_file(args.plot, inputs=inputs, what="--plot")
     if args.video:
@@ -243,6 +248,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     # The embedded default is the shipped file, never a same-named one in the current directory.
     config = args.config or shipped_config(DEFAULT_SCENARIO)
+    if both:
+        return _run_both(args, config)
     if args.plan:
         sim = RobotSim(_scenario_with_plan_file(config, args.plan), engine=args.engine)
     else:
@@ -280,6 +287,53 @@ def cmd_run(args: argparse.Namespace) -> int:
             f"{video.frames / video.fps:.2f} s of playback; rendered in {video.seconds:.2f} s)"
         )
     return 0
+
+
+def _run_both(args: argparse.Namespace, config: Any) -> int:
+    """``run --engine both``: the standalone and the MuJoCo loop of one scenario, compared and overlaid."""
+    from pathlib import Path
+
+    from shinro_ctrl.sim import RobotSim
+
+    sims = []
+    for loop in ("standalone", "mujoco"):
+        scenario = _scenario_with_plan_file(config, args.plan) if args.plan else config
+        sims.append(RobotSim(scenario, engine=loop) if args.plan else RobotSim.from_config(scenario, engine=loop))
+    a, b = sims
+    duration = args.duration if args.duration is not None else a.scenario.sim.duration
+    what = f"{type(a.plant).__name__} + {type(a.controller).__name__}"
+    print(f"running {a.scenario.name} in both loops: {what}, {duration:g} s at dt = {a.plant.dt:g} s")
+    ra, rb = a.run(args.duration), b.run(args.duration)
+    print(format_metric_comparison(ra.metrics, rb.metrics, ("standalone", "mujoco")))
+    if args.out:
+        from shinro_ctrl.files import atomic_folder
+
+        out = Path(args.out)
+        with atomic_folder(out, RUN_FILES_BOTH) as staging:
+            ra.save(staging / "standalone")
+            rb.save(staging / "mujoco")
+            if not args.plot:
+                ra.plot(staging / "run.png", compare=rb)
+        plot = ra.plot(args.plot, compare=rb) if args.plot else out / "run.png"
+        print(f"saved standalone/ and mujoco/ (result.npz, metrics.json, scenario.toml each) to {out}")
+    else:
+        plot = ra.plot(args.plot or Path("out") / f"{a.scenario.name}_both.png", compare=rb)
+    print(f"plot: {plot}")
+    return 0
+
+
+def format_metric_comparison(a: dict[str, float], b: dict[str, float], names: tuple[str, str]) -> str:
+    """Two runs' metrics side by side with their difference ``b − a``."""
+    rows = [f"  {'metric':22s} {names[0]:>14s} {names[1]:>14s} {'difference':>12s}"]
+    for key in a:
+        va, vb = a[key], b.get(key, math.nan)
+
+        def show(v: float) -> str:
+            return "never" if isinstance(v, float) and math.isinf(v) else f"{v:.6g}"
+
+        diff = vb - va if math.isfinite(va) and math.isfinite(vb) else math.nan
+        rows.append(f"  {key:22s} {show(va):>14s} {show(vb):>14s} {'—' if math.isnan(diff) else f'{diff:+.3g}':>12s}")
+    return "\n".join(rows)
 
 
 def _scenario_with_plan_file(config: str, plan_file: str):
@@ -542,7 +596,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a scenario (default: the embedded cart-pole LQR demo)")
     p.add_argument("config", nargs="?", metavar="CONFIG", help="scenario file or shipped name")
-    p.add_argument("--engine", choices=("standalone", "mujoco"), help="override the scenario's loop")
+    p.add_argument(
+        "--engine",
+        choices=("standalone", "mujoco", "both"),
+        help="override the scenario's loop; 'both' runs the two loops and overlays them with their differences",
+    )
     p.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the scenario's)")
     p.add_argument("--plot", metavar="PNG", help="where to write the plot")
     p.add_argument("--out", metavar="DIR", help="save result.npz, metrics.json, scenario.toml and run.png")

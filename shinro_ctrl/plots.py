@@ -206,9 +206,12 @@ def plot_run(
         grouped = len(members) > 1
         signal_handles = []
         for c, (kind, i) in enumerate(members):
-            color = f"C{c % 10}" if grouped else ("C0" if kind == "x" else "C2")
             name = (result.state_names if kind == "x" else result.input_names)[i]
             for k, run in enumerate(runs):
+                if grouped:
+                    color = f"C{c % 10}"
+                else:  # the second loop in its own colour as well as dashed: close curves stay distinguishable
+                    color = ("C0", "C4")[k] if kind == "x" else ("C2", "C8")[k]
                 label = name if grouped else ("state" if kind == "x" else "input")
                 if multi:
                     label = f"{label} ({run.loop})"
