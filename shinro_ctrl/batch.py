@@ -5,8 +5,8 @@ For a standalone loop with a linear state feedback, every instance can advance
 together: the plant's one dynamics definition (:meth:`Plant.dynamics`) is
 evaluated once per step on the whole batch ``X (N, n)``, ``U (N, m)`` with
 per-instance parameters ``{name: (N,)}``, and the step is the same
-semi-implicit Euler as :meth:`Plant._integrate` (velocities first, then the
-positions with the new velocities, then the plant's documented clipping).
+semi-implicit Euler as :meth:`Plant.integrate` (velocities first, then the
+positions with the new velocities, then the plant's own :meth:`Plant.clip_state`).
 The metrics of :func:`shinro_ctrl.sim.compute_metrics` are accumulated per
 instance while stepping, so memory stays ``O(N)`` whatever the duration.
 
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum, Plant
+from shinro_ctrl.plants import Plant
 from shinro_ctrl.sim import bound_excess
 
 __all__ = ["BatchRollout", "batch_clip", "batch_unsupported_reason", "lqr_batch_rollout"]
@@ -34,49 +34,13 @@ __all__ = ["BatchRollout", "batch_clip", "batch_unsupported_reason", "lqr_batch_
 ClipFn = Callable[[np.ndarray], np.ndarray]
 
 
-def _clip_bounds(plant: Any) -> ClipFn:
-    bounds = plant.state_bounds
-    if bounds is None:
-        return lambda X: X
-    lo, hi = (np.asarray(b, dtype=float) for b in bounds)
-    return lambda X: np.clip(X, lo, hi, out=X)
+def batch_clip(plant: Plant) -> ClipFn:
+    """The batch form ``X (N, n) -> X`` of the plant's clipping: its own :meth:`Plant.clip_state`.
 
-
-def _clip_track(plant: Any) -> ClipFn:
-    limits = plant.track_limits
-    if limits is None:
-        return lambda X: X
-    lo, hi = limits
-
-    def clip(X: np.ndarray) -> np.ndarray:
-        X[:, 0] = np.minimum(np.maximum(X[:, 0], lo), hi)  # same order as CartPole._clip_state
-        return X
-
-    return clip
-
-
-# Batch versions of the plants' `_clip_state` hooks (which act on one state).
-_BATCH_CLIPS: dict[type, Callable[[Any], ClipFn]] = {
-    InvertedPendulum: _clip_bounds,
-    DoublePendulum: _clip_bounds,
-    CartPole: _clip_track,
-}
-
-
-def batch_clip(plant: Plant) -> ClipFn | None:
-    """The batch form ``X (N, n) -> X`` of ``plant._clip_state``, or None if unknown.
-
-    A plant that keeps the base (identity) hook needs nothing; the pendulum
-    family and the cart-pole have known batch forms; any other override is
-    unknown, and such a plant cannot be rolled out in a batch.
+    The hook's contract is that it accepts a batch as well as one state, so the
+    rollout clips exactly as the per-instance step does.
     """
-    cls = type(plant)
-    if cls._clip_state is Plant._clip_state:
-        return lambda X: X
-    for known, make in _BATCH_CLIPS.items():
-        if cls._clip_state is known._clip_state:
-            return make(plant)
-    return None
+    return plant.clip_state
 
 
 def batch_unsupported_reason(plant: Plant, controller: Any) -> str | None:
@@ -84,8 +48,8 @@ def batch_unsupported_reason(plant: Plant, controller: Any) -> str | None:
 
     Requirements: an :class:`~shinro_ctrl.controllers.LQR` (a linear law with
     ``K``, ``u0``), a standalone plant that integrates with the base
-    semi-implicit Euler (position/velocity index pairs, no ``_integrate``
-    override), a clipping hook with a known batch form, no plant limit metric,
+    semi-implicit Euler (position/velocity index pairs, no ``integrate``
+    override), no plant limit metric,
     and constructor parameters that are exactly the dynamics' ``param_names``
     (so per-instance parameters can be handed to ``dynamics``).
     """
@@ -96,10 +60,8 @@ def batch_unsupported_reason(plant: Plant, controller: Any) -> str | None:
         return f"the controller is {type(controller).__name__}, not LQR"
     if plant.engine is not None:
         return "the loop runs in MuJoCo"
-    if type(plant)._integrate is not Plant._integrate or not plant.position_indices:
+    if type(plant).integrate is not Plant.integrate or not plant.position_indices:
         return f"{name} does not integrate with the base semi-implicit Euler"
-    if batch_clip(plant) is None:
-        return f"{name} clips its state in a way the batch rollout does not know"
     if hasattr(plant, "limit_violation"):
         return f"{name} reports plant limit violations"
     if set(plant.params()) != set(plant.param_names):
@@ -176,8 +138,6 @@ def lqr_batch_rollout(
     if reason is not None:
         raise ValueError(f"batch rollout not supported: {reason}")
     clip = batch_clip(plant)
-    if clip is None:  # pragma: no cover - batch_unsupported_reason checks it
-        raise ValueError(f"batch rollout not supported: {type(plant).__name__} clipping")
     n, m, dt = plant.state_dim, plant.input_dim, plant.dt
     sizes = {np.shape(v) for v in params.values()}
     if len(sizes) != 1 or len(next(iter(sizes))) != 1:

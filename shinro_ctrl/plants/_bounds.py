@@ -42,7 +42,7 @@ class StateBoundsMixin:
 
     state_bounds: tuple[np.ndarray, np.ndarray] | None
 
-    def _clip_state(self, x: np.ndarray) -> np.ndarray:
+    def clip_state(self, x: np.ndarray) -> np.ndarray:
         if self.state_bounds is None:
             return x
         return np.clip(x, *self.state_bounds)

@@ -201,7 +201,7 @@ class ArmRobot(Plant):
         self.state = self._pose_of(self._q)
 
     # ------------------------------------------------------------ dynamics
-    def _f(self, bk, x, u, p):
+    def equations(self, bk, x, u, p):
         """Cartesian kinematic model: the pose moves with the commanded twist, ``xdot = u``."""
         return bk.stack(bk.unpack(u, 6))
 

@@ -2,8 +2,8 @@
 
 A subclass declares its names (``state_names``, ``input_names``,
 ``param_names``), stores its physical parameters with :meth:`Plant._init`,
-and writes its continuous dynamics once in :meth:`Plant._f` against a backend
-``bk``. This base turns that one definition into
+and writes its continuous dynamics once in :meth:`Plant.equations` against a
+backend ``bk``. This base turns that one definition into
 
 * ``dynamics(x, u)``: numbers, single instance or a batch ``(N, n)``;
 * ``symbolic()``: the CasADi ``Function`` ``f(x, u)`` (or ``f(x, u, p)``);
@@ -13,8 +13,9 @@ and writes its continuous dynamics once in :meth:`Plant._f` against a backend
 
 Engine mode is duck-typed: a plant never imports the engine. It tells the
 engine how to match the MJCF model to its parameters (:meth:`mjcf_patch`) and
-how to read and write its state and inputs (``_engine_read``,
-``_engine_write``, ``_engine_apply``).
+how to read and write its state and inputs (:meth:`Plant.engine_read`,
+:meth:`Plant.engine_write`, :meth:`Plant.engine_apply`). The class docstring
+of :class:`Plant` lists every hook a new plant may implement.
 """
 
 from __future__ import annotations
@@ -39,6 +40,16 @@ __all__ = ["PLANT_ALIASES_REGISTRY", "PLANT_REGISTRY", "MjcfPatch", "Plant"]
 PLANT_REGISTRY: dict[str, type[Plant]] = {}
 #: Alias -> class name, from the subclasses' ``aliases``.
 PLANT_ALIASES_REGISTRY: dict[str, str] = {}
+
+#: Public hook -> underscore alias (see the :class:`Plant` docstring).
+_HOOK_ALIASES = (
+    ("equations", "_f"),
+    ("integrate", "_integrate"),
+    ("clip_state", "_clip_state"),
+    ("engine_read", "_engine_read"),
+    ("engine_write", "_engine_write"),
+    ("engine_apply", "_engine_apply"),
+)
 
 _NUMPY = NumpyBackend()
 _SCALAR = ScalarBackend()
@@ -83,10 +94,38 @@ class Plant:
     """Base class of every plant model.
 
     Subclasses set the class attributes below, call :meth:`_init` from their
-    constructor and implement :meth:`_f`. Mechanical plants whose position
-    derivatives equal their velocities list the two index groups in
+    constructor and implement :meth:`equations`. Mechanical plants whose
+    position derivatives equal their velocities list the two index groups in
     ``position_indices`` / ``velocity_indices`` and inherit semi-implicit
-    Euler; others override :meth:`_integrate`.
+    Euler; others override :meth:`integrate`. Defining a subclass registers it
+    (class name and ``aliases``) for scenarios and the CLI.
+
+    The hooks a plant implements (public, each documented on its method):
+
+    * :meth:`equations` ``(bk, x, u, p) -> xdot`` (required): the continuous
+      dynamics, written once against the backend ``bk`` (numbers, batches,
+      CasADi symbols all come from it).
+    * :meth:`integrate` ``(x, u) -> x_next``: one standalone step (default:
+      semi-implicit Euler over ``position_indices``/``velocity_indices``,
+      then :meth:`clip_state`).
+    * :meth:`clip_state` ``(x) -> x``: documented state clipping (track
+      limits, state bounds); must accept one state ``(n,)`` and a batch
+      ``(N, n)`` (the batch rollout calls it on batches).
+    * :meth:`equilibrium` ``() -> (x0, u0)``: the default operating point.
+    * :meth:`mjcf_patch` ``() -> MjcfPatch``: how the MJCF asset is matched to
+      the parameters (engine mode).
+    * :meth:`engine_read` ``(engine) -> x``, :meth:`engine_write`
+      ``(engine, x)``, :meth:`engine_apply` ``(engine, u)``: the state and
+      input in engine mode.
+    * :meth:`engine_state_map` ``(x0) -> (T, perm)``: the plant state in
+      MuJoCo's coordinates (cross-checks of the linearization).
+    * ``limit_violation() -> float`` (optional method) and
+      ``tracked_states`` (optional attribute): a plant limit metric and the
+      states the tracking error uses.
+
+    The underscore names (``_f``, ``_integrate``, ``_clip_state``,
+    ``_engine_read``, ``_engine_write``, ``_engine_apply``) are aliases kept
+    for plants written against them: a subclass may define either name.
 
     Attributes:
         state_names: Names of the state components, length ``n``.
@@ -107,8 +146,20 @@ class Plant:
     aliases: ClassVar[tuple[str, ...]] = ()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
-        """Register every subclass under its class name (and its ``aliases``) in :data:`PLANT_REGISTRY`."""
+        """Register every subclass under its class name (and its ``aliases``) in :data:`PLANT_REGISTRY`.
+
+        Also binds each public hook and its underscore alias to the same function (whichever
+        name the subclass defined), so either may be called at no extra cost.
+        """
         super().__init_subclass__(**kwargs)
+        for public, private in _HOOK_ALIASES:
+            for klass in cls.__mro__:  # the definition nearest to cls, under either name
+                own = klass.__dict__
+                if public in own or private in own:
+                    fn = own[public] if public in own else own[private]
+                    break
+            setattr(cls, public, fn)
+            setattr(cls, private, fn)
         PLANT_REGISTRY[cls.__name__] = cls
         for alias in cls.__dict__.get("aliases", ()):
             PLANT_ALIASES_REGISTRY[alias] = cls.__name__
@@ -147,9 +198,22 @@ class Plant:
         return np.zeros(self.state_dim), np.zeros(self.input_dim)
 
     # -------------------------------------------------------------- dynamics
-    def _f(self, bk: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
-        """Continuous dynamics ``xdot = f(x, u; p)``, written once against ``bk``."""
-        raise NotImplementedError
+    def equations(self, bk: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
+        """Hook: the continuous dynamics ``xdot = f(x, u; p)``, written once against ``bk``.
+
+        Args:
+            bk: The backend (``bk.sin``, ``bk.stack``, ``bk.unpack`` ...): numbers, batches
+                ``(N, n)`` or CasADi symbols, whichever the caller needs.
+            x: State (``n`` components through ``bk.unpack``).
+            u: Input (``m`` components).
+            p: Parameter name -> value (numbers, ``(N,)`` arrays or symbols).
+
+        Returns:
+            ``xdot`` as ``bk.stack`` of ``n`` components.
+        """
+        raise NotImplementedError(f"{type(self).__name__} does not define its equations")
+
+    _f = equations
 
     def dynamics(self, x: Any, u: Any, params: Mapping[str, Any] | None = None) -> np.ndarray:
         """Evaluate the continuous dynamics numerically.
@@ -173,14 +237,14 @@ class Plant:
                 f"but found {x.shape} and {u.shape}"
             )
         if x.ndim == 1 and u.ndim == 1 and not params:
-            return self._f(_SCALAR, x, u, self._params)
+            return self.equations(_SCALAR, x, u, self._params)
         p: dict[str, Any] = dict(self._params)
         if params:
             bad = unknown_keys(params, self.param_names)
             if bad:
                 raise InvalidArgument(f"unknown parameter {bad[0]!r}{did_you_mean(bad[0], self.param_names)}")
             p.update({k: np.asarray(v, dtype=float) for k, v in params.items()})
-        return self._f(_NUMPY, x, u, p)
+        return self.equations(_NUMPY, x, u, p)
 
     def symbolic(self, params: bool = False) -> cs.Function:
         """The dynamics as a CasADi ``Function`` named ``"f"``.
@@ -199,11 +263,11 @@ class Plant:
                 p = cs.SX.sym("p", len(self.param_names))
                 pmap = {k: p[i] for i, k in enumerate(self.param_names)}
                 self._symbolic[True] = cs.Function(
-                    "f", [x, u, p], [self._f(_CASADI, x, u, pmap)], ["x", "u", "p"], ["xdot"]
+                    "f", [x, u, p], [self.equations(_CASADI, x, u, pmap)], ["x", "u", "p"], ["xdot"]
                 )
             else:
                 self._symbolic[False] = cs.Function(
-                    "f", [x, u], [self._f(_CASADI, x, u, self._params)], ["x", "u"], ["xdot"]
+                    "f", [x, u], [self.equations(_CASADI, x, u, self._params)], ["x", "u"], ["xdot"]
                 )
         return self._symbolic[params]
 
@@ -233,7 +297,7 @@ class Plant:
             return self._exact(x0, u0)
         if method == "fd":
             eps = check_positive("eps", eps)
-            return fd_jacobians(lambda X, U: self._f(_NUMPY, X, U, self._params), x0, u0, eps)
+            return fd_jacobians(lambda X, U: self.equations(_NUMPY, X, U, self._params), x0, u0, eps)
         raise InvalidArgument(f"unknown linearization method {method!r}; valid: exact, fd")
 
     def linear_model(
@@ -285,19 +349,34 @@ class Plant:
         """``u`` validated as a finite ``(m,)`` array."""
         return as_vector(f"{type(self).__name__} input u", u, self.input_dim)
 
-    def _integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """One semi-implicit Euler step: velocities first, then positions with them."""
+    def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Hook: one standalone step from ``x (n,)`` under ``u (m,)``.
+
+        Default: semi-implicit Euler, velocities first, then positions with them, then
+        :meth:`clip_state`.
+        """
         dt = self.dt
-        xd = self._f(_LIST, x, u, self._params)
+        xd = self.equations(_LIST, x, u, self._params)
         new = x.tolist()
         for q, v in zip(self.position_indices, self.velocity_indices, strict=True):
             new[v] += dt * xd[v]
             new[q] += dt * new[v]
-        return self._clip_state(np.array(new))
+        return self.clip_state(np.array(new))
 
-    def _clip_state(self, x: np.ndarray) -> np.ndarray:
-        """Hook for documented state clipping (state bounds, track limits)."""
+    _integrate = integrate
+
+    def clip_state(self, x: np.ndarray) -> np.ndarray:
+        """Hook: documented state clipping (state bounds, track limits); identity by default.
+
+        Args:
+            x: One state ``(n,)`` or a batch ``(N, n)`` (may be modified in place).
+
+        Returns:
+            The clipped state(s), same shape.
+        """
         return x
+
+    _clip_state = clip_state
 
     def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
         """Declared limits ``(lo (n,), hi (n,))`` of the state (±inf where none), e.g. ``state_bounds``."""
@@ -377,12 +456,12 @@ class Plant:
         """
         u = self._input(u)
         if self._engine is not None:
-            self._engine_apply(self._engine, u)
+            self.engine_apply(self._engine, u)
             self._engine.step()
-            self.state = self._engine_read(self._engine)
+            self.state = self.engine_read(self._engine)
         else:
             try:
-                x = self._integrate(self.state, u)
+                x = self.integrate(self.state, u)
             except (OverflowError, ZeroDivisionError):  # Python-float arithmetic of a diverging state
                 x = np.full(self.state_dim, np.nan)
             if not math.isfinite(sum(x.tolist())) and not np.all(np.isfinite(x)):
@@ -396,7 +475,7 @@ class Plant:
     def get_state(self) -> np.ndarray:
         """The current state ``(n,)`` (read from the engine when one is attached)."""
         if self._engine is not None:
-            self.state = self._engine_read(self._engine)
+            self.state = self.engine_read(self._engine)
         return self.state.copy()
 
     def set_state(self, x: Any) -> None:
@@ -418,7 +497,7 @@ class Plant:
             )
         self.state = x.copy()
         if self._engine is not None:
-            self._engine_write(self._engine, x)
+            self.engine_write(self._engine, x)
 
     # ---------------------------------------------------------------- engine
     @property
@@ -437,7 +516,7 @@ class Plant:
         self._check_engine(engine)
         self._engine = engine
         if engine is not None:
-            self.state = self._engine_read(engine)
+            self.state = self.engine_read(engine)
 
     def _check_engine(self, engine: Any) -> None:
         """Raise InvalidArgument unless ``engine`` is None or behaves like a MujocoEngine."""
@@ -463,14 +542,21 @@ class Plant:
         """
         raise NotImplementedError(f"{type(self).__name__} has no MuJoCo state map")
 
-    def _engine_read(self, engine: Any) -> np.ndarray:
-        raise NotImplementedError
+    def engine_read(self, engine: Any) -> np.ndarray:
+        """Hook: the plant state ``x (n,)`` read from the engine's joints (engine mode)."""
+        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
 
-    def _engine_write(self, engine: Any, x: np.ndarray) -> None:
-        raise NotImplementedError
+    def engine_write(self, engine: Any, x: np.ndarray) -> None:
+        """Hook: write the plant state ``x (n,)`` into the engine's joints (engine mode)."""
+        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
 
-    def _engine_apply(self, engine: Any, u: np.ndarray) -> None:
-        raise NotImplementedError
+    def engine_apply(self, engine: Any, u: np.ndarray) -> None:
+        """Hook: apply the input ``u (m,)`` to the engine's actuators (engine mode)."""
+        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
+
+    _engine_read = engine_read
+    _engine_write = engine_write
+    _engine_apply = engine_apply
 
     # ---------------------------------------------------------------- config
     @classmethod

@@ -87,7 +87,7 @@ class CartPole(Plant):
             backend=backend,
         )
 
-    def _f(self, bk, x, u, p):
+    def equations(self, bk, x, u, p):
         _, x_dot, theta, theta_dot = bk.unpack(x, 4)
         (force,) = bk.unpack(u, 1)
         M, m, l, b, g = (p[k] for k in self.param_names)
@@ -99,9 +99,14 @@ class CartPole(Plant):
         theta_ddot = ((M + m) * rhs_t - m * l * c * rhs_x) / det
         return bk.stack([x_dot, x_ddot, theta_dot, theta_ddot])
 
-    def _clip_state(self, x: np.ndarray) -> np.ndarray:
+    def clip_state(self, x: np.ndarray) -> np.ndarray:
+        """Clip the cart position to ``track_limits`` (one state ``(4,)`` or a batch ``(N, 4)``, in place)."""
         if self.track_limits is not None:
-            x[0] = min(max(x[0], self.track_limits[0]), self.track_limits[1])
+            lo, hi = self.track_limits
+            if x.ndim == 1:
+                x[0] = min(max(x[0], lo), hi)
+            else:
+                x[:, 0] = np.minimum(np.maximum(x[:, 0], lo), hi)
         return x
 
     def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -129,7 +134,7 @@ class CartPole(Plant):
         perm = np.array([0, 2, 1, 3])  # x = [x, x_dot, theta, theta_dot]
         return np.eye(4)[perm], perm
 
-    def _engine_read(self, engine) -> np.ndarray:
+    def engine_read(self, engine) -> np.ndarray:
         return np.array(
             [
                 engine.get_joint_qpos("slider"),
@@ -139,14 +144,14 @@ class CartPole(Plant):
             ]
         )
 
-    def _engine_write(self, engine, x: np.ndarray) -> None:
+    def engine_write(self, engine, x: np.ndarray) -> None:
         engine.set_joint_qpos("slider", x[0])
         engine.set_joint_vel("slider", x[1])
         engine.set_joint_qpos("hinge", x[2])
         engine.set_joint_vel("hinge", x[3])
         engine.forward()
 
-    def _engine_apply(self, engine, u: np.ndarray) -> None:
+    def engine_apply(self, engine, u: np.ndarray) -> None:
         engine.set_joint_ctrl("slider", u[0])
 
 

@@ -88,7 +88,7 @@ class DoublePendulum(StateBoundsMixin, Plant):
         """The upright equilibrium ``(x0, u0)``: both rods pointing up, no torque."""
         return np.array([math.pi, math.pi, 0.0, 0.0]), np.zeros(2)
 
-    def _f(self, bk, x, u, p):
+    def equations(self, bk, x, u, p):
         th1, th2, w1, w2 = bk.unpack(x, 4)
         tau1, tau2 = bk.unpack(u, 2)
         m1, m2, l1, l2, g = (p[k] for k in self.param_names)
@@ -137,18 +137,18 @@ class DoublePendulum(StateBoundsMixin, Plant):
         T = np.array([[1.0, 0.0, 0.0, 0.0], [1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 1.0, 1.0]])
         return T, np.arange(4)
 
-    def _engine_read(self, engine) -> np.ndarray:
+    def engine_read(self, engine) -> np.ndarray:
         q1, q2 = engine.get_joint_qpos("hinge_1"), engine.get_joint_qpos("hinge_2")
         v1, v2 = engine.get_joint_vel("hinge_1"), engine.get_joint_vel("hinge_2")
         return np.array([q1, q1 + q2, v1, v1 + v2])
 
-    def _engine_write(self, engine, x: np.ndarray) -> None:
+    def engine_write(self, engine, x: np.ndarray) -> None:
         engine.set_joint_qpos("hinge_1", x[0])
         engine.set_joint_qpos("hinge_2", x[1] - x[0])
         engine.set_joint_vel("hinge_1", x[2])
         engine.set_joint_vel("hinge_2", x[3] - x[2])
         engine.forward()
 
-    def _engine_apply(self, engine, u: np.ndarray) -> None:
+    def engine_apply(self, engine, u: np.ndarray) -> None:
         engine.set_joint_ctrl("torque_1", u[0])
         engine.set_joint_ctrl("torque_2", u[1])

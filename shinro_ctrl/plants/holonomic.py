@@ -126,11 +126,11 @@ class HolonomicMobileRobot(Plant):
         return A, np.linalg.pinv(A)
 
     # ------------------------------------------------------------ dynamics
-    def _f(self, bk, x, u, p):
+    def equations(self, bk, x, u, p):
         vx, vy, omega = bk.unpack(u, 3)
         return bk.stack([vx, vy, omega])
 
-    def _integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Exact for the kinematic model: ``x + dt u``."""
         return x + self.dt * u
 
@@ -189,7 +189,7 @@ class HolonomicMobileRobot(Plant):
         """
         u = self._input(u_world)
         speeds = self.A_kinematics @ self._world_to_body(u, float(self.state[2])) / self.r
-        new = self._integrate(self.state, u)
+        new = self.integrate(self.state, u)
         if not math.isfinite(new.sum()):
             raise SimulationDiverged(f"HolonomicMobileRobot pose became non-finite: {new}")
         self.state = new
@@ -284,13 +284,13 @@ class HolonomicMobileRobot(Plant):
             geom_size=geom_size,
         )
 
-    def _engine_read(self, engine: Any) -> np.ndarray:
+    def engine_read(self, engine: Any) -> np.ndarray:
         return self.state.copy()
 
-    def _engine_write(self, engine: Any, x: np.ndarray) -> None:
+    def engine_write(self, engine: Any, x: np.ndarray) -> None:
         self._pin(engine)
 
-    def _engine_apply(self, engine: Any, u: np.ndarray) -> None:
+    def engine_apply(self, engine: Any, u: np.ndarray) -> None:
         """Nothing to actuate: the base is kinematic (see :meth:`step`)."""
 
     def __repr__(self) -> str:

@@ -68,7 +68,7 @@ class InvertedPendulum(StateBoundsMixin, Plant):
             backend=backend,
         )
 
-    def _f(self, bk, x, u, p):
+    def equations(self, bk, x, u, p):
         theta, theta_dot = bk.unpack(x, 2)
         (tau,) = bk.unpack(u, 1)
         ml2 = p["mass"] * p["length"] ** 2
@@ -94,13 +94,13 @@ class InvertedPendulum(StateBoundsMixin, Plant):
         perm = np.array([0, 1])
         return np.eye(2)[perm], perm
 
-    def _engine_read(self, engine) -> np.ndarray:
+    def engine_read(self, engine) -> np.ndarray:
         return np.array([engine.get_joint_qpos("hinge"), engine.get_joint_vel("hinge")])
 
-    def _engine_write(self, engine, x: np.ndarray) -> None:
+    def engine_write(self, engine, x: np.ndarray) -> None:
         engine.set_joint_qpos("hinge", x[0])
         engine.set_joint_vel("hinge", x[1])
         engine.forward()
 
-    def _engine_apply(self, engine, u: np.ndarray) -> None:
+    def engine_apply(self, engine, u: np.ndarray) -> None:
         engine.set_joint_ctrl("hinge", u[0])

@@ -185,7 +185,7 @@ class Quadrotor(Plant):
         return dict(self._params)
 
     # ------------------------------------------------------------ dynamics
-    def _f(self, bk, x, u, p):
+    def equations(self, bk, x, u, p):
         _, _, _, phi, theta, psi, vx, vy, vz, wx, wy, wz = bk.unpack(x, 12)
         thrust, tau_x, tau_y, tau_z = bk.unpack(u, 4)
         m, Ixx, Iyy, Izz, g = (p[k] for k in self.param_names)
@@ -208,7 +208,7 @@ class Quadrotor(Plant):
         wz_dot = (tau_z + (Ixx - Iyy) * wx * wy) / Izz
         return bk.stack([vx, vy, vz, phi_dot, theta_dot, psi_dot, ax, ay, az, wx_dot, wy_dot, wz_dot])
 
-    def _integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Semi-implicit Euler: velocities first; then position and angles with the new velocities.
 
         ``v⁺ = v + dt v̇(x, u)``, ``ω⁺ = ω + dt ω̇(x, u)``, ``p⁺ = p + dt v⁺``,
@@ -217,8 +217,8 @@ class Quadrotor(Plant):
         """
         dt = self.dt
         new = x.copy()
-        new[6:] += dt * self._f(_SCALAR, x, u, self._params)[6:]
-        new[:6] += dt * self._f(_SCALAR, new, u, self._params)[:6]
+        new[6:] += dt * self.equations(_SCALAR, x, u, self._params)[6:]
+        new[:6] += dt * self.equations(_SCALAR, new, u, self._params)[:6]
         return new
 
     def body_force_map(self, body: str) -> np.ndarray:
@@ -313,7 +313,7 @@ class Quadrotor(Plant):
             T[3:6, 3:6] = [[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]]
         return T, np.arange(12)
 
-    def _engine_read(self, engine) -> np.ndarray:
+    def engine_read(self, engine) -> np.ndarray:
         qpos = engine.get_joint_qpos(self.free_joint)
         qvel = engine.get_joint_vel(self.free_joint)
         x = np.empty(12)
@@ -322,12 +322,12 @@ class Quadrotor(Plant):
         x[6:12] = qvel  # [world linear velocity, body angular velocity]
         return x
 
-    def _engine_write(self, engine, x: np.ndarray) -> None:
+    def engine_write(self, engine, x: np.ndarray) -> None:
         engine.set_joint_qpos(self.free_joint, np.concatenate([x[0:3], zyx_euler_to_quat(x[3], x[4], x[5])]))
         engine.set_joint_vel(self.free_joint, x[6:12])
         engine.forward()
 
-    def _engine_apply(self, engine, u: np.ndarray) -> None:
+    def engine_apply(self, engine, u: np.ndarray) -> None:
         for name, value in zip(self.actuators, u.tolist(), strict=True):
             engine.set_joint_ctrl(name, value)
 
