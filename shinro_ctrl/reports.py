@@ -48,10 +48,7 @@ def eps_sweep(plant: Any, x0: Any = None, u0: Any = None, *, eps: np.ndarray | N
 
 
 def _figure(nrows: int, ncols: int, size: tuple[float, float]):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # the backend is the caller's (the CLI picks one)
 
     return plt, *plt.subplots(nrows, ncols, figsize=size, squeeze=False)
 
