@@ -504,8 +504,8 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     except ConfigError as exc:
         raise ctx.error("controller", str(exc)) from None
     ctx.check_keys("controller", ct, ("type", *controller_keys(ccls)))
-    _bryson_weights(ctx, ct, n, probe.input_dim)
     ctx.check_types("controller", ct, signature_annotations(ccls.from_plant, 1))
+    _bryson_weights(ctx, ct, n, probe.input_dim)
     for key in ("x0", "u0"):
         if key in ct:
             ctx.vector("controller", key, ct[key], n if key == "x0" else probe.input_dim)
