@@ -155,12 +155,14 @@ class ModelTree:
         bodies: Bodies, index 0 the world; parents precede children.
         joints: Hinge and slide joints in MuJoCo's ``qpos`` order.
         actuators: Actuators in MuJoCo's ``ctrl`` order.
-        gravity: Gravity vector ``(3,)`` [m/s²] (zero when disabled).
+        gravity: The model's gravity vector ``(3,)`` [m/s²] (``opt.gravity``).
         timestep: The model's ``opt.timestep`` [s].
         integrator: The model's integrator name (e.g. ``"Euler"``).
+        gravity_enabled: False when the model disables gravity.
         damping_enabled: False when the model disables joint damping.
         springs_enabled: False when the model disables joint springs.
         actuation_enabled: False when the model disables actuation.
+        disableflags: The model's raw ``opt.disableflags`` bit field.
     """
 
     name: str
@@ -171,10 +173,11 @@ class ModelTree:
     gravity: np.ndarray
     timestep: float
     integrator: str = "Euler"
+    gravity_enabled: bool = True
     damping_enabled: bool = True
     springs_enabled: bool = True
     actuation_enabled: bool = True
-    extras: dict[str, Any] = field(default_factory=dict)
+    disableflags: int = 0
 
     @property
     def nq(self) -> int:
@@ -311,7 +314,7 @@ class RigidBodyTree:
         self.nu = tree.nu
         self._nodes = self._build_nodes(tree)
         self.parent = np.array([n.parent for n in self._nodes], dtype=int)
-        g = np.asarray(tree.gravity, dtype=float)
+        g = np.asarray(tree.gravity, dtype=float) if tree.gravity_enabled else np.zeros(3)
         self._a_base = _const(-g)
         self._damping = [j.damping if tree.damping_enabled else 0.0 for j in tree.joints]
         self._stiffness = [j.stiffness if tree.springs_enabled else 0.0 for j in tree.joints]

@@ -84,10 +84,22 @@ def tree_path(tmp_path_factory):
     return path
 
 
-@pytest.fixture(scope="module", params=("tree", *SHIPPED))
-def model(request, tree_path):
-    """(plant, MjModel) for the test tree and every shipped MjcfPlant model."""
-    path = tree_path if request.param == "tree" else asset_path(request.param)
+@pytest.fixture(scope="module")
+def tree_flags_path(tmp_path_factory):
+    """The test tree with MuJoCo's gravity, damper and spring forces disabled by flags."""
+    path = tmp_path_factory.mktemp("mjcf") / "tree_flags.xml"
+    path.write_text(
+        TREE_XML.replace(
+            'eulerdamp="disable"', 'eulerdamp="disable" gravity="disable" damper="disable" spring="disable"'
+        )
+    )
+    return path
+
+
+@pytest.fixture(scope="module", params=("tree", "tree_flags", *SHIPPED))
+def model(request, tree_path, tree_flags_path):
+    """(plant, MjModel) for the test tree (with and without flags) and every shipped MjcfPlant model."""
+    path = {"tree": tree_path, "tree_flags": tree_flags_path}.get(request.param) or asset_path(request.param)
     m = mujoco.MjModel.from_xml_path(str(path))
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
     return MjcfPlant(path), m

@@ -265,18 +265,18 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
         )
 
     flags = int(m.opt.disableflags)
-    gravity = np.zeros(3) if flags & int(_DSBL.mjDSBL_GRAVITY) else np.array(m.opt.gravity, dtype=float)
     return ModelTree(
         name=m.names[: m.names.find(b"\0")].decode(),
         path=path,
         bodies=tuple(bodies),
         joints=tuple(joints),
         actuators=tuple(actuators),
-        gravity=gravity,
+        gravity=np.array(m.opt.gravity, dtype=float),
         timestep=float(m.opt.timestep),
         integrator=mujoco.mjtIntegrator(int(m.opt.integrator)).name.removeprefix("mjINT_"),
         damping_enabled=not flags & int(_DSBL.mjDSBL_DAMPER),
         springs_enabled=not flags & int(_DSBL.mjDSBL_SPRING),
         actuation_enabled=not flags & int(_DSBL.mjDSBL_ACTUATION),
-        extras={"gravity_vector": np.array(m.opt.gravity, dtype=float)},
+        gravity_enabled=not flags & int(_DSBL.mjDSBL_GRAVITY),
+        disableflags=flags,
     )

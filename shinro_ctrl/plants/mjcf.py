@@ -287,7 +287,7 @@ class MjcfPlant(Plant):
         The gravity written is the model's own; the engine sets MuJoCo's Euler
         integrator with explicit damping, as for every plant.
         """
-        g = self.tree.extras.get("gravity_vector", self.tree.gravity)
+        g = self.tree.gravity  # the model's own (its disable flag stays in the file)
         return MjcfPatch(asset=self.model_path, timestep=self.dt, gravity=tuple(float(c) for c in g))
 
     def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
