@@ -219,6 +219,10 @@ def test_bad_arguments(plant):
         opt.solve(START, GOAL, cost={"efort": 1.0})
     with pytest.raises(InvalidArgument, match="x_start"):
         opt.solve([0, 0], GOAL)
+    with pytest.raises(InvalidArgument, match=r"ipopt: .*Invalid options"):
+        TrajectoryOptimizer(plant, knots=11, ipopt={"linear_solver": "no_such_solver"})
+    with pytest.raises(InvalidArgument, match="Invalid_Option"):  # a valid name, but HSL is not installed
+        TrajectoryOptimizer(plant, knots=11, ipopt={"linear_solver": "ma27"}).solve(START, GOAL)
 
 
 def test_save_load_round_trip_and_plot(swingups, tmp_path):

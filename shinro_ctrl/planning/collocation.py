@@ -346,6 +346,11 @@ class TrajectoryOptimizer:
                     break
                 solver = self._adaptive_solver()
         elapsed = time.perf_counter() - t0
+        if status == "Invalid_Option":
+            raise InvalidArgument(
+                f"ipopt: IPOPT rejected an option (status Invalid_Option); check the names and values in ipopt="
+                f"{self._opts['ipopt']!r}"
+            )
         if solver is not self.solver:
             status += " (after a retry with mu_strategy 'adaptive')"
         if sol is None:
