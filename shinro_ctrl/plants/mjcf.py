@@ -188,8 +188,9 @@ class MjcfPlant(Plant):
         r"""The input that makes the accelerations vanish at ``x`` (e.g. gravity compensation).
 
         ``q̈`` is affine in ``u``: ``q̈ = a₀ + B_q u`` with ``a₀ = q̈(x, 0)``
-        and ``B_q = ∂q̈/∂u`` (exact). Returns the least-squares solution of
-        ``B_q u = −a₀``.
+        and column ``k`` of ``B_q = ∂q̈/∂u`` equal to ``q̈(x, e_k) − a₀``
+        (exact for an affine map, up to rounding). Returns the least-squares
+        solution of ``B_q u = −a₀``.
 
         Args:
             x: State ``(2nq,)`` (usually with zero velocities).
@@ -204,8 +205,7 @@ class MjcfPlant(Plant):
         nq = self.tree.nq
         u0 = np.zeros(self.input_dim)
         a0 = self._eval_one(x, u0)[nq:]
-        _, B = self.linearize(x, u0)
-        Bq = B[nq:]
+        Bq = np.column_stack([self._eval_one(x, e)[nq:] - a0 for e in np.eye(self.input_dim)])
         u, *_ = np.linalg.lstsq(Bq, -a0, rcond=None)
         res = a0 + Bq @ u
         if np.abs(res).max() > tol * max(1.0, np.abs(a0).max()):
