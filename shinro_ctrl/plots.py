@@ -216,6 +216,8 @@ def plot_run(
                 if multi:
                     label = f"{label} ({run.loop})"
                 if kind == "x":
+                    if k == 0:
+                        _estimate_lines(ax, run, i, grouped)  # measurement and estimate under the true state
                     (h,) = ax.plot(run.t, run.x[:, i], color=color, label=label, **run_styles[k])
                 else:
                     (h,) = ax.step(run.t[:-1], run.u[:, i], where="post", color=color, label=label, **run_styles[k])
@@ -348,3 +350,16 @@ def _title(result: Any, compare: Any) -> str:
         diff = "—" if not (math.isfinite(a) and math.isfinite(b)) else f"{b - a:+.3g}"
         parts.append(f"{label}: {_fmt_metric(a)} vs {_fmt_metric(b)} (Δ {diff})")
     return f"{head}: {result.loop} (solid) vs {compare.loop} (dashed)\n" + "   ".join(parts)
+
+
+def _estimate_lines(ax: Any, run: Any, i: int, grouped: bool) -> None:
+    """Draw the measurement of state ``i`` (if measured) and its estimate, when the loop used output feedback."""
+    x_hat, y = getattr(run, "x_hat", None), getattr(run, "y", None)
+    if x_hat is None or np.array_equal(x_hat, run.x):
+        return  # full-state feedback without noise: the estimate is the state
+    name = run.state_names[i]
+    measured = tuple(getattr(run, "measured", ()) or ())
+    if y is not None and name in measured:
+        col = y[:, measured.index(name)]
+        ax.plot(run.t, col, color="0.65", lw=0.6, alpha=0.8, label="measurement" if not grouped else None)
+    ax.plot(run.t, x_hat[:, i], color="C6", lw=1.0, ls="-.", label="estimate" if not grouped else None)
