@@ -434,12 +434,10 @@ class CondensedQP:
             for k in range(N):
                 c[k + 1] = Acl @ c[k] + self.offset
         c = c.ravel()
-        Kbar = scipy.linalg.block_diag(*([K] * N)) if N * m * n <= 4_000_000 else None
-        if Kbar is None:  # pragma: no cover - the size cap keeps this small
-            raise InvalidArgument("condensed QP too large")
-        Ux = -Kbar @ Sx[: N * n]
-        Uv = np.eye(nv) - Kbar @ Sv[: N * n]
-        cu = -Kbar @ c[: N * n]
+        # K̄ = I_N ⊗ K applied block by block: (K̄ M)_k = K M_k
+        Ux = -(K @ Sx[: N * n].reshape(N, n, n)).reshape(nv, n)
+        Uv = np.eye(nv) - (K @ Sv[: N * n].reshape(N, n, nv)).reshape(nv, nv)
+        cu = -(c[: N * n].reshape(N, n) @ K.T).ravel()
         # weighted blocks: QS = Q̄ S (stage weight Q for k < N, P_f at N), RU = R̄ U
         Sv3 = Sv.reshape(N + 1, n, nv)
         QSv = np.empty_like(Sv3)
