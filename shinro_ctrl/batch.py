@@ -58,6 +58,8 @@ def batch_unsupported_reason(plant: Plant, controller: Any) -> str | None:
     name = type(plant).__name__
     if not isinstance(controller, LQR):
         return f"the controller is {type(controller).__name__}, not LQR"
+    if controller.stateful:
+        return "the LQR integrates tracking errors (LQI): its law is not u = u0 - K x"
     if plant.engine is not None:
         return "the loop runs in MuJoCo"
     if type(plant).integrate is not Plant.integrate or not plant.position_indices:

@@ -239,6 +239,10 @@ def batch_reason(nominal: Any, names: Sequence[str]) -> str | None:
         return f"the reference is {nominal.reference.kind!r}, not constant"
     if sim.measurement_noise and any(v != 0 for v in sim.measurement_noise):
         return "the scenario adds measurement noise"
+    if type(nominal.estimator).__name__ != "FullState" or sim.measured is not None:
+        return "the controller sees an estimate (output feedback)"
+    if sim.sensor_noise or sim.process_noise or sim.disturbance:
+        return "the scenario adds sensor or process noise or a disturbance"
     missing = [n for n in names if n not in nominal.plant.param_names]
     if missing:  # pragma: no cover - implied by batch_unsupported_reason
         return f"{missing[0]!r} is not a dynamics parameter"
