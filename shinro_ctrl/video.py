@@ -363,7 +363,7 @@ def _render_model(sim: Any) -> str | None:
     """The MJCF model the scenario names (None: the plant's asset); raise if there is none."""
     scenario = sim.scenario
     model = scenario.engine.model if scenario.engine is not None else None
-    if type(sim.plant).asset is None and model is None:
+    if getattr(sim.plant, "asset", None) is None and model is None:  # MjcfPlant's asset is per instance
         raise VideoError(f"{type(sim.plant).__name__} has no MuJoCo model (MJCF asset) to render; videos need one")
     return model
 
