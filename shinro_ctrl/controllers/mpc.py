@@ -103,8 +103,13 @@ _fmt = fmt
 #: loop, both backends exact): see :func:`choose_solver`.
 AUTO_DAQP_MAX_INPUTS = 400
 
-#: Tightened tolerances of the OSQP re-solve after an inaccurate or unpolished solve.
-_REFINE = {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 100_000, "polishing": True}
+#: Tightened settings of the OSQP re-solves after an inaccurate or unpolished solve, tried in turn
+#: from the previous iterate: a moderately tighter one (usually enough for the polish to find the
+#: active set), then a tight one.
+_REFINES = (
+    {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iter": 20_000, "polishing": True},
+    {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 100_000, "polishing": True},
+)
 
 #: With polishing on, a polished OSQP solution is accepted as the optimum only when its residuals
 #: ``max(prim_res, dual_res)`` are below this: a polish on a nearly right active set "succeeds"
@@ -664,7 +669,7 @@ class LinearMPC(Controller):
 
         An interrupted solve re-raises ``KeyboardInterrupt``; a certified
         infeasibility ("primal infeasible") is returned as is. Otherwise OSQP
-        re-solves from its own iterate with tolerances 1e-9 and polishing; if
+        re-solves from its own iterate with tolerances 1e-6, then 1e-9, and polishing; if
         the result is still not a polished "solved" with residuals below
         ``_KKT_TOL`` (1e-8), the condensed solver
         settles the step when the problem fits it (its exact optimum, or its
@@ -681,21 +686,22 @@ class LinearMPC(Controller):
         if info.status == "primal infeasible":
             return sol, info, iterations, None
         qp = self._osqp
-        z, y = np.array(sol.x, dtype=float), np.array(sol.y, dtype=float)
-        if np.all(np.isfinite(z)) and np.all(np.isfinite(y)):
-            qp.warm_start(z, y)
-        saved = {k: qp.settings[k] for k in _REFINE}
-        qp.update_settings(**_REFINE)
-        try:
-            sol, info = qp.solve()
-        finally:
-            qp.update_settings(**saved)
-        iterations += info.iter
-        if info.status == "interrupted":
-            raise KeyboardInterrupt("OSQP solve interrupted")
-        exact = info.status == _SOLVED and info.status_polish == 1 and max(info.prim_res, info.dual_res) <= _KKT_TOL
-        if exact or info.status == "primal infeasible":
-            return sol, info, iterations, None
+        saved = {k: qp.settings[k] for k in _REFINES[0]}
+        for tighter in _REFINES:
+            z, y = np.array(sol.x, dtype=float), np.array(sol.y, dtype=float)
+            if np.all(np.isfinite(z)) and np.all(np.isfinite(y)):
+                qp.warm_start(z, y)
+            qp.update_settings(**tighter)
+            try:
+                sol, info = qp.solve()
+            finally:
+                qp.update_settings(**saved)
+            iterations += info.iter
+            if info.status == "interrupted":
+                raise KeyboardInterrupt("OSQP solve interrupted")
+            exact = info.status == _SOLVED and info.status_polish == 1 and max(info.prim_res, info.dual_res) <= _KKT_TOL
+            if exact or info.status == "primal infeasible":
+                return sol, info, iterations, None
         if self._referee is None and _dense_size(self.n, self.m, self.N, self.options) <= MAX_DENSE_SIZE:
             self._referee = self._condensed()
         if self._referee is None:
