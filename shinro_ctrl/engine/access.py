@@ -9,7 +9,6 @@ import mujoco
 import numpy as np
 
 from shinro_ctrl.engine.mjcf import _euler_zyx_from_quat, _real, _unknown
-from shinro_ctrl.engine.render import OffscreenRenderer
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 
 __all__ = ["NamedAccess"]
@@ -24,7 +23,7 @@ _NV = {_FREE: 6, _BALL: 3, _SLIDE: 1, _HINGE: 1}
 
 
 class NamedAccess:
-    """Joint, actuator, body and site access by name; the state vector; Jacobians; rendering.
+    """Joint, actuator, body and site access by name; the state vector; Jacobians.
 
     A mixin: :class:`~shinro_ctrl.engine.core.MujocoEngine` provides
     ``model``, ``data`` and the name tables this class reads.
@@ -362,26 +361,3 @@ class NamedAccess:
             raise NonFiniteError(f"joint '{name}' {what} must be finite, got {np.array2string(v, precision=4)}")
         a = int(adr[j])
         arr[a : a + k] = v
-
-    # ------------------------------------------- offscreen rendering (video.py)
-    def make_renderer(self, width: int = 320, height: int = 240, *, shadows: bool = False) -> OffscreenRenderer:
-        """An offscreen renderer of this engine's model, showing its current data.
-
-        MuJoCo picks its OpenGL backend from ``MUJOCO_GL`` when ``mujoco`` is
-        first imported (see :mod:`shinro_ctrl.video`, which chooses one
-        before that import). Close the renderer when done (or use it as a
-        context manager): MuJoCo's own finalizer may fail at interpreter exit.
-
-        Args:
-            width: Image width [px], 16 to 8192.
-            height: Image height [px], 16 to 8192.
-            shadows: Render the lights' shadows. Off by default: with software
-                rendering (OSMesa) shadows cost about ten times the rest of a
-                frame (60 ms against 5 ms for the cart-pole at 320 × 240).
-
-        Raises:
-            InvalidArgument: a size out of range.
-            RuntimeError: no OpenGL context could be created (the message
-                names ``MUJOCO_GL`` and MuJoCo's reason).
-        """
-        return OffscreenRenderer(self, width, height, shadows=shadows)
