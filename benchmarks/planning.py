@@ -25,10 +25,17 @@ TVLQR: ``TVLQR.from_trajectory`` along a fixed 3 s swing-up plan at 100 Hz (300 
 in one CasADi map call, Euler discretization, Riccati recursion, the goal LQR; median of repeats.
 
 Run: ``python benchmarks/planning.py [--repeats 5] [--drake-repeats 2]``. Figures vary with machine
-load (2 shared cores here): read the ratios.
+load (2 shared cores here): read the ratios, and the ``cpu s`` column (process CPU time of the same
+calls) beside the wall-clock ``solve s``. OpenBLAS is pinned to one thread unless
+``OPENBLAS_NUM_THREADS`` is set: every matrix here is tiny, and on a loaded machine OpenBLAS's worker
+threads made scipy's DARE (inside the goal LQR) about 10x slower (15 ms instead of 1.2 ms).
 """
 
 from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS (see the module doc)
 
 import argparse
 import re
@@ -75,10 +82,12 @@ def bench_ours(plant: CartPole, method: str, repeats: int) -> dict:
         x_max=[X_MAX] + [np.inf] * 3,
     )  # fmt: skip
     build = time.perf_counter() - t0
-    times, traj, ok = [], None, True
+    times, cpus, traj, ok = [], [], None, True
     for _ in range(repeats):
         try:
+            c0 = time.process_time()
             traj = opt.solve(START, GOAL, duration=T_RANGE, cost={"time": 1.0, "effort": W_EFFORT})
+            cpus.append(time.process_time() - c0)
             times.append(traj.solve_time)
         except PlanningFailed as exc:  # a benchmark row reports the failure instead of stopping
             ok = False
@@ -90,6 +99,7 @@ def bench_ours(plant: CartPole, method: str, repeats: int) -> dict:
         "name": f"ours {method}",
         "build": build,
         "solve": float(np.median(times)),
+        "cpu": float(np.median(cpus)),
         "iterations": traj.iterations,
         "objective": traj.objective,
         "common": common_objective(traj.t, traj.u[:, 0]) if method != "multiple_shooting" else float("nan"),
@@ -152,11 +162,12 @@ def bench_drake(plant: CartPole, repeats: int) -> dict | None:
     options = SolverOptions()  # Drake's IPOPT defaults, plus a log file to read the iteration count from
     options.SetOption(solver.solver_id(), "output_file", str(log))
     options.SetOption(solver.solver_id(), "file_print_level", 3)
-    times, result = [], None
+    times, cpus, result = [], [], None
     for _ in range(repeats):
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         result = solver.Solve(prog, None, options)
         times.append(time.perf_counter() - t1)
+        cpus.append(time.process_time() - c1)
     ok = result.is_success()
     t = np.asarray(dircol.GetSampleTimes(result))
     x = np.asarray(dircol.GetStateSamples(result)).T
@@ -168,6 +179,7 @@ def bench_drake(plant: CartPole, repeats: int) -> dict | None:
         "name": "drake DirectCollocation (IPOPT)",
         "build": build,
         "solve": float(np.median(times)),
+        "cpu": float(np.median(cpus)),
         "iterations": iters if iters is not None else -1,
         "objective": float(result.get_optimal_cost()),
         "common": common_objective(t, uu[:, 0]),
@@ -178,19 +190,20 @@ def bench_drake(plant: CartPole, repeats: int) -> dict | None:
     }
 
 
-def bench_tvlqr(plant: CartPole, repeats: int) -> tuple[float, int]:
+def bench_tvlqr(plant: CartPole, repeats: int) -> tuple[float, float, int]:
     opt = TrajectoryOptimizer(
         plant, knots=61, method="hermite_simpson", u_min=[-U_MAX], u_max=[U_MAX], x_min=[-X_MAX] + [-np.inf] * 3,
         x_max=[X_MAX] + [np.inf] * 3,
     )  # fmt: skip
     traj = opt.solve(START, GOAL, duration=3.0, cost={"effort": 1.0}, u_goal=[0.0])
-    times = []
+    times, cpus = [], []
     ctrl = None
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         ctrl = TVLQR.from_trajectory(plant, traj, [10, 1, 10, 1], [1.0], dt=0.01)
         times.append(time.perf_counter() - t0)
-    return float(np.median(times)), ctrl.horizon
+        cpus.append(time.process_time() - c0)
+    return float(np.median(times)), float(np.median(cpus)), ctrl.horizon
 
 
 def main() -> None:
@@ -208,8 +221,8 @@ def main() -> None:
     if drake is not None:
         rows.append(drake)
     head = (
-        f"{'solver':34s} {'build s':>8s} {'solve s':>8s} {'iters':>6s} {'objective':>10s} {'J common':>10s} "
-        f"{'T s':>6s} {'defect':>9s} success"
+        f"{'solver':34s} {'build s':>8s} {'solve s':>8s} {'cpu s':>7s} {'iters':>6s} {'objective':>10s} "
+        f"{'J common':>10s} {'T s':>6s} {'defect':>9s} success"
     )
     print(head)
     print("-" * len(head))
@@ -218,20 +231,27 @@ def main() -> None:
             print(f"{r['name']:34s} failed")
             continue
         print(
-            f"{r['name']:34s} {r['build']:8.3f} {r['solve']:8.3f} {r['iterations']:6d} {r['objective']:10.4f} "
-            f"{r['common']:10.4f} {r['T']:6.3f} {r['defect']:9.1e} {r['success']}"
+            f"{r['name']:34s} {r['build']:8.3f} {r['solve']:8.3f} {r['cpu']:7.3f} {r['iterations']:6d} "
+            f"{r['objective']:10.4f} {r['common']:10.4f} {r['T']:6.3f} {r['defect']:9.1e} {r['success']}"
         )
     ours = rows[0]
     if drake is not None and "solve" in ours:
         print(
-            f"hermite_simpson vs Drake: {drake['solve'] / ours['solve']:.1f}x faster (goal >= 20x); "
+            f"hermite_simpson vs Drake: {drake['solve'] / ours['solve']:.1f}x faster wall, "
+            f"{drake['cpu'] / ours['cpu']:.1f}x cpu (goal >= 20x); "
             f"J common {ours['common']:.4f} vs {drake['common']:.4f} "
             f"({'equal or better' if ours['common'] <= drake['common'] * (1 + 1e-6) else 'worse'})"
         )
     if "solve" in ours:
-        print(f"hermite_simpson solve {ours['solve']:.3f} s (goal <= 0.3 s, stretch 0.1 s)")
-    t_tv, steps = bench_tvlqr(plant, 20)
-    print(f"TVLQR.from_trajectory along a 3 s plan at 100 Hz ({steps} steps): {t_tv * 1e3:.2f} ms (goal <= 20 ms)")
+        print(
+            f"hermite_simpson solve {ours['solve']:.3f} s wall, {ours['cpu']:.3f} s cpu (goal <= 0.3 s, stretch 0.1 s)"
+        )
+    t_tv, c_tv, steps = bench_tvlqr(plant, 20)
+    print(
+        f"TVLQR.from_trajectory along a 3 s plan at 100 Hz ({steps} steps): {t_tv * 1e3:.2f} ms wall, "
+        f"{c_tv * 1e3:.2f} ms cpu (goal <= 20 ms)"
+    )
+    print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, load average {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

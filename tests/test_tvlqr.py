@@ -154,3 +154,14 @@ def test_double_pendulum_swingup_ends_upright(engine):
     assert abs(res.x[-1, 0] - np.pi) < 0.05
     assert abs(res.x[-1, 1] - np.pi) < 0.05
     assert np.all(np.abs(res.u) <= 1.5)
+
+
+def test_quadrotor_point_to_point_in_mujoco_under_two_seconds_with_the_thrust_bound_active():
+    sim = RobotSim.from_config("quadrotor_point_to_point_mujoco")
+    traj = sim.controller.trajectory
+    assert traj.duration < 2.0
+    res = sim.run(duration=2.0)
+    two_mg = 2 * sim.plant.m * 9.81
+    assert np.all(res.u[:, 0] >= 0.0) and np.all(res.u[:, 0] <= two_mg)
+    assert np.isclose(res.u[:, 0].max(), two_mg)  # the bound is reached, never exceeded
+    np.testing.assert_allclose(res.x[-1, :3], [3.0, 0.0, 1.0], atol=0.05)

@@ -32,6 +32,7 @@ controller keeps a step counter: call ``k`` uses sample ``k``. :meth:`TVLQR.rese
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -50,12 +51,18 @@ if TYPE_CHECKING:
 __all__ = ["TVLQR", "riccati_backward", "trajectory_jacobians"]
 
 
+# plant -> {"jac": SX Jacobian Function, K: the MX map over K samples}
+_MAPPED: weakref.WeakKeyDictionary[Any, dict[Any, cs.Function]] = weakref.WeakKeyDictionary()
+
+
 def trajectory_jacobians(plant: Any, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact continuous Jacobians at every sample of a trajectory, in one CasADi ``map`` call.
 
     The Jacobian Function of ``plant.symbolic()`` (SX) is mapped
     over the ``K`` samples inside an MX Function (mapping on SX would unroll
-    it), which is evaluated once.
+    it), which is evaluated once. The mapped Function is kept per plant and
+    number of samples, so designing again along another plan of the same
+    length reuses it.
 
     Args:
         plant: Any plant.
@@ -67,13 +74,19 @@ def trajectory_jacobians(plant: Any, x: np.ndarray, u: np.ndarray) -> tuple[np.n
     """
     n, m = plant.state_dim, plant.input_dim
     K = x.shape[0]
-    xs, us = cs.SX.sym("x", n), cs.SX.sym("u", m)
-    xdot = plant.symbolic()(xs, us)  # the plant's parameters as constants
-    jac = cs.Function("jac_xu", [xs, us], [cs.densify(cs.jacobian(xdot, xs)), cs.densify(cs.jacobian(xdot, us))])
-    Xm, Um = cs.MX.sym("X", n, K), cs.MX.sym("U", m, K)
-    A_all, B_all = jac.map(K)(Xm, Um)
-    mapped = cs.Function("jac_traj", [Xm, Um], [A_all, B_all])
-    A, B = mapped(np.ascontiguousarray(x.T), np.ascontiguousarray(u.T))
+    cache = _MAPPED.setdefault(plant, {})
+    if K not in cache:
+        if "jac" not in cache:
+            xs, us = cs.SX.sym("x", n), cs.SX.sym("u", m)
+            xdot = plant.symbolic()(xs, us)  # the plant's parameters as constants
+            dx, du = cs.densify(cs.jacobian(xdot, xs)), cs.densify(cs.jacobian(xdot, us))
+            cache["jac"] = cs.Function("jac_xu", [xs, us], [dx, du])
+        Xm, Um = cs.MX.sym("X", n, K), cs.MX.sym("U", m, K)
+        A_all, B_all = cache["jac"].map(K)(Xm, Um)
+        if len(cache) > 8:  # keep a few horizons per plant
+            cache.pop(next(k for k in cache if k != "jac"))
+        cache[K] = cs.Function("jac_traj", [Xm, Um], [A_all, B_all])
+    A, B = cache[K](np.ascontiguousarray(x.T), np.ascontiguousarray(u.T))
     A = np.asarray(A).reshape(n, K, n).transpose(1, 0, 2)
     B = np.asarray(B).reshape(n, K, m).transpose(1, 0, 2)
     return A, B
