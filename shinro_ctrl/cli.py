@@ -688,12 +688,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return 130
+        except Exception as exc:
+            if _caused_by_interrupt(exc):  # Ctrl-C inside an import or a C extension, re-raised as another error
+                print("interrupted", file=sys.stderr)
+                return 130
+            raise
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     return status
 
 
 _NUMERIC_ERRORS = (OverflowError, FloatingPointError, RecursionError, MemoryError)
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _one_line(exc: BaseException) -> str:

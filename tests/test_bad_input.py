@@ -713,12 +713,18 @@ INTERRUPT_CASES = {
 def test_ctrl_c_ends_the_command_with_exit_130(case, tmp_path):
     # item 12: SIGINT (Ctrl-C) mid-work ends every command with 130, never "infeasible" or a failed sample
     _copy_regression(tmp_path)
+    long_mpc = (regression_dir() / "cartpole_mpc.toml").read_text().replace("duration = 5.0", "duration = 400.0")
+    (tmp_path / "zz_long_mpc.toml").write_text(long_mpc)  # OSQP solving when Ctrl-C arrives
     before = {p.name: p.read_text() for p in tmp_path.glob("*.baseline.json")}
     args = [a.replace("OUT", str(tmp_path / "sw")).replace("REG", str(tmp_path)) for a in INTERRUPT_CASES[case]]
     proc = subprocess.Popen(
         [sys.executable, "-m", "shinro_ctrl.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
-    time.sleep(4.0)
+    if case == "run_mpc":
+        assert proc.stdout.readline().startswith("running")  # the MPC loop is under way
+        time.sleep(1.0)
+    else:
+        time.sleep(6.0)
     proc.send_signal(signal.SIGINT)
     t0 = time.perf_counter()
     out, err = proc.communicate(timeout=60)

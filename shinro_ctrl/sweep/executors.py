@@ -191,12 +191,48 @@ def run_pool(base: SweepJob, values: np.ndarray, workers: int, bar: Progress) ->
     ctx.set_forkserver_preload(_POOL_PRELOAD)
     jobs = _jobs(base, values, workers * 4)
     out: list[Outcome] = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        futures = [pool.submit(_run_job, job) for job in jobs]
+    import signal
+
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        # Ctrl-C is held while the workers start (submit starts them), so every started worker is registered
+        # and can be stopped; it is raised right after.
+        held: list[int] = []
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, lambda sig, frame: held.append(sig)) if main else None
+        try:
+            futures = [pool.submit(_run_job, job) for job in jobs]
+        finally:
+            if main:
+                signal.signal(signal.SIGINT, previous)
+        if held:
+            raise KeyboardInterrupt
         for fut in as_completed(futures):
             out.extend(fut.result())
             bar.update(len(out))
+    except BaseException:  # Ctrl-C (or an error): stop the workers now, not after their queued chunks
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
     return out
+
+
+def _ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C reaches the whole process group; the parent alone handles it (and stops us)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel the queued chunks and terminate the workers (promptly, without their tracebacks)."""
+    processes = list(getattr(pool, "_processes", {}).values())  # concurrent.futures has no public terminate (<3.14)
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
+    for proc in processes:
+        proc.join(timeout=5)
 
 
 def run_dask(base: SweepJob, values: np.ndarray, scheduler: Any, bar: Progress) -> tuple[list[Outcome], int]:
