@@ -491,7 +491,7 @@ class NonlinearMPC(Controller):
             if k % self.hold:
                 return self._u_hold.copy()
         u = self.feedback(x, ref)
-        if self.solver == "daqp":
+        if self.solver != "ipopt":
             t0 = time.perf_counter()
             self.prepare()
             last = self.last
