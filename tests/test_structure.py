@@ -1,0 +1,232 @@
+"""Structure: the extension points suffice for a plant and a controller defined here, the shipped arm does
+not depend on the working directory, and the import layering holds."""
+
+from __future__ import annotations
+
+import ast
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+import shinro_ctrl
+from shinro_ctrl.controllers import CONTROLLERS, Controller, controller_class
+from shinro_ctrl.estimators import Estimator
+from shinro_ctrl.plants import PLANTS, ArmRobot, Plant, plant_class
+from shinro_ctrl.plants.armrobot import ARM6
+from shinro_ctrl.resources import shipped_config
+from shinro_ctrl.sim import RobotSim
+from shinro_ctrl.validation import as_vector, check_positive
+
+PACKAGE = Path(shinro_ctrl.__file__).resolve().parent
+TESTS = Path(__file__).resolve().parent
+
+
+# ----------------------------------------------------------- a plant and a controller defined only here
+class StructureTestSled(Plant):
+    """A sled of mass ``m`` pushed by a force: ``p̈ = F / m`` (semi-implicit Euler from the base)."""
+
+    state_names = ("p", "v")
+    input_names = ("F",)
+    param_names = ("mass",)
+    position_indices = (0,)
+    velocity_indices = (1,)
+
+    def __init__(self, mass: float = 2.0, dt: float = 0.01):
+        self._init(dt=dt, params={"mass": check_positive("mass", mass)})
+
+    def equations(self, bk, x, u, p):
+        _, v = bk.unpack(x, 2)
+        (force,) = bk.unpack(u, 1)
+        return bk.stack([v, force / p["mass"]])
+
+
+class StructureTestPD(Controller):
+    """``F = clip(−kp (p − r_p) − kd v, ±f_max)``."""
+
+    def __init__(self, kp: float, kd: float, f_max: float):
+        self.kp, self.kd = kp, kd
+        self.u_min, self.u_max = np.array([-f_max]), np.array([f_max])
+        self.calls: list[np.ndarray] = []
+
+    @classmethod
+    def from_plant(cls, plant, *, kp: float = 4.0, kd: float = 3.0, f_max: float = 5.0) -> StructureTestPD:
+        return cls(kp, kd, f_max)
+
+    def __call__(self, x, ref=None):
+        x = as_vector("x", x, 2)
+        self.calls.append(x.copy())
+        r = 0.0 if ref is None else float(np.asarray(ref)[0])
+        return np.clip([-self.kp * (x[0] - r) - self.kd * x[1]], self.u_min, self.u_max)
+
+
+class StructureTestBiased(Estimator):
+    """Reports the measurement plus a constant bias (so the test can see what the controller is fed)."""
+
+    stateful = False
+
+    def __init__(self, bias: np.ndarray):
+        self.n, self.measured, self.bias = 2, (0, 1), bias
+
+    def reset(self, x0_hat, P0=None) -> None:
+        self.reset_to = np.array(x0_hat, dtype=float)
+
+    def update(self, y, u):
+        return np.asarray(y, dtype=float) + self.bias
+
+
+SCENARIO = {
+    "plant": {"type": "StructureTestSled", "mass": 2.0, "dt": 0.01},
+    "controller": {"type": "StructureTestPD", "kp": 4.0, "kd": 3.0, "f_max": 5.0},
+    "sim": {"duration": 8.0, "initial_state": [1.0, 0.0], "reference": {"kind": "constant", "value": [0.0, 0.0]}},
+}
+
+
+def sled_reference(x0, steps: int, dt: float, mass: float, bias=(0.0, 0.0)) -> np.ndarray:
+    """The same closed loop written out by hand: PD on the biased state, semi-implicit Euler."""
+    p, v = x0
+    out = [(p, v)]
+    for _ in range(steps):
+        pe, ve = p + bias[0], v + bias[1]
+        force = min(max(-4.0 * pe - 3.0 * ve, -5.0), 5.0)
+        v = v + dt * force / mass
+        p = p + dt * v
+        out.append((p, v))
+    return np.array(out)
+
+
+def test_a_plant_and_a_controller_defined_in_a_test_run_from_a_dict_scenario():
+    assert plant_class("StructureTestSled") is StructureTestSled
+    assert controller_class("StructureTestPD") is StructureTestPD
+    assert "StructureTestSled" not in PLANTS and "StructureTestPD" not in CONTROLLERS  # shipped views only
+    assert StructureTestPD.stateful is False  # no reset of its own: memoryless by default
+    sim = RobotSim.from_config(SCENARIO)
+    result = sim.run()
+    np.testing.assert_allclose(result.x, sled_reference([1.0, 0.0], 800, 0.01, 2.0), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(result.u_max, [5.0])  # the loop read the bounds through the contract
+    assert result.metrics["final_error"] < 0.01 and result.metrics["max_abs_input"] <= 5.0
+
+
+def test_the_controller_is_fed_the_estimate_not_the_plant_state():
+    sim = RobotSim.from_config(SCENARIO)
+    bias = np.array([0.05, -0.02])
+    sim.estimator = StructureTestBiased(bias)
+    result = sim.run(1.0)
+    np.testing.assert_array_equal(sim.estimator.reset_to, [1.0, 0.0])  # reset to the initial state
+    np.testing.assert_allclose(result.x, sled_reference([1.0, 0.0], 100, 0.01, 2.0, bias), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sim.controller.calls[0], [1.05, -0.02])
+
+
+# ----------------------------------------------------------- the shipped arm
+def test_arm6_ignores_an_arm6_toml_in_the_working_directory(tmp_path, monkeypatch):
+    (tmp_path / "arm6.toml").write_text(
+        '[plant]\ntype = "ArmRobot"\nnum_dof = 6\ndt = 0.01\njoint_names = ["a", "b", "c", "d", "e", "f"]\n'
+        'rot_axes = ["x", "x", "x", "x", "x", "x"]\njoint_offsets = [[1, 0, 0], [1, 0, 0], [1, 0, 0], '
+        "[1, 0, 0], [1, 0, 0], [1, 0, 0]]\njoint_limits = [[-1, 1], [-1, 1], [-1, 1], [-1, 1], [-1, 1], [-1, 1]]\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    arm = ArmRobot()
+    shipped = tomllib.loads(shipped_config("arm6.toml").read_text())["plant"]  # the shipped file, read here
+    np.testing.assert_array_equal(arm.joint_offsets, shipped["joint_offsets"])
+    np.testing.assert_array_equal(arm.joint_limits, shipped["joint_limits"])
+    assert arm.axes == tuple(shipped["rot_axes"]) and arm.joint_names == tuple(shipped["joint_names"])
+    assert arm.dt == shipped["dt"]
+    assert {k: v for k, v in shipped.items() if k != "type"} == ARM6  # the constant and the scenario agree
+
+
+# ----------------------------------------------------------- layering
+def _imports(path: Path) -> set[str]:
+    """Absolute names of every module ``path`` imports (relative imports resolved)."""
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = list(rel.parts)
+    package = parts[:-1]  # the package of a module, and of an __init__ its own
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package[: len(package) - node.level + 1] + ([base] if base else []))
+            out.add(base)
+            out.update(f"{base}.{a.name}" for a in node.names)
+    return out
+
+
+def _modules(sub: str) -> list[Path]:
+    return sorted((PACKAGE / sub).rglob("*.py")) if sub else sorted(PACKAGE.rglob("*.py"))
+
+
+def _under(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+#: The one agreed exception: MjcfPlant reads MJCF/URDF models with the engine's model reader.
+PLANT_ENGINE_EXCEPTIONS = {("plants/mjcf.py", "shinro_ctrl.engine.model_tree")}
+
+
+def _from_exception(path: Path) -> bool:
+    """True when every statement naming ``shinro_ctrl.engine`` in ``path`` imports from ``engine.model_tree``."""
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and _under(node.module or "", "shinro_ctrl.engine"):
+            if not _under(node.module, "shinro_ctrl.engine.model_tree"):
+                return False
+        if isinstance(node, ast.Import) and any(_under(a.name, "shinro_ctrl.engine") for a in node.names):
+            if not all(_under(a.name, "shinro_ctrl.engine.model_tree") for a in node.names):
+                return False
+    return True
+
+
+def test_plants_import_neither_controllers_nor_the_engine():
+    bad = []
+    for path in _modules("plants"):
+        rel = path.relative_to(PACKAGE).as_posix()
+        allowed = [m for r, m in PLANT_ENGINE_EXCEPTIONS if r == rel]
+        for name in _imports(path):
+            if _under(name, "shinro_ctrl.controllers"):
+                bad.append(f"{rel}: {name}")
+            elif _under(name, "shinro_ctrl.engine") and not any(_under(name, m) for m in allowed):
+                # "from shinro_ctrl.engine.model_tree import x" also yields its parent "shinro_ctrl.engine"
+                if not (name == "shinro_ctrl.engine" and allowed and _from_exception(path)):
+                    bad.append(f"{rel}: {name}")
+    assert not bad, bad
+
+
+def test_controllers_import_neither_the_engine_nor_the_scenario_layer():
+    banned = ("shinro_ctrl.engine", "shinro_ctrl.config", "shinro_ctrl.sim", "shinro_ctrl.sweep", "shinro_ctrl.cli")
+    bad = [
+        f"{path.relative_to(PACKAGE).as_posix()}: {name}"
+        for path in _modules("controllers")
+        for name in _imports(path)
+        if any(_under(name, b) for b in banned)
+    ]
+    assert not bad, bad
+
+
+def test_only_the_engine_package_imports_mujoco():
+    bad = [
+        f"{path.relative_to(PACKAGE).as_posix()}: {name}"
+        for path in _modules("")
+        if not path.relative_to(PACKAGE).as_posix().startswith("engine/")
+        for name in _imports(path)
+        if _under(name, "mujoco")
+    ]
+    assert not bad, bad
+
+
+def test_the_engine_does_not_import_resources():
+    bad = [
+        f"{path.relative_to(PACKAGE).as_posix()}: {name}"
+        for path in _modules("engine")
+        for name in _imports(path)
+        if _under(name, "shinro_ctrl.resources")
+    ]
+    assert not bad, bad
+
+
+def test_only_the_osqp_adapter_mentions_the_private_solver():
+    word = re.compile(r"\b" + "_" + "solver" + r"\b")  # split so this file does not mention it
+    files = [*PACKAGE.rglob("*.py"), *TESTS.rglob("*.py"), *(PACKAGE.parent / "benchmarks").rglob("*.py")]
+    bad = [str(p) for p in files if p != PACKAGE / "controllers" / "_osqp.py" and word.search(p.read_text())]
+    assert not bad, bad
