@@ -400,3 +400,31 @@ def test_run_metrics_overshoot_and_rise_time():
     x[100:, 0] = 1 - np.exp(-(t[100:] - 1.0) / 0.1)
     m = response_metrics(t, x, r)
     assert m["overshoot"] == 0.0 and m["rise_time"] == pytest.approx(0.1 * math.log(9), abs=0.011)
+
+
+def test_lqi_loop_includes_the_integrators():
+    plant = CartPole(cart_mass=0.5, pole_mass=0.1, pole_length=0.5, dt=0.01)
+    ctrl = LQR.from_plant(plant, [10, 1, 100, 1, 5], [0.1], integral=["x"])
+    a = analyze_controller(
+        ctrl,
+        x_init=[0, 0, 0.2, 0],
+        measured=["x", "theta"],
+        tracked=["x"],
+        state_names=plant.state_names,
+        input_names=plant.input_names,
+    )
+    assert a.state_names[-1] == "∫x" and a.A.shape == (5, 5) and a.structure.observable
+    # the augmented loop built here from the documented LQI form: z⁺ = z + dt x, u = −K x − K_i z
+    A, B = ctrl.model.A, ctrl.model.B
+    A_aug = np.block([[A, np.zeros((4, 1))], [0.01 * np.eye(4)[[0]], np.eye(1)]])
+    B_aug = np.vstack([B, np.zeros((1, 1))])
+    K_aug = np.hstack([ctrl.K, ctrl.K_i])
+    np.testing.assert_allclose(
+        np.sort_complex(np.linalg.eigvals(A_aug - B_aug @ K_aug)),
+        np.sort_complex(np.array([r.pole for r in a.poles.rows])),
+        atol=1e-12,
+    )
+    lo, hi = _stable_gain_interval(A_aug, B_aug, K_aug, 0)
+    c = a.margins.channels[0]
+    assert c.gain_margin_low == pytest.approx(lo, rel=1e-6) and c.gain_margin_high == pytest.approx(hi, rel=1e-6)
+    assert a.responses["step: x"].steady_state_error == pytest.approx(0.0, abs=1e-9)  # integral action

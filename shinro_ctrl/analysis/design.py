@@ -49,8 +49,9 @@ def feedback_gain(controller: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     """``(A, B, K, dt)`` of the linear state feedback a controller applies near its operating point.
 
     LQR: its ``K`` on its own ``(A, B)`` (continuous when designed with
-    ``discrete=False``, then ``dt`` is None). LinearMPC: the unconstrained
-    first-move gain :func:`finite_horizon_gain`.
+    ``discrete=False``, then ``dt`` is None); with integral action (LQI) the
+    model augmented with the integrators and ``[K, K_i]``. LinearMPC: the
+    unconstrained first-move gain :func:`finite_horizon_gain`.
 
     Raises:
         InvalidArgument: a controller without a linear model and gain (e.g. IKQP).
@@ -71,6 +72,9 @@ def feedback_gain(controller: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     K = getattr(controller, "K", None)
     if K is None:
         raise InvalidArgument(f"{type(controller).__name__} has no feedback gain K to analyse")
+    lqi = getattr(controller, "_lqi", None)  # LQI: the loop includes the error integrators
+    if lqi is not None:
+        A, B, K = lqi.A_aug, lqi.B_aug, np.hstack([K, lqi.K_i])
     if getattr(controller, "discrete", True):
         dt = model.dt if model is not None else getattr(controller, "dt", None)
         if dt is None:
@@ -173,7 +177,18 @@ def analyze_controller(
     """
     A, B, K, dt = feedback_gain(controller)
     n, m = B.shape
-    snames = tuple(state_names or getattr(controller, "state_names", None) or (f"x[{i}]" for i in range(n)))
+    x0 = np.asarray(getattr(controller, "x0", np.zeros(n)), dtype=float)
+    n_p = x0.shape[0]  # plant states; n > n_p when the loop carries integrators (LQI)
+    snames = tuple(state_names or getattr(controller, "state_names", None) or (f"x[{i}]" for i in range(n_p)))
+    # a reference step δr (n_p,) enters the loop as E δr: u = −K_x (x − r) − K_i z, z⁺ = z + dt (x − r)[idx]
+    E = B @ K[:, :n_p]
+    lqi = getattr(controller, "_lqi", None)
+    if n > n_p and lqi is not None:
+        snames = (*snames[:n_p], *(f"∫{snames[i]}" for i in lqi.indices))
+        E = np.vstack([B[:n_p] @ K[:, :n_p], -lqi.dt * np.eye(n_p)[lqi.indices]])
+        x0 = np.concatenate([x0, np.zeros(n - n_p)])
+        if x_init is not None:
+            x_init = np.concatenate([np.asarray(x_init, dtype=float), np.zeros(n - n_p)])
     inames = tuple(input_names or getattr(controller, "input_names", None) or (f"u[{i}]" for i in range(m)))
     lam = np.linalg.eigvals(A - B @ K)
     poles = pole_table(lam, dt)
@@ -183,6 +198,7 @@ def analyze_controller(
         bad = [s for s in meas if s not in snames]
         if bad:
             raise InvalidArgument(f"measured: unknown state '{bad[0]}'; states: {', '.join(snames)}")
+        meas = (*meas, *snames[n_p:])  # integrator states are the controller's own: always known
         C = np.eye(n)[[snames.index(s) for s in meas]]
     structure = structure_report(A, B, C, discrete=dt is not None, state_names=snames)
     margins = loop_margins((A, B), K, dt=dt, input_names=inames)
@@ -193,14 +209,13 @@ def analyze_controller(
         h = 1e-3
         Acl_d = scipy.linalg.expm((A - B @ K) * h)
         step_dt, Ad, Bd, Kd = h, Acl_d, np.zeros((n, m)), np.zeros((m, n))
-        Bc_step = np.linalg.solve(A - B @ K, (Acl_d - np.eye(n)) @ B @ K)  # ZOH of BK δr
+        Bc_step = np.linalg.solve(A - B @ K, (Acl_d - np.eye(n)) @ E)  # ZOH of E δr
     else:
         step_dt, Ad, Bd, Kd = dt, A, B, K
-        Bc_step = B @ K
+        Bc_step = E
     ptab = poles if dt is not None else pole_table(np.linalg.eigvals(Ad - Bd @ Kd), step_dt)
     steps = _horizon(ptab, step_dt) if duration is None else max(2, round(duration / step_dt))
     t = np.arange(steps + 1) * step_dt
-    x0 = np.asarray(getattr(controller, "x0", np.zeros(n)), dtype=float)
     responses: dict[str, StepMetrics] = {}
     x_lin = np.zeros((steps + 1, n))
     if x_init is not None:
@@ -212,7 +227,7 @@ def analyze_controller(
             responses[f"initial: {snames[i]}"] = step_metrics(t, X[:, i], initial=d0[i], final=0.0, target=0.0)
     Acl = Ad - Bd @ Kd
     for name in tracked or ():
-        if name not in snames:
+        if name not in snames[:n_p]:
             raise InvalidArgument(f"tracked: unknown state '{name}'; states: {', '.join(snames)}")
         j = snames.index(name)
         X = np.zeros((steps + 1, n))

@@ -269,7 +269,9 @@ def _responses(a: DesignAnalysis, nonlinear: Any, x_ref: Any, u_min: Any, u_max:
     if nonlinear is not None and a.dt is not None:
         t_nl, x_nl, u_nl = (np.asarray(v, dtype=float) for v in nonlinear)
         t = t_nl
-        dX = closed_loop_response(a.A, a.B, a.K, x_nl[0] - x0, len(t) - 1)
+        d0 = np.zeros(n)
+        d0[: x_nl.shape[1]] = x_nl[0] - x0[: x_nl.shape[1]]  # integrators (LQI) start empty
+        dX = closed_loop_response(a.A, a.B, a.K, d0, len(t) - 1)
     else:
         t_nl = x_nl = u_nl = None
         t = a.t
@@ -284,9 +286,9 @@ def _responses(a: DesignAnalysis, nonlinear: Any, x_ref: Any, u_min: Any, u_max:
     for i in range(n):
         ax = axes[i]
         ax.plot(t, x_lin[:, i], color=_LIN, lw=1.6, label="linear model")
-        if x_nl is not None:
+        if x_nl is not None and i < x_nl.shape[1]:
             ax.plot(t_nl, x_nl[:, i], color=_NL, lw=1.2, ls="--", label="nonlinear (standalone)")
-        if x_ref is not None:
+        if x_ref is not None and i < np.shape(x_ref)[1]:
             ax.plot(
                 t_nl if t_nl is not None else t, np.asarray(x_ref)[:, i], color="0.5", lw=0.8, ls=":", label="reference"
             )

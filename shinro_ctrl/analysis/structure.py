@@ -64,7 +64,7 @@ class StructureReport:
         n: State dimension.
         controllability_rank: Dimension of the reachable subspace.
         observability_rank: Dimension of the observable subspace (None without C).
-        modes: One :class:`Mode` per eigenvalue.
+        modes: One :class:`Mode` per distinct eigenvalue.
         gramian_c_cond: Condition number of the controllability Gramian (``inf`` if singular).
         gramian_o_cond: Condition number of the observability Gramian (None without C).
         gramian_kind: ``"infinite-horizon"`` or e.g. ``"finite-horizon, 100 steps"``.
@@ -253,7 +253,11 @@ def structure_report(
     scale_o = None if C is None else max(1.0, float(np.linalg.norm(np.vstack([A, C]), 2)))
     lam, V = np.linalg.eig(A)
     modes = []
+    seen: list[complex] = []
     for k, l in enumerate(lam):
+        if any(abs(l - v) <= 1e-9 * max(1.0, abs(v)) for v in seen):
+            continue  # PBH is a test per distinct eigenvalue (a Jordan block or a repeated root counts once)
+        seen.append(complex(l))
         sc = _pbh(A, B, l, scale_c)
         so = None if C is None else _pbh(A.T, C.T, np.conj(l), scale_o)
         stable = abs(l) < 1.0 if discrete else l.real < 0.0
