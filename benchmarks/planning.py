@@ -9,6 +9,8 @@ Rows:
 
 * ``ours <method>``: :class:`~shinro_ctrl.planning.TrajectoryOptimizer`, the NLP built once
   (``build`` column) and re-solved (``solve`` = median wall time of the IPOPT call).
+* ``ours hermite_simpson from Drake's``: our solve started at Drake's result (a diagnostic: the
+  swing-up has several local optima; this row shows whether both transcriptions agree on Drake's).
 * ``drake DirectCollocation``: Drake's Hermite-Simpson transcription (first-order-hold inputs, like
   ours) of the same dynamics, written as a ``SymbolicVectorSystem`` (so Drake can differentiate
   it), equal time steps, the same bounds, ``AddRunningCost(10 F²)`` and the sum of the time steps
@@ -187,6 +189,31 @@ def bench_drake(plant: CartPole, repeats: int) -> dict | None:
         "defect": hs_defect(plant, t, x, uu),
         "success": ok,
         "status": str(details.status) if hasattr(details, "status") else "",
+        "knots": (t, x, uu),
+    }
+
+
+def bench_from_drake(plant: CartPole, knots: tuple) -> dict:
+    """Our Hermite-Simpson solve started at Drake's optimum: do the two transcriptions agree there?"""
+    t, x, u = knots
+    opt = TrajectoryOptimizer(
+        plant, knots=KNOTS, method="hermite_simpson", u_min=[-U_MAX], u_max=[U_MAX],
+        x_min=[-X_MAX] + [-np.inf] * 3, x_max=[X_MAX] + [np.inf] * 3,
+    )  # fmt: skip
+    c0 = time.process_time()
+    guess = {"T": float(t[-1]), "x": x, "u": u}
+    traj = opt.solve(START, GOAL, duration=T_RANGE, cost={"time": 1.0, "effort": W_EFFORT}, initial_guess=guess)
+    return {
+        "name": "ours hermite_simpson from Drake's",
+        "build": 0.0,
+        "solve": traj.solve_time,
+        "cpu": time.process_time() - c0,
+        "iterations": traj.iterations,
+        "objective": traj.objective,
+        "common": common_objective(traj.t, traj.u[:, 0]),
+        "T": traj.duration,
+        "defect": hs_defect(plant, traj.t, traj.x, traj.u),
+        "success": True,
     }
 
 
@@ -220,6 +247,7 @@ def main() -> None:
     drake = bench_drake(plant, args.drake_repeats)
     if drake is not None:
         rows.append(drake)
+        rows.append(bench_from_drake(plant, drake["knots"]))
     head = (
         f"{'solver':34s} {'build s':>8s} {'solve s':>8s} {'cpu s':>7s} {'iters':>6s} {'objective':>10s} "
         f"{'J common':>10s} {'T s':>6s} {'defect':>9s} success"
