@@ -251,6 +251,26 @@ def test_scenario_runs_in_both_loops():
     np.testing.assert_allclose(runs[0].x, runs[1].x, atol=1e-8)
 
 
+def test_scenario_model_file_as_type_and_relative_to_the_scenario(tmp_path, monkeypatch):
+    from shinro_ctrl.config import load_scenario
+    from shinro_ctrl.errors import ConfigError
+    from shinro_ctrl.sim import RobotSim
+
+    (tmp_path / "robots").mkdir()
+    (tmp_path / "robots" / "rotary.xml").write_text(asset_path("furuta_pendulum.xml").read_text())
+    body = '[controller]\ntype = "LQR"\nQ = [5, 50, 0.5, 1]\nR = [200]\n[sim]\nduration = 0.2\n'
+    (tmp_path / "a.toml").write_text('[plant]\ntype = "robots/rotary.xml"\n' + body)
+    (tmp_path / "b.toml").write_text('[plant]\ntype = "MjcfPlant"\nmodel = "robots/rotary.xml"\n' + body)
+    (tmp_path / "c.toml").write_text('[plant]\ntype = "robots/rotary.xml"\nmodel = "x.xml"\n' + body)
+    monkeypatch.chdir(tmp_path / "robots")  # elsewhere: the paths resolve beside the scenario file
+    for name in ("a.toml", "b.toml"):
+        sim = RobotSim.from_config(tmp_path / name)
+        assert isinstance(sim.plant, MjcfPlant) and sim.plant.model_path == str(tmp_path / "robots" / "rotary.xml")
+        assert sim.plant.state_names == ("arm", "pendulum", "arm_dot", "pendulum_dot")
+    with pytest.raises(ConfigError, match="remove 'model'"):
+        load_scenario(tmp_path / "c.toml")
+
+
 # ------------------------------------------------------------------------ URDF
 URDF = """<robot name="two_link">
   <link name="base"/>
