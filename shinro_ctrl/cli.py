@@ -657,6 +657,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``shinro-ctrl``; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    import os
+
+    os.environ.setdefault("MPLBACKEND", "Agg")  # the CLI writes files only; the library never picks a backend
     debug = "--debug" in argv
     if debug:  # accepted anywhere on the line, before or after the subcommand
         argv = ["--debug", *(a for a in argv if a != "--debug")]

@@ -48,17 +48,19 @@ def eps_sweep(plant: Any, x0: Any = None, u0: Any = None, *, eps: np.ndarray | N
 
 
 def _figure(nrows: int, ncols: int, size: tuple[float, float]):
-    import matplotlib.pyplot as plt  # the backend is the caller's (the CLI picks one)
+    """A figure on the Agg canvas (no pyplot state, no ``matplotlib.use``: the backend is the caller's)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    return plt, *plt.subplots(nrows, ncols, figsize=size, squeeze=False)
+    fig = Figure(figsize=size)
+    FigureCanvasAgg(fig)
+    return None, fig, fig.subplots(nrows, ncols, squeeze=False)
 
 
 def _save(plt: Any, fig: Any, path: str | Path) -> Path:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
-    plt.close(fig)
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110, bbox_inches="tight"), binary=True)
     return path
 
 
@@ -79,36 +81,50 @@ def plot_eps_sweep(sweep: EpsSweep, path: str | Path, *, title: str = "") -> Pat
 
 
 def plot_crosscheck(result: Any, path: str | Path) -> Path:
-    """Heatmaps of ``log10 |Δ|`` of FD and MuJoCo against the exact ``[A B]``, and the exact matrix itself."""
+    """Heatmaps of the exact ``[A | B]`` and of the signed differences FD − exact and MuJoCo − exact.
+
+    Every panel uses a diverging colour scale centred on zero (symmetric
+    logarithmic, so entries of very different size stay visible); cell numbers
+    are printed only where a cell is large enough to read them; rows and
+    columns are labelled with the state and input names.
+    """
+    from matplotlib.colors import SymLogNorm
+
     exact = np.hstack([result.A_exact, result.B_exact])
     panels = [
-        ("exact [A | B]", exact, False),
-        ("log10 |FD − exact|", np.abs(np.hstack([result.A_fd, result.B_fd]) - exact), True),
-        ("log10 |MuJoCo − exact|", np.abs(np.hstack([result.A_mujoco, result.B_mujoco]) - exact), True),
+        ("exact [A | B]", exact),
+        ("FD − exact", np.hstack([result.A_fd, result.B_fd]) - exact),
+        ("MuJoCo − exact", np.hstack([result.A_mujoco, result.B_mujoco]) - exact),
     ]
     n, cols = exact.shape
-    plt, fig, axes = _figure(1, 3, (4.2 * 3, 0.5 * n + 2.4))
-    labels_x = [*(f"x:{s}" for s in result.state_names), *(f"u:{s}" for s in result.input_names)]
-    for ax, (title, M, logscale) in zip(axes[0], panels, strict=True):
-        data = np.log10(np.maximum(M, 1e-17)) if logscale else M
-        im = ax.imshow(
-            data,
-            cmap="magma" if logscale else "coolwarm",
-            aspect="auto",
-            vmin=-17 if logscale else None,
-            vmax=0 if logscale else None,
-        )
-        ax.set_title(title, fontsize=10)
-        ax.set_xticks(range(cols), labels_x, rotation=60, fontsize=7)
-        ax.set_yticks(range(n), result.state_names, fontsize=7)
-        ax.axvline(n - 0.5, color="k", lw=1)
-        if not logscale and M.size <= 16 * 16:
+    cell_in = 0.62 if cols <= 10 else 0.36  # inches per cell
+    width, height = cell_in * cols + 1.6, cell_in * n + 1.9
+    _, fig, axes = _figure(1, 3, (3 * width, height))
+    col_labels = [*result.state_names, *result.input_names]
+    readable = cell_in >= 0.5  # room for a 4-character number at 6.5 pt
+    for ax, (title, M) in zip(axes[0], panels, strict=True):
+        peak = float(np.abs(M).max(initial=0.0))
+        vmax = peak if peak > 0 else 1.0
+        nonzero = np.abs(M[M != 0])
+        linthresh = max(float(nonzero.min()) if nonzero.size else vmax, vmax * 1e-4)
+        norm = SymLogNorm(linthresh=linthresh, linscale=0.5, vmin=-vmax, vmax=vmax, base=10)
+        im = ax.imshow(M, cmap="RdBu_r", norm=norm, aspect="equal")
+        ax.set_title(f"{title}   (max |·| = {peak:.2g})", fontsize=9)
+        ax.set_xticks(range(cols), col_labels, rotation=55, ha="right", fontsize=7)
+        ax.set_yticks(range(n), [f"d{s}/dt" for s in result.state_names], fontsize=7)
+        ax.axvline(n - 0.5, color="k", lw=1.2)
+        ax.set_xlabel("columns: states (A = ∂f/∂x) | inputs (B = ∂f/∂u)", fontsize=7)
+        if readable:
             for (i, j), v in np.ndenumerate(M):
-                ax.text(j, i, f"{v:.3g}", ha="center", va="center", fontsize=6)
-        fig.colorbar(im, ax=ax, shrink=0.8)
+                if v == 0:
+                    continue
+                dark = abs(norm(v) - 0.5) > 0.32  # strong colour: white text
+                ax.text(j, i, f"{v:.3g}", ha="center", va="center", fontsize=6.5, color="w" if dark else "k")
+        fig.colorbar(im, ax=ax, shrink=0.85, pad=0.02)
     fig.suptitle(
         f"{result.plant}: max |FD − exact| = {result.fd_max_abs_error:.1e}, "
-        f"max |MuJoCo − exact| = {result.mujoco_max_abs_error:.1e}",
+        f"max |MuJoCo − exact| = {result.mujoco_max_abs_error:.1e}\n"
+        "diverging colour scale centred on zero (blue < 0 < red), symmetric logarithmic",
         fontsize=10,
     )
-    return _save(plt, fig, path)
+    return _save(None, fig, path)
