@@ -235,6 +235,8 @@ def analyze_controller(
             X[k + 1] = Acl @ X[k] + Bc_step[:, j]
         try:
             x_ss = np.linalg.solve(np.eye(n) - Acl, Bc_step[:, j])  # exact steady state of the unit step
+            if abs(x_ss[j]) < 1e-6:  # the loop does not hold this state off its equilibrium: no step response
+                continue
             responses[f"step: {name}"] = step_metrics(t, X[:, j], initial=0.0, final=float(x_ss[j]), target=1.0)
         except InvalidArgument:  # the state does not move at all: nothing to measure
             continue

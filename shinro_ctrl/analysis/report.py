@@ -60,9 +60,8 @@ def _splane(ax: Any, s_cl: np.ndarray, s_ol: np.ndarray, title: str) -> None:
         style = {"color": "tab:orange" if zeta == 0.3 else "0.6", "lw": 1.2 if zeta == 0.3 else 0.7, "ls": "--"}
         ax.plot([0, -r * math.cos(ang)], [0, r * math.sin(ang)], **style)
         ax.plot([0, -r * math.cos(ang)], [0, -r * math.sin(ang)], **style)
-        ax.annotate(
-            f"ζ={zeta:g}", (-0.92 * r * math.cos(ang), 0.92 * r * math.sin(ang)), fontsize=8, color=style["color"]
-        )
+        reach = 0.9 * min(0.95 * r / max(math.cos(ang), 1e-9), 0.7 * r / max(math.sin(ang), 1e-9))
+        ax.annotate(f"ζ={zeta:g}", (-reach * math.cos(ang), reach * math.sin(ang)), fontsize=8, color=style["color"])
     th = np.linspace(np.pi / 2, 3 * np.pi / 2, 100)
     for frac in (0.25, 0.5, 0.75, 1.0):
         ax.plot(frac * r / 1.25 * np.cos(th), frac * r / 1.25 * np.sin(th), color="0.85", lw=0.6, ls=":")
