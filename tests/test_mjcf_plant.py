@@ -346,6 +346,10 @@ BALL = """<mujoco><worldbody><body><joint name="wrist" type="ball"/><geom size="
 NO_ACT = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody></mujoco>"""
 FILTER = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody>
 <actuator><general name="lagged" joint="j" dyntype="filter" dynprm="0.1"/></actuator></mujoco>"""
+ROTOR = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody>
+<actuator><motor name="geared" joint="j" armature="0.1"/></actuator></mujoco>"""
+POLY = """<mujoco><worldbody><body><joint name="soft" type="hinge" damping="0.1 0.3"/><geom size="0.1"/></body>
+</worldbody><actuator><motor joint="soft"/></actuator></mujoco>"""
 SITE = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/><site name="s"/></body>
 </worldbody><actuator><motor name="thruster" site="s" gear="0 0 1 0 0 0"/></actuator></mujoco>"""
 
@@ -357,6 +361,8 @@ SITE = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1
         (NO_ACT, "has no actuators"),
         (FILTER, "actuator 'lagged' has activation dynamics"),
         (SITE, "actuator 'thruster' uses transmission"),
+        (ROTOR, "actuator 'geared' has armature, which is not supported yet"),
+        (POLY, "joint 'soft' has nonlinear damping"),
     ],
 )
 def test_unsupported_models_raise_one_clear_error(tmp_path, xml, match):

@@ -175,6 +175,31 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
             f"model '{label}': joint '{name(m.joint, int(m.dof_jntid[d]))}' has frictionloss (a constraint "
             "force), which is not supported yet"
         )
+    for attr, what in (
+        ("dof_dampingpoly", "nonlinear damping (more than one damping coefficient)"),
+        ("jnt_stiffnesspoly", "nonlinear stiffness (more than one stiffness coefficient)"),
+        ("jnt_springyield", "a spring yield"),
+    ):
+        arr = np.asarray(getattr(m, attr, np.zeros(0)))
+        if arr.size and np.any(arr != 0.0):
+            row = int(np.flatnonzero(np.any(arr.reshape(arr.shape[0], -1) != 0.0, axis=1))[0])
+            j = int(m.dof_jntid[row]) if attr.startswith("dof_") else row
+            raise InvalidArgument(f"model '{label}': joint '{name(m.joint, j)}' has {what}, which is not supported yet")
+    for attr, what in (
+        ("actuator_armature", "armature"),
+        ("actuator_damping", "damping"),
+        ("actuator_dampingpoly", "nonlinear damping"),
+        ("actuator_delay", "a delay"),
+    ):
+        arr = np.asarray(getattr(m, attr, np.zeros(0)))
+        if arr.size and np.any(arr != 0.0):
+            a = int(np.flatnonzero(np.any(arr.reshape(arr.shape[0], -1) != 0.0, axis=1))[0])
+            raise InvalidArgument(
+                f"model '{label}': actuator '{name(m.actuator, a)}' has {what}, which is not supported yet "
+                "(put rotor inertia and damping on the joint: armature, damping)"
+            )
+    if np.any(np.asarray(getattr(m, "actuator_ctrlnum", np.ones(m.nu))) != 1):
+        raise InvalidArgument(f"model '{label}': actuators with several controls are not supported yet")
     if m.opt.density != 0.0 or m.opt.viscosity != 0.0:
         raise InvalidArgument(f"model '{label}': fluid forces (density/viscosity) are not supported yet")
 
