@@ -363,3 +363,184 @@ def _estimate_lines(ax: Any, run: Any, i: int, grouped: bool) -> None:
         col = y[:, measured.index(name)]
         ax.plot(run.t, col, color="0.65", lw=0.6, alpha=0.8, label="measurement" if not grouped else None)
     ax.plot(run.t, x_hat[:, i], color="C6", lw=1.0, ls="-.", label="estimate" if not grouped else None)
+
+
+# ------------------------------------------------------------------- sweeps
+_PARAM_UNITS = (
+    (re.compile(r"(^|_)(mass|m[0-9]?)(_|$)"), "kg"),
+    (re.compile(r"(length|radius|arm_length|offset|l[0-9]?$)"), "m"),
+    (re.compile(r"(^|_)(gravity|g)$"), "m/s²"),
+    (re.compile(r"(^|_)dt$"), "s"),
+    (re.compile(r"(inertia|^i[xyz]{2}$)"), "kg m²"),
+    (re.compile(r"yaw_moment_coefficient"), "m"),
+)
+
+
+def param_unit(key: str) -> str:
+    """The unit of a swept key such as ``plant.pole_mass`` (``''`` when its name does not say)."""
+    name = key.rsplit(".", 1)[-1].lower()
+    for pattern, unit in _PARAM_UNITS:
+        if pattern.search(name):
+            return unit
+    return ""
+
+
+def _param_label(key: str) -> str:
+    unit = param_unit(key)
+    return f"{key} [{unit}]" if unit else key
+
+
+def _metric_axis(ax: Any, y: np.ndarray) -> None:
+    """Log scale when the finite positive values span more than two decades, else linear; limits from the data."""
+    finite = y[np.isfinite(y)]
+    if finite.size == 0:
+        ax.set_ylim(0, 1)
+        return
+    lo, hi = float(finite.min()), float(finite.max())
+    if lo > 0 and hi / lo > 100:
+        ax.set_yscale("log")
+        ax.set_ylim(lo / 1.6, hi * 1.6)
+    else:
+        pad = 0.08 * (hi - lo) if hi > lo else max(0.05 * abs(hi), 1e-9)
+        ax.set_ylim(lo - pad, hi + pad)
+
+
+def plot_sweep(result: Any, path: str | Path, metric: str | None = None) -> Path:
+    """Plot a robustness sweep to a PNG.
+
+    One parameter: the metric against the parameter (stable green dots,
+    unstable red crosses, contiguous stable intervals shaded), with the samples
+    whose run raised marked on a separate strip below (they have no metric).
+    Two parameters: a 2-D stability map (the grid as cells, or random samples
+    as points) beside the metric as colour; more parameters: one marginal
+    panel each. The metric axis is set by the finite data (log when it spans
+    more than two decades); parameter axes carry units.
+    """
+    from matplotlib.colors import ListedColormap, LogNorm, Normalize
+
+    metric = metric or result.metric
+    y = np.asarray(result.metric_values(metric), dtype=float)
+    stable = np.asarray(result.stable, dtype=bool)
+    failed = np.array([r.error is not None for r in result.rows], dtype=bool) | ~np.isfinite(y)
+    unstable = ~stable & ~failed
+    values = np.asarray(result.values, dtype=float)
+    keys = list(result.ranges)
+    P = len(keys)
+    title = (
+        f"{result.scenario} ({result.loop}, {result.method}): {int(stable.sum())}/{len(result.rows)} stable, "
+        f"{int(unstable.sum())} unstable, {int(failed.sum())} raised   (stable: final_error < {result.stable_tol:g})"
+    )
+    if P == 2:
+        fig = _new_figure(12.0, 5.0)
+        ax_map, ax_metric = fig.subplots(1, 2)
+        v1, v2 = values[:, 0], values[:, 1]
+        category = np.where(failed, 2, np.where(stable, 0, 1))
+        cmap = ListedColormap(["#4caf50", "#e53935", "#9e9e9e"])
+        u1, u2 = np.unique(v1), np.unique(v2)
+        is_grid = bool(getattr(result, "grid", False)) and u1.size * u2.size == len(v1)
+        if is_grid:
+            grid = np.full((u2.size, u1.size), np.nan)
+            mgrid = np.full((u2.size, u1.size), np.nan)
+            for k in range(len(v1)):
+                i, j = np.searchsorted(u2, v2[k]), np.searchsorted(u1, v1[k])
+                grid[i, j], mgrid[i, j] = category[k], y[k]
+            ax_map.pcolormesh(_edges(u1), _edges(u2), grid, cmap=cmap, vmin=-0.5, vmax=2.5, shading="flat")
+            finite = mgrid[np.isfinite(mgrid)]
+            norm = (
+                LogNorm(finite.min(), finite.max())
+                if finite.size and finite.min() > 0 and finite.max() / finite.min() > 100
+                else Normalize(*(finite.min(), finite.max()) if finite.size else (0, 1))
+            )
+            import matplotlib
+
+            viridis = matplotlib.colormaps["viridis"].with_extremes(bad="0.72")  # failed cells grey
+            im = ax_metric.pcolormesh(
+                _edges(u1), _edges(u2), np.ma.masked_invalid(mgrid), cmap=viridis, norm=norm, shading="flat"
+            )
+        else:
+            ax_map.scatter(v1, v2, c=category, cmap=cmap, vmin=-0.5, vmax=2.5, s=22, edgecolors="none")
+            ok = ~failed
+            im = ax_metric.scatter(v1[ok], v2[ok], c=y[ok], cmap="viridis", s=22)
+            if failed.any():
+                ax_metric.scatter(v1[failed], v2[failed], marker="x", color="0.4", s=22, label="run raised")
+        from matplotlib.patches import Patch
+
+        ax_map.legend(
+            handles=[
+                Patch(color=c, label=lab)
+                for c, lab in zip(cmap.colors, ("stable", "unstable", "run raised"), strict=True)
+            ],
+            loc="upper left",
+            bbox_to_anchor=(1.01, 1.0),
+            fontsize=8,
+            frameon=False,
+        )
+        ax_map.set_title("stability map", fontsize=9)
+        ax_metric.set_title(f"{metric} (grey: run raised)", fontsize=9)
+        fig.colorbar(im, ax=ax_metric, label=metric)
+        for ax in (ax_map, ax_metric):
+            ax.set_xlabel(_param_label(keys[0]))
+            ax.set_ylabel(_param_label(keys[1]))
+            ax.set_xlim(*result.ranges[keys[0]])
+            ax.set_ylim(*result.ranges[keys[1]])
+        fig.suptitle(title, fontsize=10)
+        fig.tight_layout()
+        return _write_png(fig, path)
+
+    fig = _new_figure(5.4 * P + 1.2, 4.8)
+    gs = fig.add_gridspec(2, P, height_ratios=(5, 0.6), hspace=0.08)
+    for j, key in enumerate(keys):
+        ax = fig.add_subplot(gs[0, j])
+        strip = fig.add_subplot(gs[1, j], sharex=ax)
+        v = values[:, j]
+        if P == 1:
+            _shade_stable_runs(ax, v, stable, failed)
+        if stable.any():
+            ax.scatter(v[stable], y[stable], s=14, color="tab:green", label="stable", zorder=3)
+        if unstable.any():
+            ax.scatter(v[unstable], y[unstable], s=22, color="tab:red", marker="x", label="unstable", zorder=3)
+        _metric_axis(ax, y[~failed])
+        ax.set_ylabel(metric if j == 0 else "")
+        ax.grid(alpha=0.3, which="both")
+        ax.tick_params(labelbottom=False)
+        strip.scatter(v[failed], np.zeros(int(failed.sum())), marker="^", color="tab:red", s=24, label="run raised")
+        strip.set_yticks([])
+        strip.set_ylim(-1, 1)
+        strip.set_ylabel("raised", rotation=0, ha="right", va="center", fontsize=8)
+        strip.set_xlabel(_param_label(key))
+        strip.set_xlim(*result.ranges[key])
+        strip.grid(alpha=0.3, axis="x")
+    handles: dict[str, Any] = {}
+    for ax in fig.axes:
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(lab, h)
+    if handles:
+        fig.legend(
+            handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(1.0, 0.9), fontsize=8, frameon=False
+        )
+    fig.suptitle(title, fontsize=10)
+    fig.subplots_adjust(left=0.1, right=0.97, top=0.88, bottom=0.13)
+    return _write_png(fig, path)
+
+
+def _edges(centres: np.ndarray) -> np.ndarray:
+    """Cell edges around sorted grid centres."""
+    if centres.size == 1:
+        return np.array([centres[0] - 0.5, centres[0] + 0.5])
+    mid = 0.5 * (centres[1:] + centres[:-1])
+    return np.concatenate([[2 * centres[0] - mid[0]], mid, [2 * centres[-1] - mid[-1]]])
+
+
+def _shade_stable_runs(ax: Any, v: np.ndarray, stable: np.ndarray, failed: np.ndarray) -> None:
+    """Shade each parameter interval whose consecutive samples (in parameter order) are all stable."""
+    order = np.argsort(v)
+    vs, ok = v[order], stable[order] & ~failed[order]
+    start = None
+    for k in range(len(vs)):
+        if ok[k] and start is None:
+            start = k
+        if start is not None and (not ok[k] or k == len(vs) - 1):
+            end = k if ok[k] else k - 1
+            if end > start:
+                ax.axvspan(vs[start], vs[end], color="tab:green", alpha=0.12, lw=0, label="stable interval")
+            start = None

@@ -182,76 +182,16 @@ class SweepResult:
         return dump_json(path, self.to_dict())
 
     def plot(self, path: str | Path, metric: str | None = None) -> Path:
-        """Plot a metric (log scale) against each swept parameter to a PNG, atomically.
+        """Plot the sweep to a PNG (see :func:`shinro_ctrl.plots.plot_sweep`).
 
-        Stable samples are green dots, unstable ones red crosses; samples whose
-        run raised (no metric) are red triangles along the top edge. The
-        stable region is shaded: with one parameter, each interval between
-        consecutive stable samples (in parameter order) with no unstable
-        sample inside; with several, per-parameter bins shaded by the fraction
-        of stable samples in them (the marginal).
+        One parameter: the metric against it with stable intervals shaded and the
+        samples whose run raised on a separate strip; two: a 2-D stability map
+        beside the metric as colour; more: one marginal panel each. Axis ranges
+        come from the data, parameter axes carry units.
         """
-        import matplotlib.pyplot as plt  # the backend is the caller's (the CLI picks one)
+        from shinro_ctrl.plots import plot_sweep
 
-        metric = metric or self.metric
-        y = self.metric_values(metric)
-        stable = self.stable
-        values = self.values
-        P = len(self.ranges)
-        fig, axes = plt.subplots(1, P, figsize=(5.2 * P, 4.2), squeeze=False, sharey=True)
-        ok = np.isfinite(y) & (y > 0)
-        floor = float(y[ok].min()) if ok.any() else 1e-6
-        # Diverging runs reach absurd values; keep the axis about the stable ones (3 decades above them).
-        ceiling = (
-            float(y[ok & stable].max()) * 1e3 if (ok & stable).any() else (float(y[ok].max()) if ok.any() else 1.0)
-        )
-        clipped = bool((y[ok] > ceiling).any())
-        y_plot = np.where(np.isfinite(y), np.clip(y, floor, max(ceiling, floor)), np.nan)
-        top = max(ceiling, floor) * 3
-        failed = ~np.isfinite(y)
-        for j, key in enumerate(self.ranges):
-            ax = axes[0, j]
-            v = values[:, j]
-            if P == 1:
-                _shade_runs(ax, v, stable)
-            else:
-                _shade_marginal(ax, v, stable, self.ranges[key])
-            if stable.any():
-                ax.scatter(v[stable], y_plot[stable], s=14, color="tab:green", label="stable", zorder=3)
-            unst = ~stable & ~failed
-            if unst.any():
-                ax.scatter(v[unst], y_plot[unst], s=22, color="tab:red", marker="x", label="unstable", zorder=3)
-            if failed.any():
-                ax.scatter(
-                    v[failed],
-                    np.full(failed.sum(), top),
-                    s=22,
-                    color="tab:red",
-                    marker="^",
-                    label="run raised",
-                    zorder=3,
-                    clip_on=False,
-                )
-            ax.set_yscale("log")
-            ax.set_ylim(floor / 2, top * 2)
-            ax.set_xlabel(key)
-            ax.grid(alpha=0.3, which="both")
-        axes[0, 0].set_ylabel(f"{metric} (log" + (f"; clipped at {ceiling:.3g})" if clipped else ")"))
-        handles: dict[str, Any] = {}
-        for ax in axes[0]:
-            for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
-                handles.setdefault(lab, h)
-        axes[0, -1].legend(handles.values(), handles.keys(), fontsize=8, loc="best")
-        fig.suptitle(
-            f"{self.scenario} ({self.loop}, {self.method}): {int(stable.sum())}/{len(self.rows)} stable "
-            f"(final_error < {self.stable_tol:g})",
-            fontsize=10,
-        )
-        fig.tight_layout()
-        path = Path(path)
-        atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
-        plt.close(fig)
-        return path
+        return plot_sweep(self, path, metric)
 
     def save(self, directory: str | Path) -> dict[str, Path]:
         """Write ``sweep.csv``, ``sweep.json`` and ``sweep.png`` into ``directory``."""
