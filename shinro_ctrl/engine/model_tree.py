@@ -164,6 +164,10 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
         raise InvalidArgument(f"model '{label}' has no actuators: MjcfPlant needs at least one input")
     if m.neq:
         raise InvalidArgument(f"model '{label}': equality constraints are not supported yet ({m.neq} found)")
+    if getattr(m, "nflex", 0):
+        raise InvalidArgument(f"model '{label}': flexible bodies (flex) are not supported yet ({m.nflex} found)")
+    if getattr(m, "nplugin", 0):
+        raise InvalidArgument(f"model '{label}': engine plugins are not supported yet ({m.nplugin} found)")
     if m.ntendon:
         raise InvalidArgument(f"model '{label}': tendons are not supported yet ({m.ntendon} found)")
     if np.any(m.body_gravcomp != 0.0):
