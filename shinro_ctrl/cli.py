@@ -343,7 +343,7 @@ def _scenario_with_plan_file(config: str, plan_file: str):
     scenario = load_scenario(config)
     if scenario.plan is None:
         raise InvalidArgument(f"--plan: {scenario.name} has no [plan] table (its controller tracks no plan)")
-    spec = {k: v for k, v in scenario.plan.items() if k == "start"}
+    spec = {k: v for k, v in scenario.plan.items() if k in ("start", "bounds")}  # bounds: the saturation
     spec["file"] = str(plan_file)
     scenario.plan = scenario.controller.options["plan"] = spec
     return scenario

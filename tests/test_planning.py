@@ -329,7 +329,13 @@ track = ["x", "theta"]
     saved = tmp_path / "swing_plan.npz"
     traj = Trajectory.load(saved)
     assert traj.method == "trapezoid" and traj.knots == 41
-    assert main(["run", str(scenario), "--plan", str(saved), "--plot", str(tmp_path / "run.png")]) == 0
+    assert main(["run", str(scenario), "--plan", str(saved), "--out", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
     assert f"objective {traj.objective:.6g}" in out  # the loaded plan, not a new one
+    from shinro_ctrl.cli import _scenario_with_plan_file
+    from shinro_ctrl.sim import RobotSim
+
+    sim = RobotSim(_scenario_with_plan_file(str(scenario), str(saved)))
+    assert sim.controller.trajectory.objective == traj.objective
+    np.testing.assert_array_equal(sim.controller.u_max, [5.0])  # the plan's bounds still saturate the controller
     assert main(["plan", str(tmp_path / "missing.toml")]) == 2
