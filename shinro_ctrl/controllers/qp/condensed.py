@@ -114,6 +114,18 @@ MAX_DENSE_SIZE = 10_000_000
 _FIXED_ROW_TOL = 1e-13  # a row whose norm is below this (relative) does not depend on z
 _INF = 1e30  # DAQP_INF: DAQP treats |bound| >= 1e30 as absent; finite, so 0·bound stays 0 in the residuals
 
+#: Matrix-vector products on the per-call path with more entries than this use a plain loop
+#: (``einsum``) instead of BLAS: multithreaded OpenBLAS gemv on a busy machine stalled calls
+#: for ~50 ms at N = 400 (threads waiting for cores), while one thread needs ~0.3 ms.
+_BLAS_MAX = 1 << 17
+
+
+def _mv(M: np.ndarray, v: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out = M @ v`` on one thread (BLAS for small ``M``, an einsum loop for large)."""
+    if M.size > _BLAS_MAX:
+        return np.einsum("ij,j->i", M, v, out=out)
+    return np.matmul(M, v, out=out)
+
 
 @dataclass(frozen=True)
 class DenseRowGroup:
@@ -659,9 +671,9 @@ class CondensedQP:
 
     def _fill(self, e0: np.ndarray, u_prev_dev: np.ndarray | None) -> None:
         """Write ``f`` and the bound vectors for ``e0`` (and the previous input) into the buffers."""
-        np.matmul(self._Fv, e0, out=self._fv)
+        _mv(self._Fv, e0, self._fv)
         np.add(self._fv, self._fr, out=self._fv)
-        np.matmul(self._Ek, e0, out=self._tmp)
+        _mv(self._Ek, e0, self._tmp)
         np.subtract(self._hi_k, self._tmp, out=self._bu_g)
         np.subtract(self._lo_k, self._tmp, out=self._bl_g)
         if self._rate0_k is not None:
@@ -692,7 +704,7 @@ class CondensedQP:
         self._fill(e0, None if u_prev is None else u_prev - self.u_op)
         self.z = self.lam = self.X = self.U = None
         if self._fixed.size:
-            np.matmul(self._Ef2, e0, out=self._tmp_f)
+            _mv(self._Ef2, e0, self._tmp_f)
             if np.greater(self._tmp_f, self._bf2, out=self._fviol).any():
                 return DenseSolveInfo(DAQP_STATUS[-1], -1, 0, 0, math.nan, 0.0, math.nan)
         model = self._model
@@ -715,7 +727,7 @@ class CondensedQP:
         ev = self._ev
         ev[: self.n] = e0
         ev[self.n :] = z[self.n_slack :]
-        XU = self._PM @ ev
+        XU = _mv(self._PM, ev, np.empty(self._PM.shape[0]))
         XU += self._pc
         self.X = XU[: self._nX].reshape(self.N + 1, self.n)
         self.U = XU[self._nX :].reshape(self.N, self.m)
@@ -746,7 +758,7 @@ class CondensedQP:
         zl[:nz] = z
         zl[nz:] = lam[ns:]
         stat = rb[:nz]
-        np.matmul(self._HG, zl, out=stat)
+        _mv(self._HG, zl, stat)
         stat += self._f
         if ns:
             stat[:ns] += lam[:ns]
@@ -757,7 +769,7 @@ class CondensedQP:
             t2 = rb[nz + mk : nz + 2 * mk]
             comp = rb[nz + 2 * mk : nz + 3 * mk]
             lg = zl[nz:]
-            np.matmul(self._Gk, z, out=gz)
+            _mv(self._Gk, z, gz)
             np.subtract(gz, self._bu_g, out=t1)
             np.subtract(self._bl_g, gz, out=t2)
             np.maximum(lg, 0.0, out=lp)
