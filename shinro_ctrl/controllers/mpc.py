@@ -556,8 +556,8 @@ class LinearMPC(Controller):
         self._plan_x: np.ndarray | None = None
         self._plan_age = 0
         self.last: MPCSolution | None = None
-        if self.dense is not None:
-            self.dense.reset()  # cold working set: a reset controller repeats a run exactly
+        if self._referee is not None:
+            self._referee.reset()  # cold working set (the dense backend's, or the referee's): runs repeat exactly
         if self._solved_since_setup:
             # OSQP keeps internal state between solves (adaptive rho and its factorization), so a
             # reset controller must start from a fresh solver to repeat a run exactly.
@@ -844,7 +844,7 @@ class LinearMPC(Controller):
 
     def _failed_dense(self, x: np.ndarray, info: DenseSolveInfo, t0: float, dq: CondensedQP) -> np.ndarray:
         where = f"(DAQP status '{info.status}', {info.iterations} iterations) at x = {_fmt(x)}"
-        why = dq.explain_infeasibility(x, self._u_prev) if info.exitflag == -1 or info.exitflag < 0 else None
+        why = dq.explain_infeasibility(x, self._u_prev)  # an elastic LP's certificate, or None
         if why is not None:
             message = f"MPC problem infeasible {where}: {why}"
         else:
