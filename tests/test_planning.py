@@ -339,3 +339,13 @@ track = ["x", "theta"]
     assert sim.controller.trajectory.objective == traj.objective
     np.testing.assert_array_equal(sim.controller.u_max, [5.0])  # the plan's bounds still saturate the controller
     assert main(["plan", str(tmp_path / "missing.toml")]) == 2
+
+
+def test_ipopt_is_quiet_unless_verbose(plant, capfd):
+    quiet = TrajectoryOptimizer(plant, knots=11, method="trapezoid")
+    quiet.solve(START, [0.2, 0, np.pi, 0], duration=2.0)
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    loud = TrajectoryOptimizer(plant, knots=11, method="trapezoid", verbose=True)
+    loud.solve(START, [0.2, 0, np.pi, 0], duration=2.0)
+    assert "EXIT: Optimal Solution Found" in capfd.readouterr().out

@@ -35,6 +35,7 @@ import math
 import os
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -428,6 +429,7 @@ def _c_fflush() -> Any:
 
 
 _fflush = _c_fflush()
+_LOCK = threading.Lock()  # fds 1 and 2 are process-wide: one captured solve at a time
 
 
 class _captured:
@@ -440,16 +442,23 @@ class _captured:
     def __enter__(self) -> _captured:
         if not self.active:
             return self
-        sys.stdout.flush()
-        sys.stderr.flush()
-        self._tmp = tempfile.TemporaryFile(mode="w+b")
+        _LOCK.acquire()
+        for stream in (sys.stdout, sys.stderr):  # keep Python's buffered text in order
+            try:
+                if stream is not None:
+                    stream.flush()
+            except (OSError, ValueError):
+                pass
         self._saved = []
         try:
+            self._tmp = tempfile.TemporaryFile(mode="w+b")
             for fd in (1, 2):
                 self._saved.append((fd, os.dup(fd)))
                 os.dup2(self._tmp.fileno(), fd)
         except OSError:  # no usable descriptors (embedded interpreters): do not capture
             self._restore()
+            self.active = False
+            _LOCK.release()
         return self
 
     def _restore(self) -> None:
@@ -462,10 +471,13 @@ class _captured:
     def __exit__(self, *exc: Any) -> None:
         if not self.active:
             return
-        self._restore()
-        self._tmp.seek(0)
-        self._text = self._tmp.read().decode("utf-8", "replace")
-        self._tmp.close()
+        try:
+            self._restore()
+            self._tmp.seek(0)
+            self._text = self._tmp.read().decode("utf-8", "replace")
+            self._tmp.close()
+        finally:
+            _LOCK.release()
 
     def text(self) -> str:
         return self._text
