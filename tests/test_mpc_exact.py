@@ -16,7 +16,7 @@ import pytest
 
 from shinro_ctrl.controllers import controller_keys
 from shinro_ctrl.controllers._osqp import OsqpQP
-from shinro_ctrl.controllers.mpc import AUTO_DAQP_MAX_INPUTS, LinearMPC, choose_solver
+from shinro_ctrl.controllers.mpc import AUTO_DAQP_MAX_VARIABLES, LinearMPC, choose_solver
 from shinro_ctrl.controllers.qp.condensed import CondensedQP
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible
 from shinro_ctrl.plants import CartPole
@@ -172,9 +172,9 @@ def test_auto_rule_and_config_key(cp):
     """'auto' resolves by N·m; 'solver' is a [controller] key; a bad value names the choices."""
     A, B, _, _ = cp
     assert LinearMPC(A, B, Q_CP, R_CP, 50).solver == "daqp"
-    assert LinearMPC(A, B, Q_CP, R_CP, AUTO_DAQP_MAX_INPUTS + 1).solver == "osqp"
-    big = LinearMPC(A, B, Q_CP, R_CP, AUTO_DAQP_MAX_INPUTS + 1)
-    assert choose_solver(4, 1, AUTO_DAQP_MAX_INPUTS + 1, big.options) == "osqp"
+    assert LinearMPC(A, B, Q_CP, R_CP, AUTO_DAQP_MAX_VARIABLES + 1).solver == "osqp"
+    big = LinearMPC(A, B, Q_CP, R_CP, AUTO_DAQP_MAX_VARIABLES + 1)
+    assert choose_solver(4, 1, AUTO_DAQP_MAX_VARIABLES + 1, big.options) == "osqp"
     assert "solver" in controller_keys(LinearMPC)
     with pytest.raises(InvalidArgument, match="solver must be one of 'auto', 'osqp', 'daqp'"):
         LinearMPC(A, B, Q_CP, R_CP, 10, solver="qpoases")

@@ -98,10 +98,10 @@ _SOLVED = "solved"
 _fmt = fmt
 
 #: ``solver="auto"`` uses DAQP while the condensed QP has at most this many
-#: input variables ``N·m`` (and fits :data:`~.qp.condensed.MAX_DENSE_SIZE`).
+#: variables ``N·m`` plus slacks (and fits :data:`~.qp.condensed.MAX_DENSE_SIZE`).
 #: Measured with ``benchmarks/mpc.py --crossover`` (median call, warm closed
 #: loop, both backends exact): see :func:`choose_solver`.
-AUTO_DAQP_MAX_INPUTS = 400
+AUTO_DAQP_MAX_VARIABLES = 250
 
 #: Tightened settings of the OSQP re-solves after an inaccurate or unpolished solve, tried in turn
 #: from the previous iterate: a moderately tighter one (usually enough for the polish to find the
@@ -120,23 +120,29 @@ _KKT_TOL = 1e-8
 def choose_solver(n: int, m: int, N: int, opts: MPCOptions) -> str:
     """The backend ``solver="auto"`` picks for a resolved :class:`MPCOptions`.
 
-    DAQP's condensed QP costs ``O((N m)²)`` per warm call and ``O(N³ m² n)``
-    to build, OSQP's sparse one ``O(N (n + m)²)`` per ADMM iteration plus the
-    polish; measured (``benchmarks/mpc.py --crossover``) DAQP is faster on the
-    shipped scenarios and up to ``N·m`` of a few hundred (cart-pole ``N = 200``:
-    0.16 vs 0.9 ms; quadrotor ``N = 100``, ``N·m = 400``: see the docs). Rule:
-    ``"daqp"`` when ``N·m <= AUTO_DAQP_MAX_INPUTS`` and the dense matrices fit
-    :data:`~.qp.condensed.MAX_DENSE_SIZE`, else ``"osqp"``.
+    A warm DAQP call on the condensed QP costs about ``O(nz·(nz + rows))``
+    (``nz = N·m`` inputs plus one slack per soft-bounded state and stage) and
+    its build ``O(N³)``; an OSQP call on the sparse QP ``O(N (n + m)²)`` per
+    ADMM iteration plus the polish. Measured (``benchmarks/mpc.py
+    --crossover``, median call, warm closed loop, both exact): DAQP is 2-5x
+    faster up to ``nz`` ≈ 200 (cart-pole ``N = 200``: 0.24 vs 0.53 ms;
+    quadrotor with soft bounds ``N = 30``, ``nz = 180``: 0.11 vs 0.28 ms),
+    level with OSQP near ``nz`` = 400 on the cart-pole and already 1.6x slower
+    at ``nz = 360`` on the soft-bounded quadrotor (``N = 60``). Rule:
+    ``"daqp"`` when ``nz <= AUTO_DAQP_MAX_VARIABLES`` (250) and the dense
+    matrices fit :data:`~.qp.condensed.MAX_DENSE_SIZE`, else ``"osqp"``.
 
     Args:
         n: States.
         m: Inputs.
         N: Horizon.
-        opts: The resolved options (bounds decide the number of dense rows).
+        opts: The resolved options (bounds decide slacks and dense rows).
     """
     if opts.solver != "auto":
         return opts.solver
-    return "daqp" if N * m <= AUTO_DAQP_MAX_INPUTS and _dense_size(n, m, N, opts) <= MAX_DENSE_SIZE else "osqp"
+    soft_rows = int(np.count_nonzero(np.isfinite(opts.x_min) | np.isfinite(opts.x_max))) if opts.soft else 0
+    nz = N * (m + soft_rows)
+    return "daqp" if nz <= AUTO_DAQP_MAX_VARIABLES and _dense_size(n, m, N, opts) <= MAX_DENSE_SIZE else "osqp"
 
 
 def _dense_size(n: int, m: int, N: int, opts: MPCOptions) -> int:
@@ -261,7 +267,7 @@ class LinearMPC(Controller):
         fallback: None (raise on failure) or ``"shift"`` (apply the previous
             plan shifted by one step and flag it).
         solver: QP backend: ``"auto"`` (default; :func:`choose_solver`:
-            ``"daqp"`` up to ``N·m = 400`` input variables, else ``"osqp"``),
+            ``"daqp"`` up to 250 condensed variables ``N·m`` + slacks, else ``"osqp"``),
             ``"daqp"`` (condensed input-only QP, dense dual active set,
             exact) or ``"osqp"`` (sparse QP, ADMM + polishing, exact unless a
             polish fails on a problem too large for the condensed check).
