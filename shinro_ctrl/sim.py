@@ -407,6 +407,10 @@ class RobotSim:
             config: Path, shipped scenario name, or a dict with the TOML tables.
             engine: Override the scenario's loop: ``"standalone"`` or ``"mujoco"``.
         """
+        if not isinstance(config, dict | str | Path):
+            raise InvalidArgument(
+                f"RobotSim.from_config expects a scenario path, a shipped name or a dict, got {type(config).__name__}"
+            )
         scenario = parse_scenario(config) if isinstance(config, dict) else load_scenario(config)
         return cls(scenario, engine=engine)
 

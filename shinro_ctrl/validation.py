@@ -53,8 +53,37 @@ def unknown_keys(mapping: Mapping[str, Any], allowed: Iterable[str]) -> list[str
     return [k for k in mapping if k not in allowed]
 
 
+def _number(name: str, value: Any, what: str) -> Any:
+    """Refuse text, booleans and complex numbers where a real number is meant (``float("0.1")`` would accept)."""
+    if isinstance(value, str | bytes | bool | complex | np.bool_) or np.iscomplexobj(value):
+        raise InvalidArgument(f"{name} must be {what}, got {type(value).__name__} {value!r}")
+    return value
+
+
+def real_array(name: str, value: Any) -> np.ndarray:
+    """``value`` as a float array; complex values and text are errors.
+
+    ``np.asarray(value, dtype=float)`` would drop an imaginary part with only a
+    warning and parse strings such as ``"10"``; a weight or state given that
+    way is a mistake, so it is refused naming ``name``.
+
+    Raises:
+        InvalidArgument: complex, text or otherwise non-numeric values.
+    """
+    arr = np.asarray(value)
+    if np.iscomplexobj(arr):
+        raise InvalidArgument(f"{name} must be real, got complex values {arr.ravel()[:6].tolist()}")
+    if arr.dtype.kind in "USO":
+        if arr.dtype.kind in "US" or any(
+            isinstance(v, str | bytes | complex) or np.iscomplexobj(v) for v in arr.ravel().tolist()
+        ):
+            raise InvalidArgument(f"{name} must hold real numbers, got {value!r}")
+    return arr.astype(float, copy=False)
+
+
 def check_positive(name: str, value: Any) -> float:
     """Return ``value`` as a float; raise ``ValueError`` naming it unless finite and > 0."""
+    _number(name, value, "a positive number")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -66,6 +95,7 @@ def check_positive(name: str, value: Any) -> float:
 
 def check_nonnegative(name: str, value: Any) -> float:
     """Return ``value`` as a float; raise ``ValueError`` naming it unless finite and >= 0."""
+    _number(name, value, "a non-negative number")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -96,7 +126,9 @@ def as_vector(name: str, value: Any, n: int, *, finite: bool = True) -> np.ndarr
         arr = value
     else:
         try:
-            arr = np.asarray(value, dtype=float)
+            arr = real_array(name, value)
+        except InvalidArgument:
+            raise
         except (TypeError, ValueError):
             raise InvalidArgument(f"{name} must be numeric with shape ({n},), got {value!r}") from None
     if arr.ndim == 0 and n == 1:
@@ -116,7 +148,9 @@ def as_matrix(name: str, value: Any, shape: tuple[int, int], *, finite: bool = T
         NonFiniteError: NaN or inf, when ``finite``.
     """
     try:
-        arr = np.atleast_2d(np.asarray(value, dtype=float))
+        arr = np.atleast_2d(real_array(name, value))
+    except InvalidArgument:
+        raise
     except (TypeError, ValueError):
         raise InvalidArgument(f"{name} must be a numeric {shape} matrix, got {value!r}") from None
     if arr.shape != shape:
@@ -145,7 +179,9 @@ def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False, rtol
         NonFiniteError: NaN or inf.
     """
     try:
-        arr = np.asarray(value, dtype=float)
+        arr = real_array(name, value)
+    except InvalidArgument:
+        raise
     except (TypeError, ValueError):
         raise InvalidArgument(f"{name} must be a numeric ({n}, {n}) matrix, got {value!r}") from None
     if arr.ndim <= 1:
@@ -179,8 +215,10 @@ def state_space(A: Any, B: Any) -> tuple[np.ndarray, np.ndarray]:
         NonFiniteError: NaN or inf.
     """
     try:
-        A_ = np.atleast_2d(np.asarray(A, dtype=float))
-        B_ = np.asarray(B, dtype=float)
+        A_ = np.atleast_2d(real_array("A", A))
+        B_ = real_array("B", B)
+    except InvalidArgument:
+        raise
     except (TypeError, ValueError):
         raise InvalidArgument("A and B must be numeric matrices") from None
     if A_.ndim != 2 or A_.shape[0] != A_.shape[1]:

@@ -134,6 +134,8 @@ class _BoxQP:
     lengths, so this class only ever passes finite bounds in arrays whose lengths are
     checked once here.
     """
+        if not all(hasattr(arm, a) for a in ("num_dof", "chain", "joint_limits")):
+            raise InvalidArgument(f"IKQP needs an arm plant (ArmRobot), got {type(arm).__name__}")
 
     stateful = True  # warm start, previous input and plan
 

@@ -21,7 +21,7 @@ from shinro_ctrl.engine.warnings import (
     install_warning_handler,
     take_warning_messages,
 )
-from shinro_ctrl.errors import SimulationDiverged
+from shinro_ctrl.errors import InvalidArgument, SimulationDiverged
 
 __all__ = ["MujocoEngine"]
 
@@ -92,12 +92,21 @@ class MujocoEngine(NamedAccess):
             ValueError: the asset is invalid or the patched model does not compile.
         """
         substeps = _check_substeps(substeps)
+        if not callable(getattr(plant, "mjcf_patch", None)):
+            raise InvalidArgument(
+                f"MujocoEngine.for_plant expects a plant instance such as CartPole(), got {type(plant).__name__} "
+                f"{plant!r}"
+            )
         patch = plant.mjcf_patch()
         spec, source = _load_spec(patch.asset, shipped=True) if model is None else _load_spec(model)
         _apply_patch(spec, patch, substeps)
-        return cls.from_model(_compile(spec, source), substeps=substeps, source=source)
+        engine = cls.from_model(_compile(spec, source), substeps=substeps, source=source)
+        engine.plant_type = type(plant).__name__  # physics_engine refuses an engine built for another plant type
+        return engine
 
     # ------------------------------------------------------------------ set-up
+    plant_type: str | None = None  # the plant class for_plant built this engine for (None: any model)
+
     def _setup(self, model: mujoco.MjModel, substeps: int, source: str) -> None:
         if not _HANDLER["installed"]:
             install_warning_handler()

@@ -30,7 +30,7 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import CasadiBackend, ListBackend, NumpyBackend, ScalarBackend
-from shinro_ctrl.errors import ConfigError, InvalidArgument, SimulationDiverged
+from shinro_ctrl.errors import ConfigError, InvalidArgument, NonFiniteError, SimulationDiverged
 from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd_jacobians
 from shinro_ctrl.validation import as_vector, check_positive, did_you_mean, unknown_keys
 
@@ -237,7 +237,22 @@ class Plant:
                 f"but found {x.shape} and {u.shape}"
             )
         if x.ndim == 1 and u.ndim == 1 and not params:
-            return self.equations(_SCALAR, x, u, self._params)
+            try:
+                xdot = self.equations(_SCALAR, x, u, self._params)
+            except OverflowError:
+                xdot = None
+            if xdot is None or not np.all(np.isfinite(xdot)):
+                if np.all(np.isfinite(x)) and np.all(np.isfinite(u)):
+                    raise NonFiniteError(
+                        f"{type(self).__name__}.dynamics overflows float64 at x = {x.tolist()}, u = {u.tolist()}"
+                    )
+            return xdot
+        try:
+            np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
+        except ValueError:
+            raise InvalidArgument(
+                f"{type(self).__name__}.dynamics: batch shapes of x {x.shape} and u {u.shape} do not match"
+            ) from None
         p: dict[str, Any] = dict(self._params)
         if params:
             bad = unknown_keys(params, self.param_names)
@@ -294,11 +309,27 @@ class Plant:
         if method == "exact":
             if self._exact is None:
                 self._exact = ExactJacobian(self.symbolic(params=True), self._pvec)
-            return self._exact(x0, u0)
-        if method == "fd":
+            A, B = self._exact(x0, u0)
+        elif method == "fd":
             eps = check_positive("eps", eps)
-            return fd_jacobians(lambda X, U: self.equations(_NUMPY, X, U, self._params), x0, u0, eps)
-        raise InvalidArgument(f"unknown linearization method {method!r}; valid: exact, fd")
+            with np.errstate(all="ignore"):
+                A, B = fd_jacobians(lambda X, U: self.equations(_NUMPY, X, U, self._params), x0, u0, eps)
+        else:
+            raise InvalidArgument(f"unknown linearization method {method!r}; valid: exact, fd")
+        where = f"at x0 = {x0.tolist()}, u0 = {u0.tolist()}" + (f" with eps = {eps:g}" if method == "fd" else "")
+        self._check_finite_model(A, B, f"{type(self).__name__}.linearize ({method}) {where}")
+        return A, B
+
+    def _check_finite_model(self, A: np.ndarray, B: np.ndarray, what: str) -> None:
+        """Raise :class:`NonFiniteError` naming the first non-finite entry of ``A`` / ``B``."""
+        for name, M, cols in (("A", A, self.state_names), ("B", B, self.input_names)):
+            bad = np.argwhere(~np.isfinite(M))
+            if bad.size:
+                i, j = bad[0]
+                raise NonFiniteError(
+                    f"{what}: {name}[{self.state_names[i]}, {cols[j]}] = {M[i, j]} overflows float64 "
+                    f"({len(bad)} non-finite entries)"
+                )
 
     def linear_model(
         self,
@@ -312,7 +343,9 @@ class Plant:
         """The discrete model at ``dt`` with its context (see :class:`LinearModel`)."""
         x0, u0 = self._operating_point(x0, u0)
         A_c, B_c = self.linearize(x0, u0, method=method, eps=eps)
-        A, B = discretize(A_c, B_c, self.dt, discretization)
+        with np.errstate(all="ignore"):
+            A, B = discretize(A_c, B_c, self.dt, discretization)
+        self._check_finite_model(A, B, f"{type(self).__name__} {discretization} model at dt = {self.dt:g} s")
         return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization)
 
     def statespace(self, x0: Any = None, u0: Any = None, *, discrete: bool = True, measured: Any = None) -> Any:
@@ -525,6 +558,69 @@ class Plant:
             raise InvalidArgument(
                 f"{type(self).__name__}.physics_engine expects a MujocoEngine (or None), got {type(engine).__name__}"
             )
+        if engine is not None and getattr(engine, "model", None) is not None:
+            self._check_engine_matches(engine)
+
+    def _check_engine_matches(self, engine: Any) -> None:
+        """Raise InvalidArgument when ``engine`` was built for another plant (type, ``dt`` or a parameter).
+
+        The engine's compiled model is compared with what :meth:`mjcf_patch` would
+        write into it (see ``MujocoEngine.for_plant``): step, gravity, body masses
+        and positions, joint damping; a body or joint the patch names but the
+        model lacks means another plant type. The first mismatch is named.
+        """
+        try:
+            patch = self.mjcf_patch()
+        except NotImplementedError:
+            return
+        m, name = engine.model, type(self).__name__
+        rel = 1e-6
+        built_for = getattr(engine, "plant_type", None)
+        if isinstance(built_for, str) and built_for != name:
+            raise InvalidArgument(
+                f"{name}.physics_engine: the engine was built for another plant type: {built_for}, not {name}; "
+                "build it with MujocoEngine.for_plant(plant)"
+            )
+
+        def differs(a: Any, b: Any) -> bool:
+            a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+            return a.shape != b.shape or bool(np.any(np.abs(a - b) > rel * np.maximum(1.0, np.abs(b))))
+
+        def mismatch(what: str, engine_value: Any, plant_value: Any) -> InvalidArgument:
+            return InvalidArgument(
+                f"{name}.physics_engine: the engine was built for another plant: {what} is {engine_value} in the "
+                f"engine but {plant_value} in the plant; build it with MujocoEngine.for_plant(plant)"
+            )
+
+        engine_dt = float(getattr(engine, "dt", m.opt.timestep))
+        if differs(engine_dt, self.dt):
+            raise mismatch("dt", f"{engine_dt:g} s", f"{self.dt:g} s")
+        if differs(m.opt.gravity, patch.gravity):
+            raise mismatch("gravity", list(np.round(m.opt.gravity, 6)), list(patch.gravity))
+        for kind, names in (
+            ("body", [*patch.inertials, *patch.body_pos, *patch.body_inertia]),
+            ("joint", list(patch.joint_damping)),
+        ):
+            for item in names:
+                try:
+                    getattr(m, kind)(item)
+                except KeyError:
+                    raise InvalidArgument(
+                        f"{name}.physics_engine: the engine was built for another plant type: its model "
+                        f"({engine.source}) has no {kind} '{item}', which {name} needs"
+                    ) from None
+        for body, (mass, ipos) in patch.inertials.items():
+            if differs(m.body(body).mass[0], mass):
+                raise mismatch(f"the mass of body '{body}'", f"{m.body(body).mass[0]:g} kg", f"{mass:g} kg")
+            if differs(m.body(body).ipos, ipos):
+                raise mismatch(f"the centre of mass of body '{body}'", list(m.body(body).ipos), list(ipos))
+        for body, pos in patch.body_pos.items():
+            if differs(m.body(body).pos, pos):
+                raise mismatch(f"the position of body '{body}'", list(m.body(body).pos), list(pos))
+        for joint, damping in patch.joint_damping.items():
+            dof = int(m.joint(joint).dofadr[0])
+            if differs(m.dof_damping[dof], damping):
+                raise mismatch(f"the damping of joint '{joint}'", f"{m.dof_damping[dof]:g}", f"{damping:g}")
 
     def mjcf_patch(self) -> MjcfPatch:
         """How the plant's MJCF asset must be edited to match its parameters."""
