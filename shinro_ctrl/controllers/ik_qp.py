@@ -31,15 +31,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import casadi as cs
 import numpy as np
 import osqp
-import scipy.sparse as sp
 
-from shinro_ctrl.controllers._osqp import OsqpQP
+from shinro_ctrl.controllers._ik_parts import IKProblem, IKStep, _BoxQP
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.kinematics import (
@@ -72,107 +70,6 @@ _USABLE = {
     int(osqp.SolverStatus.OSQP_MAX_ITER_REACHED),
     int(osqp.SolverStatus.OSQP_TIME_LIMIT_REACHED),
 }
-
-
-@dataclass(frozen=True)
-class IKProblem:
-    """One IK iteration's QP, for inspection (see :meth:`IKQP.build_qp`).
-
-    ``min ½ dqᵀ P dq + cᵀ dq  s.t.  l ≤ A dq ≤ u``.
-
-    Attributes:
-        P: Hessian ``Jᵀ W J + λ I`` ``(n, n)`` (full, symmetric).
-        c: Linear term ``−Jᵀ W e`` ``(n,)``.
-        A: Constraint matrix, the identity ``(n, n)``.
-        l: Lower bounds ``max(q_min − q, −s)`` ``(n,)`` [rad].
-        u: Upper bounds ``min(q_max − q, s)`` ``(n,)`` [rad].
-        J: Task Jacobian ``(k, n)`` (k = 6 pose, 3 position).
-        error: Task error ``e`` ``(k,)`` [m, rad].
-        weights: Task weights ``diag(W)`` ``(k,)``.
-    """
-
-    P: np.ndarray
-    c: np.ndarray
-    A: np.ndarray
-    l: np.ndarray
-    u: np.ndarray
-    J: np.ndarray
-    error: np.ndarray
-    weights: np.ndarray
-
-
-@dataclass(frozen=True)
-class IKStep:
-    """What the last control call (:meth:`IKQP.track` / ``__call__``) did.
-
-    Attributes:
-        q: Joint targets ``(n,)`` [rad] (inside the limits).
-        dq: Change from the starting joints ``(n,)`` [rad].
-        iterations: QP solves.
-        pos_err: Remaining position error to the target [m].
-        ori_err: Remaining orientation error to the target [rad].
-        status: OSQP status of the last QP.
-        solve_time_s: Wall time of the call [s].
-    """
-
-    q: np.ndarray
-    dq: np.ndarray
-    iterations: int
-    pos_err: float
-    ori_err: float
-    status: str
-    solve_time_s: float
-
-
-class _BoxQP:
-    """``min ½ xᵀPx + cᵀx  s.t.  l ≤ x ≤ u`` in one OSQP problem, updated in place.
-
-    ``P``'s pattern is the full upper triangle (built from ``np.triu(np.ones)``, so no
-    entry is dropped as an explicit zero) and ``A`` the identity; only values change.
-    Updates go through :class:`~shinro_ctrl.controllers._osqp.OsqpQP` (OSQP's compiled
-    solver when available). That path neither clamps infinite bounds nor checks
-    lengths, so this class only ever passes finite bounds in arrays whose lengths are
-    checked once here.
-    """
-        if not all(hasattr(arm, a) for a in ("num_dof", "chain", "joint_limits")):
-            raise InvalidArgument(f"IKQP needs an arm plant (ArmRobot), got {type(arm).__name__}")
-
-    stateful = True  # warm start, previous input and plan
-
-    def __init__(self, n: int, P_upper: np.ndarray, settings: dict[str, Any]):
-        pattern = sp.csc_matrix(np.triu(np.ones((n, n))))
-        self.n = n
-        self.nnz = pattern.nnz
-        if P_upper.shape != (self.nnz,):
-            raise InvalidArgument(f"P upper triangle: expected {self.nnz} values but found {P_upper.shape}")
-        P = sp.csc_matrix((P_upper.copy(), pattern.indices, pattern.indptr), shape=(n, n))
-        self.qp = OsqpQP(
-            "IK problem or its osqp_settings",
-            P,
-            np.zeros(n),
-            sp.identity(n, format="csc"),
-            -np.ones(n),
-            np.ones(n),
-            settings,
-        )
-        self.solver = self.qp.solver
-        self._rho0 = float(settings.get("rho", self.solver.settings.rho))
-        self._zeros = np.zeros(n)
-
-    def solve(self, P_upper: np.ndarray, c: np.ndarray, l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, int, int]:
-        """Solve with new values; returns ``(x (n,), status_val, admm_iterations)``."""
-        self.qp.update(c, l, u, P_upper)
-        sol, info = self.qp.solve()
-        return sol.x, int(info.status_val), int(info.iter)
-
-    def reset(self) -> None:
-        """Back to the set-up state: no warm start (iterates zero) and the initial ``rho``.
-
-        OSQP carries both from one solve to the next (adaptive rho included), so results
-        depend on the solve history unless this is called first.
-        """
-        self.qp.warm_start(self._zeros, self._zeros)
-        self.qp.update_rho(self._rho0)
 
 
 class IKQP(Controller):
@@ -237,6 +134,8 @@ class IKQP(Controller):
         osqp_settings: dict[str, Any] | None = None,
         control_iters: int = 3,
     ):
+        if not all(hasattr(arm, a) for a in ("num_dof", "chain", "joint_limits")):
+            raise InvalidArgument(f"IKQP needs an arm plant (ArmRobot), got {type(arm).__name__}")
         self.arm = arm
         n = self.n = int(arm.num_dof)
         if task not in ("pose", "position"):
@@ -246,25 +145,10 @@ class IKQP(Controller):
         self.damping = check_nonnegative("damping", damping)
         self.dt = check_positive("dt", arm.dt if dt is None else dt)
         self.max_step = max_step  # validated by the property (which also sets the step-bound arrays)
-        if np.ndim(velocity_limit) == 0:
-            vlim = np.full(n, check_positive("velocity_limit", velocity_limit))
-        else:
-            vlim = as_vector("velocity_limit", velocity_limit, n)
-        if not np.all(np.isfinite(vlim)) or np.any(vlim <= 0):
-            raise InvalidArgument(f"velocity_limit must be positive and finite, got {velocity_limit!r}")
-        self.velocity_limit = vlim
-        if weights is None:
-            w = np.ones(k)
-        elif np.ndim(weights) == 0:
-            w = np.full(k, check_nonnegative("weights", weights))
-        else:
-            w = as_vector("weights", weights, k)
-            if np.any(w < 0):
-                raise InvalidArgument(f"weights must be >= 0, got {w.tolist()}")
-        self.weights = w
-        if not isinstance(control_iters, int) or control_iters < 1:
-            raise InvalidArgument(f"control_iters must be a positive integer, got {control_iters!r}")
-        self.control_iters = control_iters
+        self.velocity_limit, self.weights, self.control_iters = _check_options(
+            n, k, velocity_limit, weights, control_iters
+        )
+        w = self.weights
         limits = np.asarray(arm.joint_limits, dtype=float)
         self.lo = limits[:, 0].copy()
         self.hi = limits[:, 1].copy()
@@ -272,7 +156,28 @@ class IKQP(Controller):
         self._sample_lo = np.maximum(self.lo, -math.pi)
         self._sample_hi = np.minimum(self.hi, math.pi)
 
-        # Compiled kinematics + QP terms: q -> p, R, J, upper(P), (J^T W)^T.
+        self._compile_terms(arm, w)
+
+        self._e = np.zeros(6)
+        self._ek = self._e[:k]  # the task rows of e (a view)
+        self._et = (0.0,) * 6  # e as Python floats (the last _error)
+        self._clu = np.zeros((3, n))  # QP vectors c, l, u as rows of one buffer (scaled in one call)
+        self._c, self._l, self._u = self._clu
+        self._evaluated: np.ndarray | None = None  # the array whose kinematics the buffers hold
+        self._evaluate(np.clip(np.zeros(n), self.lo, self.hi))
+        settings = dict(DEFAULT_OSQP_SETTINGS)
+        settings.update(osqp_settings or {})
+        self._qp = _BoxQP(n, self._Hu, settings)
+        self._osqp_update = self._qp.qp.update  # bound once: the hot path calls them per iteration
+        self._osqp_solve = self._qp.qp.solve
+        self.last: IKStep | None = None
+        self.preview = 1
+        self.u_min = None
+        self.u_max = None
+
+    def _compile_terms(self, arm: Any, w: np.ndarray) -> None:
+        """Compile ``q -> p, R, J, upper(P), (Jᵀ W)ᵀ`` once and bind its CasADi buffer to arrays of ours."""
+        n, k = self.n, self.k
         qs, p, R, J = arm.chain.symbolic()  # the core SerialChain's CasADi FK and geometric Jacobian
         Jt = J[:k, :]
         ws = cs.SX.sym("w", k)
@@ -297,23 +202,6 @@ class IKQP(Controller):
         for i, a in enumerate((self._p, self._R, self._J, self._Hu, self._negJtW)):
             self._buf.set_res(i, memoryview(a.reshape(-1)))
         self._function = f
-
-        self._e = np.zeros(6)
-        self._ek = self._e[:k]  # the task rows of e (a view)
-        self._et = (0.0,) * 6  # e as Python floats (the last _error)
-        self._clu = np.zeros((3, n))  # QP vectors c, l, u as rows of one buffer (scaled in one call)
-        self._c, self._l, self._u = self._clu
-        self._evaluated: np.ndarray | None = None  # the array whose kinematics the buffers hold
-        self._evaluate(np.clip(np.zeros(n), self.lo, self.hi))
-        settings = dict(DEFAULT_OSQP_SETTINGS)
-        settings.update(osqp_settings or {})
-        self._qp = _BoxQP(n, self._Hu, settings)
-        self._osqp_update = self._qp.qp.update  # bound once: the hot path calls them per iteration
-        self._osqp_solve = self._qp.qp.solve
-        self.last: IKStep | None = None
-        self.preview = 1
-        self.u_min = None
-        self.u_max = None
 
     @property
     def max_step(self) -> float:
@@ -688,3 +576,24 @@ def _bounded_difference(q: np.ndarray, q_new: np.ndarray, s: Any) -> np.ndarray:
             return dq
         dq[bad] = np.nextafter(dq[bad], 0.0)
     return np.where(bad, 0.0, dq)
+
+
+def _check_options(n: int, k: int, velocity_limit: Any, weights: Any, control_iters: Any) -> tuple:
+    """``(velocity_limit (n,), weights (k,), control_iters)`` validated (messages name the argument)."""
+    if np.ndim(velocity_limit) == 0:
+        vlim = np.full(n, check_positive("velocity_limit", velocity_limit))
+    else:
+        vlim = as_vector("velocity_limit", velocity_limit, n)
+    if not np.all(np.isfinite(vlim)) or np.any(vlim <= 0):
+        raise InvalidArgument(f"velocity_limit must be positive and finite, got {velocity_limit!r}")
+    if weights is None:
+        w = np.ones(k)
+    elif np.ndim(weights) == 0:
+        w = np.full(k, check_nonnegative("weights", weights))
+    else:
+        w = as_vector("weights", weights, k)
+        if np.any(w < 0):
+            raise InvalidArgument(f"weights must be >= 0, got {w.tolist()}")
+    if not isinstance(control_iters, int) or control_iters < 1:
+        raise InvalidArgument(f"control_iters must be a positive integer, got {control_iters!r}")
+    return vlim, w, control_iters

@@ -14,7 +14,6 @@ target pose, solves IK for it and commands the joints.
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Sequence
 from dataclasses import asdict, is_dataclass
 from typing import Any
@@ -29,46 +28,21 @@ from shinro_ctrl.kinematics import (
     SerialChain,
     damped_least_squares,
     euler_zyx_from_matrix,
-    euler_zyx_to_matrix,
     pose_to_transform,
-    so3_log,
     so3_log_flat,
 )
+from shinro_ctrl.plants._arm6 import ARM6, ARM6_AXES, ARM6_BODIES, ARM6_JOINTS, shipped_arm6
+from shinro_ctrl.plants._arm_engine import ArmEngineMode
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_matrix, as_vector, check_positive
 
 __all__ = ["ARM6", "ARM6_JOINTS", "ArmRobot", "shipped_arm6"]
 
 _AXES = ("x", "y", "z")
-_TAU = 6.283185307179586
+
 
 #: The shipped MJCF arm (``assets/arm6.xml``): its joints, axes and the body of each joint.
-ARM6_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
-ARM6_AXES = ("z", "y", "y", "y", "z", "x")
-ARM6_BODIES = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
-ARM6_SITE = "ee_site"
-
-#: The shipped 6-DOF arm (UR5 link lengths, axes z y y y z x), matched to ``assets/arm6.xml``: the
-#: geometry ``ArmRobot()`` builds. ``configs/arm6.toml`` repeats it as a scenario (a test checks they agree);
-#: nothing is read from a file, so a local ``arm6.toml`` never changes the arm.
-ARM6: dict[str, Any] = {
-    "num_dof": 6,
-    "dt": 0.002,
-    "joint_names": list(ARM6_JOINTS),
-    "rot_axes": list(ARM6_AXES),
-    "joint_offsets": [
-        [0.0, 0.0, 0.089159],
-        [0.0, 0.13585, 0.0],
-        [0.0, -0.1197, 0.425],
-        [0.39225, 0.0, 0.0],
-        [0.0, 0.093, 0.0],
-        [0.0, 0.0, -0.09465],
-    ],
-    "joint_limits": [[-_TAU, _TAU], [-1.6, 1.6], [-1.4, 1.4], [-_TAU, _TAU], [-_TAU, _TAU], [-_TAU, _TAU]],
-}
-
-
-class ArmRobot(Plant):
+class ArmRobot(ArmEngineMode, Plant):
     """Serial-link arm with forward kinematics, Jacobians and inverse kinematics.
 
     Standalone, :meth:`step` solves IK on the analytic kinematics and sets the
@@ -329,74 +303,6 @@ class ArmRobot(Plant):
             return q
         return IKResult(q, errs[0] < tol and errs[1] < tol, it, errs[0], errs[1], J.copy(), 1)
 
-    def engine_ik(
-        self,
-        target_ee: Any,
-        target_euler: Any = None,
-        max_iters: int = 20,
-        lam: float = 0.01,
-        max_dq: float = 0.5,
-        *,
-        tol: float = 1e-3,
-    ) -> np.ndarray:
-        r"""Damped-least-squares IK on the MuJoCo engine's end-effector Jacobian.
-
-        Iterates :math:`\Delta q = J^\top (J J^\top + \lambda^2 I)^{-1} e` with the engine's
-        Jacobian and pose, ``Δq`` clamped to ``±max_dq`` and ``q`` clipped to the limits.
-        Without ``target_euler`` only the position is solved (3 rows); with it the full pose
-        (world-frame log-map orientation error). The engine's joint state is restored
-        afterwards: the arm reaches the result through its actuators, not by a jump.
-
-        Args:
-            target_ee: Target position ``(3,)`` [m].
-            target_euler: Optional target ZYX Euler angles ``(3,)`` [rad].
-            max_iters: Maximum iterations.
-            lam: Damping ``λ``.
-            max_dq: Largest joint change per iteration [rad].
-            tol: Stop when the error norm is below this.
-
-        Returns:
-            Joint angles ``(n,)`` inside the limits.
-
-        Raises:
-            RuntimeError: no engine is attached.
-        """
-        engine = self._engine
-        if engine is None:
-            raise RuntimeError("engine_ik needs a physics engine: call physics_engine(engine) first")
-        pt = as_vector("target_ee", target_ee, 3)
-        Rt = None if target_euler is None else euler_zyx_to_matrix(as_vector("target_euler", target_euler, 3))
-        rows = 3 if Rt is None else 6
-        saved = [(engine.get_joint_qpos(n), engine.get_joint_vel(n)) for n in self.joint_names]
-        q = self._read_joints()
-
-        def error_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            for name, v in zip(self.joint_names, q.tolist(), strict=True):
-                engine.set_joint_qpos(name, v)
-            engine.forward()
-            p, R = self._engine_ee()
-            e = pt - p if Rt is None else np.concatenate([pt - p, so3_log(Rt @ R.T)])
-            return e, self._engine_jacobian()[:rows]
-
-        try:
-            # max_iters + 1 steps at most: this loop has always stepped once more than it was asked to
-            q = damped_least_squares(
-                error_jacobian,
-                q,
-                self._lo,
-                self._hi,
-                max_iters=max_iters + 1,
-                max_step=max_dq,
-                lam=lam,
-                converged=lambda e: np.linalg.norm(e) < tol,
-            )[0]
-        finally:
-            for name, (qp, qv) in zip(self.joint_names, saved, strict=True):
-                engine.set_joint_qpos(name, qp)
-                engine.set_joint_vel(name, qv)
-            engine.forward()
-        return q
-
     # -------------------------------------------------------------- joints
     @property
     def q(self) -> np.ndarray:
@@ -525,67 +431,6 @@ class ArmRobot(Plant):
             )
         self.set_joint_positions(res.q)
 
-    # -------------------------------------------------------------- engine
-    def physics_engine(self, engine: Any) -> None:
-        """Attach a MuJoCo engine (or detach with None).
-
-        On attach the end-effector frame is resolved (``ee_body_name``, else the site
-        ``ee_site``, else the last body), every joint name is checked against the model,
-        and joints and pose are read from the engine; the commanded targets start at the
-        measured joints. On detach the arm keeps its last joints and its state becomes
-        their FK pose.
-
-        Raises:
-            UnknownName: a joint or the end-effector body is missing from the model (the
-                message lists the valid names; a ``KeyError``).
-        """
-        if engine is None:
-            self._engine = None
-            self._ee_frame = None
-            self.state = self._pose_of(self._q)
-            return
-        if self.ee_body_name is not None:
-            frame = ("body", self.ee_body_name)
-        elif ARM6_SITE in getattr(engine, "site_names", ()):
-            frame = ("site", ARM6_SITE)
-        else:
-            frame = ("body", engine.body_names[-1])
-        model = engine.model
-        dofs = []
-        for name in self.joint_names:
-            engine.get_joint_qpos(name)  # KeyError listing the joints if missing
-            dofs.append(int(model.jnt_dofadr[model.joint(name).id]))
-        self._engine = engine
-        self._ee_frame = frame
-        self._dofs = dofs
-        engine.forward()
-        self._engine_ee()  # KeyError for an unknown ee_body_name
-        self._q = self._read_joints()
-        self._q_cmd = self._q.copy()
-        self.state = self._engine_pose()
-
-    def _read_joints(self) -> np.ndarray:
-        e = self._engine
-        return np.array([e.get_joint_qpos(n) for n in self.joint_names])
-
-    def _engine_ee(self) -> tuple[np.ndarray, np.ndarray]:
-        """End-effector ``(p (3,), R (3, 3))`` from the engine."""
-        kind, name = self._ee_frame
-        get = self._engine.get_site_pose if kind == "site" else self._engine.get_body_pose
-        p, euler = get(name)
-        return p, euler_zyx_to_matrix(euler)
-
-    def _engine_pose(self) -> np.ndarray:
-        kind, name = self._ee_frame
-        get = self._engine.get_site_pose if kind == "site" else self._engine.get_body_pose
-        p, euler = get(name)
-        return np.concatenate([p, euler])
-
-    def _engine_jacobian(self) -> np.ndarray:
-        kind, name = self._ee_frame
-        get = self._engine.get_site_jacobian if kind == "site" else self._engine.get_body_jacobian
-        return get(name)[:, self._dofs]
-
     def mjcf_patch(self) -> MjcfPatch:
         """Match ``assets/arm6.xml`` to this arm: link offsets (body positions), visuals, ``dt``.
 
@@ -652,11 +497,6 @@ class ArmRobot(Plant):
     def __repr__(self) -> str:
         mode = "standalone" if self._engine is None else "engine"
         return f"ArmRobot(num_dof={self.num_dof}, axes={''.join(self.axes)!r}, dt={self.dt:g}, {mode})"
-
-
-def shipped_arm6() -> dict:
-    """The shipped arm's constructor arguments (a fresh copy of :data:`ARM6`), the default arm."""
-    return copy.deepcopy(ARM6)
 
 
 def _as_dict(config: Any) -> dict:
