@@ -327,6 +327,11 @@ class LinearMPC(Controller):
         self.preview = N  # a simulation passes reference trajectories of N + 1 samples (see sim.RobotSim.run)
         self.model: Any = None  # the LinearModel when built by from_plant
         self.A, self.B, self.Q, self.R = A_, B_, Q_, R_
+        # |x| beyond which ½ xᵀ Q x summed over the horizon overflows float64 (a "huge state" is not "infeasible")
+        self._x_overflow = min(
+            1e12,  # the QP solvers' relative precision: beyond it a feasible problem is reported infeasible
+            math.sqrt(1e300 / ((N + 1) * max(1.0, float(np.abs(Q_).max(initial=0.0))))),
+        )
         self.x0, self.u0, self.offset, self.dt = opts.x0, opts.u0, opts.offset, opts.dt
         self.u_min, self.u_max, self.x_min, self.x_max = opts.u_min, opts.u_max, opts.x_min, opts.x_max
         self.du_max, self.soft = opts.du_max, opts.soft
@@ -598,6 +603,12 @@ class LinearMPC(Controller):
             x = as_vector("x", x, self.n)  # raises with the standard message
         elif not np.isfinite(x).all():
             raise NonFiniteError(f"x must be finite, got {_fmt(x)}")
+        if float(np.abs(x).max()) > self._x_overflow:
+            raise NonFiniteError(
+                f"x = {_fmt(x)} is beyond the MPC's numeric range |x| <= {self._x_overflow:.2g}: there the QP's "
+                f"terms lose every significant digit (and ½ xᵀ Q x over {self.N} stages nears float64 overflow); "
+                "a state this far off means the loop already diverged"
+            )
         if self.dense is not None:
             return self._call_dense(x, ref, u_ref, t0)
         n = self.n
