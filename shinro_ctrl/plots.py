@@ -22,7 +22,7 @@ import numpy as np
 
 from shinro_ctrl.files import atomic_write
 
-__all__ = ["MAX_ROWS", "plot_run", "signal_groups", "unit_of"]
+__all__ = ["MAX_ROWS", "param_unit", "plot_run", "plot_sweep", "run_figure", "signal_groups", "sweep_figure", "unit_of"]
 
 MAX_ROWS = 6
 PLANAR_KINDS = ("circle", "square", "waypoints")
@@ -151,9 +151,8 @@ def _planar_axes(result: Any) -> tuple[int, int] | None:
     return int(axes[0]), int(axes[1])
 
 
-def plot_run(
+def run_figure(
     result: Any,
-    path: str | Path,
     *,
     compare: Any = None,
     state_units: Sequence[str] | None = None,
@@ -169,13 +168,12 @@ def plot_run(
 
     Args:
         result: A :class:`~shinro_ctrl.sim.SimResult`.
-        path: The PNG to write.
         compare: A second result of the same scenario (the other loop) drawn
             over the first, with the metric differences in the title.
         state_units, input_units: Units overriding the ones read from the names.
 
     Returns:
-        ``path``.
+        The :class:`matplotlib.figure.Figure` (Agg canvas); :func:`plot_run` writes it.
     """
     runs = [result] if compare is None else [result, compare]
     dist = result.disturbance if getattr(result, "disturbance", None) is not None else None
@@ -306,7 +304,19 @@ def plot_run(
         )
     fig.suptitle(_title(result, compare), x=0.01, ha="left", fontsize=10)
     fig.subplots_adjust(left=0.1, right=0.97, top=1 - 0.75 / (1.55 * rows + 1.2), bottom=0.6 / (1.55 * rows + 1.2))
-    return _write_png(fig, path)
+    return fig
+
+
+def plot_run(
+    result: Any,
+    path: str | Path,
+    *,
+    compare: Any = None,
+    state_units: Sequence[str] | None = None,
+    input_units: Sequence[str] | None = None,
+) -> Path:
+    """Write :func:`run_figure` to the PNG ``path`` (atomically) and return ``path``."""
+    return _write_png(run_figure(result, compare=compare, state_units=state_units, input_units=input_units), path)
 
 
 def _data_limits(ax: Any, result: Any, members: list[tuple[str, int]]) -> None:
@@ -405,7 +415,7 @@ def _metric_axis(ax: Any, y: np.ndarray) -> None:
         ax.set_ylim(lo - pad, hi + pad)
 
 
-def plot_sweep(result: Any, path: str | Path, metric: str | None = None) -> Path:
+def sweep_figure(result: Any, metric: str | None = None) -> Any:
     """Plot a robustness sweep to a PNG.
 
     One parameter: the metric against the parameter (stable green dots,
@@ -485,7 +495,7 @@ def plot_sweep(result: Any, path: str | Path, metric: str | None = None) -> Path
             ax.set_ylim(*result.ranges[keys[1]])
         fig.suptitle(title, fontsize=10)
         fig.tight_layout()
-        return _write_png(fig, path)
+        return fig
 
     fig = _new_figure(5.4 * P + 1.2, 4.8)
     gs = fig.add_gridspec(2, P, height_ratios=(5, 0.6), hspace=0.08)
@@ -520,7 +530,12 @@ def plot_sweep(result: Any, path: str | Path, metric: str | None = None) -> Path
         )
     fig.suptitle(title, fontsize=10)
     fig.subplots_adjust(left=0.1, right=0.97, top=0.88, bottom=0.13)
-    return _write_png(fig, path)
+    return fig
+
+
+def plot_sweep(result: Any, path: str | Path, metric: str | None = None) -> Path:
+    """Write :func:`sweep_figure` to the PNG ``path`` (atomically) and return ``path``."""
+    return _write_png(sweep_figure(result, metric), path)
 
 
 def _edges(centres: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 from shinro_ctrl.files import atomic_write
 from shinro_ctrl.linearization import complex_step_jacobians
 
-__all__ = ["EpsSweep", "eps_sweep", "plot_crosscheck", "plot_eps_sweep"]
+__all__ = ["EpsSweep", "crosscheck_figure", "eps_sweep", "plot_crosscheck", "plot_eps_sweep"]
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def plot_eps_sweep(sweep: EpsSweep, path: str | Path, *, title: str = "") -> Pat
     return _save(plt, fig, path)
 
 
-def plot_crosscheck(result: Any, path: str | Path) -> Path:
+def crosscheck_figure(result: Any) -> Any:
     """Heatmaps of the exact ``[A | B]`` and of the signed differences FD − exact and MuJoCo − exact.
 
     Every panel uses a diverging colour scale centred on zero (symmetric
@@ -127,4 +127,13 @@ def plot_crosscheck(result: Any, path: str | Path) -> Path:
         "diverging colour scale centred on zero (blue < 0 < red), symmetric logarithmic",
         fontsize=10,
     )
-    return _save(None, fig, path)
+    fig.tight_layout()
+    return fig
+
+
+def plot_crosscheck(result: Any, path: str | Path) -> Path:
+    """Write :func:`crosscheck_figure` to the PNG ``path`` (atomically) and return ``path``."""
+    path = Path(path)
+    fig = crosscheck_figure(result)
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110, bbox_inches="tight"), binary=True)
+    return path
