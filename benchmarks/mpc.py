@@ -416,14 +416,14 @@ def allocations(N: int = 50, calls: tuple[int, ...] = (200, 2000)) -> None:
             call(x)  # warm up caches
         held = []
         for count in calls:
+            peaks = np.zeros(count)  # allocated before tracing starts (a growing list would count itself)
             tracemalloc.start()
-            peaks = []
             cur0, _ = tracemalloc.get_traced_memory()
             for i in range(count):
                 before, _ = tracemalloc.get_traced_memory()
                 tracemalloc.reset_peak()
                 call(states[i % len(states)])
-                peaks.append(tracemalloc.get_traced_memory()[1] - before)
+                peaks[i] = tracemalloc.get_traced_memory()[1] - before
             held.append(tracemalloc.get_traced_memory()[0] - cur0)
             tracemalloc.stop()
         kept = ", ".join(f"{c} calls {h} bytes" for c, h in zip(calls, held, strict=True))
