@@ -148,57 +148,31 @@ def lqr_batch_rollout(
     P = {k: np.asarray(v, dtype=float) for k, v in params.items()}
     X = np.array(np.broadcast_to(np.asarray(x0, dtype=float), (N, n)))
     r = np.asarray(ref, dtype=float).reshape(n)
-    K = np.asarray(controller.K, dtype=float).reshape(m, n)
-    u0 = np.asarray(controller.u0, dtype=float).reshape(m)
-    u_min = np.asarray(controller.u_min, dtype=float)
-    u_max = np.asarray(controller.u_max, dtype=float)
-    saturate = bool(np.isfinite(u_min).any() or np.isfinite(u_max).any())
+    K, u0, u_min, u_max, saturate, x_min, x_max = _law(controller, n, m)
+    x_bounds = x_min is not None or x_max is not None
     qi = np.asarray(plant.position_indices, dtype=int)
     vi = np.asarray(plant.velocity_indices, dtype=int)
-    tr = np.asarray(tracked, dtype=int)
-    r_tr = r[tr]
-    x_min, x_max = controller.x_min, controller.x_max
-    if x_min is not None and np.shape(x_min) != (n,):
-        x_min = None
-    if x_max is not None and np.shape(x_max) != (n,):
-        x_max = None
-    x_bounds = x_min is not None or x_max is not None
 
     t = np.arange(steps + 1) * dt
     alive = np.ones(N, dtype=bool)
     died = np.full(N, -1, dtype=int)
-    e2_sum = np.zeros(N)
-    e_max = np.zeros(N)
-    last_out = np.full(N, -1, dtype=int)
-    u_abs_max = np.zeros(N)
-    viol_count = np.zeros(N, dtype=int)
-    viol_max = np.zeros(N)
+    acc = _StreamingMetrics(N, tracked, r, settle_tol)
     x_excess = np.zeros(N)  # bound excess of the current state (index k); none at k = 0
     call_times = np.empty(steps)
     clock = time.perf_counter
     start = clock()
     every = max(1, steps // 100)
 
-    def track_error(k: int) -> np.ndarray:
-        e = np.linalg.norm(X[:, tr] - r_tr, axis=1)
-        np.add(e2_sum, e * e, out=e2_sum)
-        np.maximum(e_max, e, out=e_max)
-        last_out[e > settle_tol] = k
-        return e
-
     with np.errstate(all="ignore"):
-        e = track_error(0)
+        acc.track(X, 0)
         for k in range(steps):
             c0 = clock()
             U = u0 - (X - r) @ K.T
             if saturate:
                 np.clip(U, u_min, u_max, out=U)
             call_times[k] = clock() - c0
-            np.maximum(u_abs_max, np.abs(U).max(axis=1), out=u_abs_max)
             # compute_metrics' violation at index k: input k and state k (for k >= 1).
-            viol = np.maximum(bound_excess(U, u_min, u_max), x_excess) if saturate else x_excess
-            viol_count += viol > 0
-            np.maximum(viol_max, viol, out=viol_max)
+            acc.inputs(U, np.maximum(bound_excess(U, u_min, u_max), x_excess) if saturate else x_excess)
 
             Xd = plant.dynamics(X, U, params=P)
             X[:, vi] += dt * Xd[:, vi]
@@ -212,25 +186,83 @@ def lqr_batch_rollout(
                 X[bad] = r
             if x_bounds:
                 x_excess = bound_excess(X, x_min, x_max)
-            e = track_error(k + 1)
+            acc.track(X, k + 1)
             if progress is not None and (k % every == 0 or k == steps - 1):
                 progress(k + 1, steps)
-        viol_count += x_excess > 0  # index T: the final state only
-        np.maximum(viol_max, x_excess, out=viol_max)
+        acc.violation(x_excess)  # index T: the final state only
     elapsed = clock() - start
-
-    settling = np.where(last_out < 0, 0.0, t[np.minimum(last_out + 1, steps)])
-    settling[last_out == steps] = math.inf
-    metrics = {
-        "rms_error": np.sqrt(e2_sum / (steps + 1)),
-        "max_error": e_max,
-        "final_error": e,
-        "settling_time": settling,
-        "max_abs_input": u_abs_max,
-        "constraint_violations": viol_count.astype(float),
-        "max_violation": viol_max,
-        "solve_time_median_s": np.full(N, float(np.median(call_times)) / max(N, 1)),
-    }
-    for v in metrics.values():
-        v[~alive] = math.nan
+    metrics = acc.finish(t, call_times, alive)
     return BatchRollout(metrics=metrics, diverged_step=died, t=t, finite=alive, elapsed_s=elapsed)
+
+
+def _law(controller: Any, n: int, m: int) -> tuple:
+    """``(K, u0, u_min, u_max, saturate, x_min, x_max)`` of the LQR, the state bounds None unless ``(n,)``."""
+    K = np.asarray(controller.K, dtype=float).reshape(m, n)
+    u0 = np.asarray(controller.u0, dtype=float).reshape(m)
+    u_min = np.asarray(controller.u_min, dtype=float)
+    u_max = np.asarray(controller.u_max, dtype=float)
+    saturate = bool(np.isfinite(u_min).any() or np.isfinite(u_max).any())
+    x_min, x_max = controller.x_min, controller.x_max
+    if x_min is not None and np.shape(x_min) != (n,):
+        x_min = None
+    if x_max is not None and np.shape(x_max) != (n,):
+        x_max = None
+    return K, u0, u_min, u_max, saturate, x_min, x_max
+
+
+class _StreamingMetrics:
+    """The metrics of :func:`shinro_ctrl.sim.compute_metrics`, accumulated per instance while stepping (O(N) memory).
+
+    Same definitions: ``e_k = ‖x_k[tracked] − r[tracked]‖₂``; rms over the ``T + 1``
+    samples; settling after the last sample outside ``settle_tol``; a violation counted at
+    index ``k`` from input ``k`` and state ``k``.
+    """
+
+    def __init__(self, N: int, tracked: list[int], r: np.ndarray, settle_tol: float):
+        self.tr = np.asarray(tracked, dtype=int)
+        self.r_tr = r[self.tr]
+        self.settle_tol = settle_tol
+        self.e2_sum = np.zeros(N)
+        self.e_max = np.zeros(N)
+        self.e = np.zeros(N)
+        self.last_out = np.full(N, -1, dtype=int)
+        self.u_abs_max = np.zeros(N)
+        self.viol_count = np.zeros(N, dtype=int)
+        self.viol_max = np.zeros(N)
+
+    def track(self, X: np.ndarray, k: int) -> None:
+        """The tracking error of sample ``k``."""
+        e = self.e = np.linalg.norm(X[:, self.tr] - self.r_tr, axis=1)
+        np.add(self.e2_sum, e * e, out=self.e2_sum)
+        np.maximum(self.e_max, e, out=self.e_max)
+        self.last_out[e > self.settle_tol] = k
+
+    def inputs(self, U: np.ndarray, viol: np.ndarray) -> None:
+        """The inputs of one step and the violation at its index."""
+        np.maximum(self.u_abs_max, np.abs(U).max(axis=1), out=self.u_abs_max)
+        self.violation(viol)
+
+    def violation(self, viol: np.ndarray) -> None:
+        self.viol_count += viol > 0
+        np.maximum(self.viol_max, viol, out=self.viol_max)
+
+    def finish(self, t: np.ndarray, call_times: np.ndarray, alive: np.ndarray) -> dict[str, np.ndarray]:
+        """Metric name -> ``(N,)`` (NaN for diverged instances)."""
+        steps = t.shape[0] - 1
+        N = alive.shape[0]
+        last_out = self.last_out
+        settling = np.where(last_out < 0, 0.0, t[np.minimum(last_out + 1, steps)])
+        settling[last_out == steps] = math.inf
+        metrics = {
+            "rms_error": np.sqrt(self.e2_sum / (steps + 1)),
+            "max_error": self.e_max,
+            "final_error": self.e,
+            "settling_time": settling,
+            "max_abs_input": self.u_abs_max,
+            "constraint_violations": self.viol_count.astype(float),
+            "max_violation": self.viol_max,
+            "solve_time_median_s": np.full(N, float(np.median(call_times)) / max(N, 1)),
+        }
+        for v in metrics.values():
+            v[~alive] = math.nan
+        return metrics
