@@ -186,20 +186,26 @@ def test_auto_rule_and_config_key(cp):
     assert RobotSim.from_config(doc).controller.solver == "osqp"
 
 
-@pytest.mark.parametrize("name", ["cartpole_mpc", "cartpole_mpc_mujoco"])
-def test_shipped_cartpole_scenarios_run_exact_on_auto(name):
-    """The shipped cart-pole MPC scenarios resolve 'auto' to DAQP; every step's first move is the QP optimum."""
+SHIPPED_MPC = ["cartpole_mpc", "cartpole_mpc_mujoco", "pendulum_mpc_mujoco", "double_pendulum_mpc_mujoco"]
+
+
+@pytest.mark.parametrize("name", [*SHIPPED_MPC, "quadrotor_mpc_mujoco"])
+def test_shipped_mpc_scenarios_run_exact_on_auto(name):
+    """Every shipped MPC scenario resolves 'auto' to DAQP, and its first move is the QP optimum (OSQP at eps 1e-10)."""
     sim = RobotSim.from_config(name)
     mpc = sim.controller
     assert mpc.options.solver == "auto" and mpc.solver == "daqp"
-    res = sim.run(duration=1.0)
-    assert np.abs(res.u).max() <= 3.0
-    # re-solve the last state on tight OSQP: same first move
-    check = LinearMPC(
-        mpc.A, mpc.B, mpc.Q, mpc.R, mpc.N, solver="osqp", x0=mpc.x0, u0=mpc.u0,
-        u_min=mpc.u_min, u_max=mpc.u_max, x_min=mpc.x_min, x_max=mpc.x_max,
-        osqp_settings={"eps_abs": 1e-10, "eps_rel": 1e-10, "max_iter": 200_000},
-    )  # fmt: skip
-    x = res.x[-1]
-    mpc.reset()
-    np.testing.assert_allclose(mpc(x), check(x), rtol=1e-6, atol=1e-9)
+    res = sim.run(duration=0.6)
+    assert mpc.last.status == "solved" and mpc.last.kkt_residual < 1e-8
+    assert np.all(res.u <= mpc.u_max + 1e-12) and np.all(res.u >= mpc.u_min - 1e-12)
+    for x in (res.x[len(res.x) // 3], res.x[-1]):
+        mpc.reset()
+        u = mpc(x)
+        qp = mpc.build(x)  # the same step as a sparse QP, solved by OSQP itself
+        solver = osqp.OSQP()
+        solver.setup(qp.P, qp.q, qp.A, qp.l, qp.u, eps_abs=1e-10, eps_rel=1e-10, max_iter=400_000, verbose=False)
+        out = solver.solve(raise_error=False)
+        assert out.info.status == "solved"
+        iu = (mpc.N + 1) * mpc.n
+        u_ref = np.clip(out.x[iu : iu + mpc.m] + mpc.u0, mpc.u_min, mpc.u_max)
+        np.testing.assert_allclose(u, u_ref, rtol=1e-6, atol=1e-9 * max(1.0, float(np.abs(u_ref).max())))
