@@ -133,3 +133,220 @@ def test_eps_sweep_at_the_default_point_moves_off_the_equilibrium(capsys):
     out = capsys.readouterr().out
     best = float(out.split("best eps = ")[1].split(";")[0])
     assert "off the equilibrium" in out and 1e-8 < best < 1e-3
+
+
+# ------------------------------------------------------------ papercuts (issue 14, items 16-24)
+@pytest.mark.parametrize(
+    "args,expected",
+    [
+        (["linearize", "pendulum", "--x0", "-0.1,0"], "'theta': -0.1"),
+        (["linearize", "pendulum", "--x0", "-pi,0", "--u0", "-0.5"], "'tau': -0.5"),
+        (["linearize", "cartpole", "--x0", "-1e-3,0,-0.2,0"], "'theta': -0.2"),
+        (["crosscheck", "cartpole", "--x0", "-0.1,0,0,0"], "x0 = [-0.1, 0, 0, 0]"),
+    ],
+)
+def test_negative_vectors_work_as_written(args, expected, capsys):
+    # item 16: argparse took '-0.1,0' for an option
+    assert main(args) == 0
+    assert expected in capsys.readouterr().out
+
+
+def test_design_lqr_continuous_is_labelled_continuous(tmp_path, capsys):
+    # item 17: a continuous design printed "euler discretization ... dt = 0.01 s"
+    path = tmp_path / "c.toml"
+    path.write_text(
+        '[plant]\ntype = "CartPole"\n[controller]\ntype = "LQR"\nQ = [10, 1, 100, 1]\nR = [0.1]\ndiscrete = false\n'
+    )
+    assert main(["design", "lqr", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "continuous-time" in out and "euler" not in out and "|p|" not in out and "Re p = -" in out
+
+
+def test_crosscheck_accepts_a_scenario_and_lists_only_supported_plants(tmp_path, capsys):
+    # item 18: the scenario's plant parameters are the ones checked; unsupported plants are not offered
+    path = tmp_path / "heavy.toml"
+    path.write_text(
+        '[plant]\ntype = "CartPole"\npole_mass = 0.7\npole_length = 0.9\n'
+        '[controller]\ntype = "LQR"\nQ = [1, 1, 1, 1]\nR = [1]\n'
+    )
+    assert main(["crosscheck", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "pole_mass=0.7" in out and "pole_length=0.9" in out
+    for plant in ("holonomic", "arm6"):
+        assert main(["crosscheck", plant]) == 2
+        err = capsys.readouterr().err
+        assert "crosscheck supports" in err and len(err.strip().splitlines()) == 1
+    res = run_cli("crosscheck", "--help")
+    assert "holonomic" not in res.stdout and "arm6" not in res.stdout and "scenario file" in res.stdout
+
+
+def test_sweep_says_which_executor_ran_and_why(tmp_path, capsys):
+    # item 19: --workers 2 on a standalone scenario ran the batch path on one worker silently
+    out = tmp_path / "sw"
+    args = ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=0.05:0.5", "--samples", "4", "--workers", "2"]
+    assert main([*args, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "batch, 1 worker" in text and "--workers 2" in text and "--method pool" in text
+    assert sorted(p.name for p in out.iterdir()) == [".shinro-run.json", "sweep.csv", "sweep.json", "sweep.png"]
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["linearize", "pendulum", "--plot", "x.png"], "--plot goes with --eps-sweep"),
+        (["run", "--duration", "-1"], "--duration"),
+        (["run", "--duration", "0"], "--duration"),
+        (["run", "--engine", "both", "--video", "v.gif"], "--video renders one loop"),
+    ],
+)
+def test_arguments_are_validated_before_any_work(args, needle, tmp_path, monkeypatch, capsys):
+    # item 21: nothing printed ("running ... -1 s") or written before the error
+    monkeypatch.chdir(tmp_path)
+    assert main(args) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and needle in err and not list(tmp_path.iterdir())
+
+
+def test_broken_pipe_exits_quietly():
+    # item 22: `shinro-ctrl list | head -1` ended with "error: [Errno 32] Broken pipe"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "shinro_ctrl.cli", "list"], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    proc.stdout.read(10)
+    proc.stdout.close()  # the reader leaves, like `head`
+    err = proc.stderr.read().decode()
+    proc.wait(timeout=60)
+    assert err == "" and proc.returncode in (0, 141), (proc.returncode, err)
+
+
+def test_regress_accepts_a_single_scenario_file(tmp_path, capsys):
+    # item 23
+    import shutil
+
+    from shinro_ctrl.resources import regression_dir
+
+    for name in ("cartpole_lqr.toml", "cartpole_lqr.baseline.json", "double_pendulum_lqr.toml"):
+        shutil.copy(regression_dir() / name, tmp_path)
+    assert main(["regress", str(tmp_path / "cartpole_lqr.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "cartpole_lqr (standalone)" in out and "double_pendulum" not in out and "1 scenario runs" in out
+
+
+def test_makefile_demo_installs_runtime_only_and_test_the_dev_extra():
+    # item 24: `make -n` (dry run) shows what each target would install on a fresh clone
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    if not (root / "Makefile").exists():
+        pytest.skip("no Makefile in an installed package")
+    env = {"PATH": "/usr/bin:/bin", "HOME": "/tmp"}
+    demo = subprocess.run(["make", "-n", "-B", "demo"], cwd=root, capture_output=True, text=True, env=env).stdout
+    test = subprocess.run(["make", "-n", "-B", "test"], cwd=root, capture_output=True, text=True, env=env).stdout
+    assert "pip install --quiet -e ." in demo and "[dev]" not in demo and "shinro-ctrl run" in demo
+    assert 'pip install --quiet -e ".[dev]"' in test and "pytest" in test
+    assert "make test" in (root / ".ci" / "run").read_text()
+
+
+# -------------------------------------------------------------------- plots (items 25-28)
+def _result(name: str, duration: float | None = None):
+    from shinro_ctrl.sim import RobotSim
+
+    return RobotSim.from_config(name).run(duration)
+
+
+def test_run_plot_has_units_legend_outside_settling_band(tmp_path):
+    # item 25
+    from shinro_ctrl.plots import run_figure
+
+    fig = run_figure(_result("cartpole_lqr", 3.0))
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert labels == ["x [m]", "x_dot [m/s]", "theta [rad]", "theta_dot [rad/s]", "force [N]"]
+    assert any("settling band" in t.get_text() for leg in fig.legends for t in leg.get_texts())
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    legend_box = fig.legends[0].get_window_extent(renderer)
+    for ax in fig.axes:  # the legend covers no data axes
+        assert not legend_box.overlaps(ax.get_window_extent(renderer))
+    assert any(
+        c.__class__.__name__ == "FillBetweenPolyCollection" or "Poly" in c.__class__.__name__
+        for c in fig.axes[0].collections
+    )
+
+
+def test_quadrotor_plot_is_grouped_into_at_most_six_rows():
+    from shinro_ctrl.plots import MAX_ROWS, run_figure
+
+    fig = run_figure(_result("quadrotor_lqr", 0.5))
+    labels = [ax.get_ylabel() for ax in fig.axes if ax.get_ylabel()]
+    assert len(labels) <= MAX_ROWS
+    assert labels == [
+        "position [m]",
+        "attitude [rad]",
+        "velocity [m/s]",
+        "angular rate [rad/s]",
+        "thrust [N]",
+        "inputs [N m]",
+    ]
+
+
+def test_planar_task_gets_an_xy_panel():
+    from shinro_ctrl.plots import run_figure
+
+    fig = run_figure(_result("holonomic_mujoco", 4.0))
+    xy = [ax for ax in fig.axes if ax.get_title().endswith("path")]
+    assert len(xy) == 1 and xy[0].get_xlabel() == "x [m]" and xy[0].get_ylabel() == "y [m]"
+
+
+def test_run_engine_both_overlays_the_two_loops(tmp_path, capsys):
+    # item 26
+    out = tmp_path / "both"
+    assert main(["run", "pendulum_lqr_mujoco", "--engine", "both", "--duration", "1", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "standalone" in text and "mujoco" in text and "difference" in text
+    assert {p.name for p in out.iterdir()} == {".shinro-run.json", "standalone", "mujoco", "run.png"}
+    from shinro_ctrl.plots import run_figure
+
+    a, b = _result("pendulum_lqr", 1.0), _result("pendulum_lqr_mujoco", 1.0)
+    fig = run_figure(a, compare=b)
+    assert "vs" in fig._suptitle.get_text() and "Δ" in fig._suptitle.get_text()
+    assert len(fig.axes[0].lines) >= 3  # both loops and the reference
+
+
+def test_sweep_plot_failed_strip_data_range_and_2d_map(tmp_path):
+    # item 27
+    from shinro_ctrl.plots import sweep_figure
+    from shinro_ctrl.sweep import run_sweep
+
+    one = run_sweep("cartpole_mpc", {"plant.pole_mass": (0.05, 5.0)}, samples=12, duration=0.5, method="serial")
+    fig = sweep_figure(one)
+    main_ax, strip = fig.axes[0], fig.axes[1]
+    failed = sum(r.error is not None for r in one.rows)
+    assert len(strip.collections[0].get_offsets()) == failed
+    finite = one.metric_values(one.metric)[[r.error is None for r in one.rows]]
+    lo, hi = main_ax.get_ylim()
+    assert lo <= finite.min() and hi >= finite.max() and hi < 10 * finite.max() + 1
+    assert strip.get_xlabel() == "plant.pole_mass [kg]"
+    two = run_sweep(
+        "cartpole_lqr", {"plant.pole_mass": (0.05, 3.0), "plant.pole_length": (0.1, 2.0)}, samples=4, grid=True
+    )
+    fig = sweep_figure(two)
+    assert fig.axes[0].get_title() == "stability map"
+    assert fig.axes[0].get_xlabel() == "plant.pole_mass [kg]" and fig.axes[0].get_ylabel() == "plant.pole_length [m]"
+
+
+def test_crosscheck_heatmap_diverging_centred_labelled():
+    # item 28
+    from shinro_ctrl.crosscheck import crosscheck
+    from shinro_ctrl.plants import CartPole, Quadrotor
+    from shinro_ctrl.reports import crosscheck_figure
+
+    fig = crosscheck_figure(crosscheck(CartPole()))
+    images = [ax.images[0] for ax in fig.axes if ax.images]
+    assert len(images) == 3
+    for im in images:
+        assert im.get_cmap().name.startswith("RdBu") and im.norm.vmin == -im.norm.vmax
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["x", "x_dot", "theta", "theta_dot", "force"]
+    assert len(ax.texts) > 0  # 5 columns: numbers readable
+    big = crosscheck_figure(crosscheck(Quadrotor()))
+    assert all(len(a.texts) == 0 for a in big.axes if a.images)  # 16 columns: no unreadable numbers
