@@ -101,3 +101,67 @@ def test_set_state_outside_declared_limits_is_refused():
         CartPole(track_limits=(-1, 1)).set_state([5.0, 0, 0, 0])
     with pytest.raises(InvalidArgument, match="theta_dot"):
         InvertedPendulum(state_bounds=([-1, -1], [1, 1])).set_state([0.0, 3.0])
+
+
+# ----------------------------------------------------------- strict value types (issue 14, items 7 and 13)
+@pytest.mark.parametrize(
+    "annotation,value,ok",
+    [
+        ("bool", True, True),
+        ("bool", "false", False),
+        ("bool", 0, False),
+        ("float", 1, True),
+        ("float", True, False),
+        ("float", "1.0", False),
+        ("int", 3, True),
+        ("int", 3.0, False),
+        ("str", "euler", True),
+        ("str", 1, False),
+        ("float | None", 0.5, True),
+        ("Any", [[1, 0], [0, 1]], True),
+        ("Any", [[1, 0], [0]], False),
+        ("Any", ["10"], False),
+        ("Any", {"min": [-1, -2], "max": [1, 2]}, True),
+        ("Sequence[str] | None", ["a", "b"], True),
+        ("Sequence[str] | None", ["a", 1], False),
+        ("list[float] | None", [1, 2.5], True),
+        ("list[float] | None", [1, "2"], False),
+        ("str | Any", "dare", True),
+        ("str | Any", [[1.0]], True),
+        ("Mapping[str, Any] | None", {"eps_abs": 1e-4}, True),
+        ("Mapping[str, Any] | None", 3, False),
+    ],
+)
+def test_check_value_is_strict(annotation, value, ok):
+    from shinro_ctrl.config import check_value
+
+    problem = check_value(value, annotation, "k")
+    assert (problem is None) == ok, problem
+    if not ok:
+        assert "'k'" in problem
+
+
+def test_a_new_table_gets_strict_types_from_its_dataclass():
+    # how the [plan] / [estimator] tables (and any later one) are checked: their dataclass's annotations
+    from dataclasses import dataclass
+
+    from shinro_ctrl.config import _Ctx, table_annotations
+
+    @dataclass
+    class NewTable:
+        enabled: bool = True
+        horizon: int = 10
+        weights: list[float] | None = None
+
+    ctx = _Ctx("<test>")
+    ctx.check_types("new", {"enabled": False, "horizon": 3, "weights": [1, 2]}, table_annotations(NewTable))
+    for bad, needle in (({"enabled": "no"}, "'enabled' must be a boolean"), ({"horizon": 2.5}, "'horizon'")):
+        with pytest.raises(ConfigError, match=needle):
+            ctx.check_types("new", bad, table_annotations(NewTable))
+
+
+@pytest.mark.parametrize("key,value", [("substeps", 1001), ("substeps", 10**8)])
+def test_sizes_are_bounded_and_the_limit_is_named(key, value):
+    doc = {**BASE, "engine": {"type": "mujoco", key: value}}
+    with pytest.raises(ConfigError, match="limit of 1,000"):
+        parse_scenario(doc)

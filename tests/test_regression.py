@@ -137,3 +137,59 @@ def test_a_scenario_that_fails_to_run_is_a_failed_row_not_an_abort(tmp_path):
     assert {c.scenario for c in report.checks} == {"a_good (standalone)"}
     res = run_cli("regress", str(tmp_path))
     assert res.returncode == 1 and "b_infeasible" in res.stderr and "FAILED to run" in res.stdout
+
+
+# ------------------------------------------------------------ file safety (issue 14, items 1, 3-6, 23)
+KILL_AFTER_COMMIT = """
+import os, sys
+from pathlib import Path
+from shinro_ctrl import files
+real_replace = os.replace
+def die_after_commit(src, dst):
+    real_replace(src, dst)
+    if ".shinro-journal." in str(dst):
+        os._exit(9)  # like SIGKILL: the set is committed, no target renamed, no clean-up runs
+files.os.replace = die_after_commit
+d = Path(sys.argv[1])
+files.atomic_write_set({d / "a.baseline.json": "new a", d / "b.baseline.json": "new b"}, d)
+"""
+
+
+def test_update_killed_after_its_commit_point_is_completed_by_the_next_run(tmp_path):
+    from shinro_ctrl import files
+
+    for name in ("a", "b"):
+        (tmp_path / f"{name}.baseline.json").write_text(f"old {name}")
+    res = subprocess.run([sys.executable, "-c", KILL_AFTER_COMMIT, str(tmp_path)], capture_output=True, text=True)
+    assert res.returncode == 9, res.stderr
+    assert [(tmp_path / f"{n}.baseline.json").read_text() for n in "ab"] == ["old a", "old b"]  # nothing renamed
+    assert files.recover_journals(tmp_path) == 1  # what the next regress does first: the set is completed
+    assert [(tmp_path / f"{n}.baseline.json").read_text() for n in "ab"] == ["new a", "new b"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_failed_write_leaves_every_baseline_and_no_temporary(tmp_path):
+    from shinro_ctrl import files
+
+    a, b = tmp_path / "a.json", tmp_path / "sub" / "b.json"
+    a.write_text("old a")
+    (tmp_path / "sub").write_text("a file where the folder should be")
+    with pytest.raises(OSError) as info:
+        files.atomic_write_set({a: "new a", b: "new b"}, tmp_path)
+    assert str(b) in str(info.value)
+    assert a.read_text() == "old a" and sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "sub"]
+
+
+def test_regress_update_of_the_shipped_folder_named_explicitly_is_allowed_but_not_implicit():
+    from shinro_ctrl.errors import InvalidArgument
+
+    with pytest.raises(InvalidArgument, match="shipped baselines"):
+        run_regression(update=True)
+
+
+def test_report_hints_name_the_folder(tmp_path):
+    from shinro_ctrl.regression import format_report
+
+    shutil.copy(regression_dir() / "cartpole_lqr.toml", tmp_path)
+    report = run_regression(tmp_path)
+    assert report.missing and f"shinro-ctrl regress {tmp_path} --update" in format_report(report)
