@@ -246,6 +246,24 @@ TYPE_CASES = {
     "regression_tol_string": ({"regression": {"rms_error": {"rel": "0.1"}}}, "rms_error.rel"),
     "method_boolean": ({"controller": {"method": True}}, "'method' must be a string"),
 }
+OSQP_TYPE_CASES = {
+    "eps_abs_string": ({"eps_abs": "x"}, "'eps_abs' must be a number"),
+    "max_iter_list": ({"max_iter": [1]}, "'max_iter' must be an integer"),
+    "max_iter_float": ({"max_iter": 10.5}, "'max_iter' must be an integer"),
+    "polishing_string": ({"polishing": "yes"}, "'polishing' must be a boolean"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(OSQP_TYPE_CASES))
+def test_osqp_settings_types_name_the_setting(case):
+    from shinro_ctrl.sim import RobotSim
+
+    settings, needle = OSQP_TYPE_CASES[case]
+    doc = _doc(
+        {"controller": {"type": "LinearMPC", "horizon": 5, "u_min": [-1], "u_max": [1], "osqp_settings": settings}}
+    )
+    with pytest.raises(ShinroError, match=needle):
+        RobotSim(parse_scenario(doc))
 
 
 def _doc(changes: dict) -> dict:
@@ -392,6 +410,10 @@ OVERFLOW_ARGS = {
     "dask_unreachable": (
         ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=0:1", "--scheduler", "tcp://127.0.0.1:9", "--out", "o"],
         "cannot reach the Dask scheduler",
+    ),
+    "sweep_range_huge": (
+        ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=-1e308:1e308", "--out", "o"],
+        "values are limited to",
     ),
     "dask_malformed": (
         ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=0.1:0.2", "--scheduler", "tcp://:x", "--out", "o"],

@@ -162,8 +162,31 @@ def merge_settings(
             close = closest(bad[0], valid)
             near = f" (did you mean '{close}'?)" if close else ""
             raise InvalidArgument(f"{name}: unknown OSQP setting '{bad[0]}'{near}; valid settings: {', '.join(valid)}")
+        for key, value in overrides.items():
+            _check_setting_type(name, key, value)
         settings.update(overrides)
     return settings
+
+
+_FLAGS = {"verbose", "warm_starting", "polishing", "rho_is_vec", "scaled_termination", "check_dualgap", "adaptive_rho"}
+
+
+def _check_setting_type(name: str, key: str, value: Any) -> None:
+    """The setting's value has the type of OSQP's own default (named in the message, before OSQP sees it)."""
+    default = getattr(osqp.OSQP().ext.OSQPSettings(), key, None)
+    if key in ("solver_type", "cg_preconditioner") or default is None:
+        return
+    is_bool = isinstance(value, bool)
+    if isinstance(default, float):
+        ok, want = isinstance(value, int | float) and not is_bool, "a number"
+    elif isinstance(default, int) and key in _FLAGS:
+        ok, want = isinstance(value, int), "a boolean or an integer"
+    elif isinstance(default, int):
+        ok, want = isinstance(value, int) and not is_bool, "an integer"
+    else:
+        ok, want = isinstance(value, int | str) and not is_bool, "an integer or a name"
+    if not ok:
+        raise InvalidArgument(f"{name}: '{key}' must be {want}, got {type(value).__name__} {value!r}")
 
 
 class OsqpQP:

@@ -58,6 +58,9 @@ def parse_param(text: str) -> tuple[str, tuple[float, float]]:
     return key, check_range(key, (lo, hi))
 
 
+SWEEP_LIMIT = 1e12  # |value| of a swept parameter: a mass or length of 1e12 already overflows the dynamics' squares
+
+
 def parse_params(texts: Iterable[str]) -> dict[str, tuple[float, float]]:
     """Parse several ``KEY=LO:HI`` ranges into a dict (a key given twice is an error)."""
     out: dict[str, tuple[float, float]] = {}
@@ -78,6 +81,11 @@ def check_range(key: str, rng: Any) -> tuple[float, float]:
         raise ConfigError(f"sweep range of {key!r} must be finite, got {lo:g}:{hi:g}")
     if lo > hi:
         raise ConfigError(f"sweep range of {key!r}: LO must be <= HI, got {lo:g}:{hi:g}")
+    if not math.isfinite(hi - lo) or max(abs(lo), abs(hi)) > SWEEP_LIMIT:
+        raise ConfigError(
+            f"sweep range of {key!r} is {lo:g}:{hi:g}; values are limited to |v| <= {SWEEP_LIMIT:g} "
+            "(the perturbed plant's arithmetic overflows beyond)"
+        )
     return lo, hi
 
 
