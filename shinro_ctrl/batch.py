@@ -26,8 +26,10 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.plants import Plant
 from shinro_ctrl.sim import bound_excess
+from shinro_ctrl.validation import as_vector, real_array
 
 __all__ = ["BatchRollout", "batch_clip", "batch_unsupported_reason", "lqr_batch_rollout"]
 
@@ -138,16 +140,19 @@ def lqr_batch_rollout(
     """
     reason = batch_unsupported_reason(plant, controller)
     if reason is not None:
-        raise ValueError(f"batch rollout not supported: {reason}")
+        raise InvalidArgument(f"batch rollout not supported: {reason}")
     clip = batch_clip(plant)
     n, m, dt = plant.state_dim, plant.input_dim, plant.dt
     sizes = {np.shape(v) for v in params.values()}
     if len(sizes) != 1 or len(next(iter(sizes))) != 1:
-        raise ValueError(f"params must all be (N,) arrays of one length, got shapes {sorted(sizes)}")
+        raise InvalidArgument(f"params must all be (N,) arrays of one length, got shapes {sorted(sizes)}")
     N = next(iter(sizes))[0]
-    P = {k: np.asarray(v, dtype=float) for k, v in params.items()}
-    X = np.array(np.broadcast_to(np.asarray(x0, dtype=float), (N, n)))
-    r = np.asarray(ref, dtype=float).reshape(n)
+    P = {k: real_array(f"params[{k!r}]", v) for k, v in params.items()}
+    x0_ = real_array("x0", x0)
+    if x0_.shape not in ((n,), (N, n)):
+        raise InvalidArgument(f"x0: expected shape ({n},) or ({N}, {n}) for {N} instances but found {x0_.shape}")
+    X = np.array(np.broadcast_to(x0_, (N, n)))
+    r = as_vector("ref", ref, n)
     K, u0, u_min, u_max, saturate, x_min, x_max = _law(controller, n, m)
     x_bounds = x_min is not None or x_max is not None
     qi = np.asarray(plant.position_indices, dtype=int)

@@ -762,6 +762,7 @@ def test_ctrl_c_ends_the_command_with_exit_130(case, tmp_path):
 def _api_cases():
     import numpy as np
 
+    from shinro_ctrl.batch import lqr_batch_rollout
     from shinro_ctrl.controllers import IKQP, LQR, LinearMPC
     from shinro_ctrl.engine import MujocoEngine
     from shinro_ctrl.plants import CartPole, InvertedPendulum
@@ -841,6 +842,19 @@ def _api_cases():
         "for_plant_name": (lambda: MujocoEngine.for_plant("cartpole"), "InvalidArgument", "plant instance"),
         "from_config_none": (lambda: RobotSim.from_config(None), "InvalidArgument", "NoneType"),
         "ikqp_non_arm": (lambda: IKQP(CartPole()), "InvalidArgument", "arm plant"),
+        "batch_rollout_shapes": (
+            lambda: lqr_batch_rollout(
+                CartPole(),
+                LQR.from_plant(CartPole(), [1, 1, 1, 1], [1]),
+                params={"pole_mass": np.full(5, 0.1)},
+                x0=np.zeros((3, 4)),
+                ref=np.zeros(4),
+                steps=3,
+                tracked=[0],
+            ),
+            "InvalidArgument",
+            "for 5 instances",
+        ),
     }
 
 
