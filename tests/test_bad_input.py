@@ -315,7 +315,7 @@ TABLE_KEYS = {
 MPC_KEYS = ["horizon", "x_min", "x_max", "du_max", "soft", "soft_weight_l1", "terminal_cost", "osqp_settings"]
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     table=st.sampled_from(sorted(TABLE_KEYS)),
     data=st.data(),
@@ -344,7 +344,36 @@ def test_property_any_toml_value_anywhere_is_accepted_or_a_config_error(table, d
         pass
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+ESTIMATOR_KEYS = ["type", "Qn", "Rn", "Qn_on", "steady_state", "discretization", "initial_estimate", "P0"]
+PLAN_KEYS = ["start", "goal", "knots", "method", "duration", "cost", "bounds", "substeps", "file"]
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(key=st.sampled_from(ESTIMATOR_KEYS), value=TOML_VALUES)
+def test_property_estimator_table_of_any_type(key, value):
+    from shinro_ctrl.sim import RobotSim
+
+    doc = _doc({"sim": {"measured": ["x", "theta"]}})
+    doc["estimator"] = {"type": "KalmanFilter", key: value}
+    try:
+        RobotSim(parse_scenario(doc))
+    except ShinroError:
+        pass
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(key=st.sampled_from(PLAN_KEYS), value=TOML_VALUES)
+def test_property_plan_table_of_any_type(key, value):
+    # parsed only: a plan that parses is solved by trajectory optimization, too slow for a property test
+    doc = _doc({"controller": {"type": "TVLQR", "Q": [10, 1, 100, 1], "R": [0.1]}})
+    doc["plan"] = {"start": [0, 0, 0.2, 0], "goal": [0, 0, 0, 0], key: value}
+    try:
+        parse_scenario(doc)
+    except ConfigError:
+        pass
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(key=st.sampled_from(MPC_KEYS), value=TOML_VALUES)
 def test_property_mpc_options_of_any_type(key, value):
     from shinro_ctrl.sim import RobotSim
