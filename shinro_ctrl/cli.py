@@ -269,7 +269,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         from shinro_ctrl.files import atomic_folder
 
         out = Path(args.out)
-        with atomic_folder(out, RUN_FILES) as staging:  # one complete run or the previous one, even if killed
+        written = RUN_FILES if not args.plot else RUN_FILES[:-1]  # with --plot the plot goes there instead
+        with atomic_folder(out, written) as staging:  # one complete run or the previous one, even if killed
             result.save(staging)
             if not args.plot:
                 result.plot(staging / "run.png")
@@ -309,7 +310,7 @@ def _run_both(args: argparse.Namespace, config: Any) -> int:
         from shinro_ctrl.files import atomic_folder
 
         out = Path(args.out)
-        with atomic_folder(out, RUN_FILES_BOTH) as staging:
+        with atomic_folder(out, RUN_FILES_BOTH if not args.plot else RUN_FILES_BOTH[:-1]) as staging:
             ra.save(staging / "standalone")
             rb.save(staging / "mujoco")
             if not args.plot:
