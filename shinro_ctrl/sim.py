@@ -21,11 +21,12 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
-from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
+from shinro_ctrl.errors import ConfigError, InvalidArgument, NonFiniteError, ShinroError
 from shinro_ctrl.files import atomic_write, dump_json, dump_toml
 from shinro_ctrl.output_feedback import estimation_metrics, loop_signals, uses_estimation
 from shinro_ctrl.progress import Progress
 
+NEVER_METRICS = ("settling_time", "rise_time")  # inf means the event never happened, not an overflow
 MAX_STEPS = 10_000_000  # trajectories are kept in memory: 10 M steps of a 12-state plant is about 2 GB
 
 __all__ = ["Reference", "RobotSim", "SimResult", "bound_excess", "compute_metrics", "format_metrics"]
@@ -172,7 +173,20 @@ def compute_metrics(
         initial-condition response ``overshoot`` and ``rise_time`` (see
         :func:`response_metrics`).
     """
-    e = np.linalg.norm(x[:, tracked] - ref[:, tracked], axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = x[:, tracked] - ref[:, tracked]
+        scale = float(np.abs(d).max(initial=0.0))
+        if scale > 1e150 and math.isfinite(scale):  # squares would overflow: norms of the scaled errors
+            e = scale * np.linalg.norm(d / scale, axis=1)
+            rms = scale * float(np.sqrt(np.mean((e / scale) ** 2)))
+        else:
+            e = np.linalg.norm(d, axis=1)
+            rms = float(np.sqrt(np.mean(e**2)))
+    if not (math.isfinite(rms) and np.all(np.isfinite(e))):
+        raise NonFiniteError(
+            f"the tracking-error metrics overflow float64 (errors up to {scale:.3g}): the run left the range "
+            "where its metrics can be computed"
+        )
     outside = np.nonzero(e > settle_tol)[0]
     if outside.size == 0:
         settling = 0.0
@@ -187,7 +201,7 @@ def compute_metrics(
     if plant_violation is not None:
         viol = np.maximum(viol, plant_violation)
     return {
-        "rms_error": float(np.sqrt(np.mean(e**2))),
+        "rms_error": rms,
         "max_error": float(e.max()),
         "final_error": float(e[-1]),
         "settling_time": settling,
@@ -230,7 +244,7 @@ def format_metrics(metrics: dict[str, float]) -> str:
     rows = []
     for k, v in metrics.items():
         if isinstance(v, float) and math.isinf(v):
-            val = "never"
+            val = "never" if k in NEVER_METRICS else ("inf" if v > 0 else "-inf")
         elif isinstance(v, int):
             val = str(v)
         else:

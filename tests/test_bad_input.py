@@ -795,7 +795,7 @@ def _api_cases():
     from shinro_ctrl.controllers import IKQP, LQR, LinearMPC
     from shinro_ctrl.engine import MujocoEngine
     from shinro_ctrl.plants import CartPole, InvertedPendulum
-    from shinro_ctrl.sim import RobotSim
+    from shinro_ctrl.sim import RobotSim, compute_metrics
 
     huge = np.array([1e300, 1e300, 1e300, 1e300])
     return {
@@ -871,6 +871,17 @@ def _api_cases():
         "for_plant_name": (lambda: MujocoEngine.for_plant("cartpole"), "InvalidArgument", "plant instance"),
         "from_config_none": (lambda: RobotSim.from_config(None), "InvalidArgument", "NoneType"),
         "ikqp_non_arm": (lambda: IKQP(CartPole()), "InvalidArgument", "arm plant"),
+        "metrics_overflow": (
+            lambda: compute_metrics(
+                np.arange(3) * 0.1,
+                np.array([[1e308], [-1e308], [1e308]]),
+                np.zeros((2, 1)),
+                np.array([[-1e308], [1e308], [-1e308]]),
+                tracked=[0],
+            ),
+            "NonFiniteError",
+            "metrics overflow",
+        ),
         "batch_rollout_shapes": (
             lambda: lqr_batch_rollout(
                 CartPole(),
@@ -897,3 +908,17 @@ def test_api_raises_the_projects_error(case):
         with pytest.raises(ShinroError) as info:
             fn()
     assert type(info.value).__name__ == kind and needle in str(info.value), (type(info.value), str(info.value))
+
+
+def test_huge_but_finite_errors_give_finite_metrics_and_never_means_never(capsys):
+    # item 9: squares of 1e200 overflow; the metrics are computed on scaled errors (closed form: rms = 1e200)
+    import numpy as np
+
+    from shinro_ctrl.sim import compute_metrics, format_metrics
+
+    t = np.arange(4) * 0.1
+    x = np.tile([3e200, 4e200], (4, 1))
+    m = compute_metrics(t, x, np.zeros((3, 1)), np.zeros((4, 2)), tracked=[0, 1])
+    assert m["rms_error"] == pytest.approx(5e200) and m["max_error"] == pytest.approx(5e200)
+    text = format_metrics({"rms_error": float("inf"), "settling_time": float("inf")})
+    assert "never" in text.splitlines()[1] and "never" not in text.splitlines()[0]
