@@ -350,3 +350,39 @@ def test_crosscheck_heatmap_diverging_centred_labelled():
     assert len(ax.texts) > 0  # 5 columns: numbers readable
     big = crosscheck_figure(crosscheck(Quadrotor()))
     assert all(len(a.texts) == 0 for a in big.axes if a.images)  # 16 columns: no unreadable numbers
+
+
+def test_video_reports_playback_rate_and_render_time_separately(tmp_path):
+    # item 20: "ms/frame" mixed render time with playback; the GIF's own frame duration is the playback rate
+    import os
+    import re
+
+    from PIL import Image
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL")}
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "shinro_ctrl.cli",
+            "run",
+            "pendulum_lqr_mujoco",
+            "--duration",
+            "0.6",
+            "--video",
+            "v.gif",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+        env=env,
+    )
+    assert res.returncode == 0, res.stderr
+    m = re.search(r"\((\d+) frames at ([\d.]+) frames/s, ([\d.]+) s of playback; rendered in ([\d.]+) s\)", res.stdout)
+    assert m and "ms/frame" not in res.stdout, res.stdout
+    frames, fps, playback = int(m.group(1)), float(m.group(2)), float(m.group(3))
+    with Image.open(tmp_path / "v.gif") as im:
+        assert im.n_frames == frames
+        assert fps == pytest.approx(1000.0 / im.info["duration"], rel=0.01)
+    assert playback == pytest.approx(frames / fps, abs=0.01)
