@@ -719,7 +719,7 @@ def _one_line(exc: BaseException) -> str:
     msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
     if isinstance(exc, KeyError) and msg.startswith(("'", '"')):
         msg = msg[1:-1]
-    if isinstance(exc, _NUMERIC_ERRORS):
+    if isinstance(exc, _NUMERIC_ERRORS) and not isinstance(exc, ShinroError):  # ours already say what overflowed
         what = {
             RecursionError: "input nested too deeply",
             MemoryError: "out of memory (reduce the problem size)",

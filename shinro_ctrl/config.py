@@ -245,7 +245,7 @@ SIZE_LIMITS: dict[str, int] = {
     "num_dof": 64,
     "num_wheels": 64,
     "control_iters": 1_000,
-    "horizon": 100_000,
+    "horizon": 10_000,
 }
 _TOML_TYPE = {bool: "boolean", int: "integer", float: "float", str: "string", list: "array", dict: "table"}
 
@@ -506,7 +506,8 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     except ConfigError as exc:
         raise ctx.error("controller", str(exc)) from None
     ctx.check_keys("controller", ct, ("type", *controller_keys(ccls)))
-    ctx.check_types("controller", ct, signature_annotations(ccls.from_plant, 1))
+    annotations = getattr(ccls, "option_annotations", None)  # a controller forwarding **options names their types
+    ctx.check_types("controller", ct, annotations() if annotations else signature_annotations(ccls.from_plant, 1))
     _bryson_weights(ctx, ct, n, probe.input_dim)
     for key in ("x0", "u0"):
         if key in ct:

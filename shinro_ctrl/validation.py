@@ -196,7 +196,12 @@ def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False, rtol
     if asym > rtol * scale:
         raise InvalidArgument(f"{name} must be symmetric; max |{name} - {name}ᵀ| = {asym:.3g} (scale {scale:.3g})")
     W = 0.5 * (arr + arr.T)
-    lam_min = float(np.linalg.eigvalsh(W).min()) if W.size else 0.0
+    try:
+        lam_min = float(np.linalg.eigvalsh(W).min()) if W.size else 0.0
+    except np.linalg.LinAlgError:
+        raise InvalidArgument(
+            f"{name}: its eigenvalues cannot be computed (entries up to {scale:.3g}); scale the weights down"
+        ) from None
     if definite and (not W.size or lam_min <= rtol * scale):
         raise InvalidArgument(f"{name} must be positive definite; smallest eigenvalue {lam_min:.3g}")
     if lam_min < -rtol * scale:

@@ -245,6 +245,19 @@ TYPE_CASES = {
     "plant_type_number": ({"plant": {"type": 5}}, "'type' must be a string"),
     "regression_tol_string": ({"regression": {"rms_error": {"rel": "0.1"}}}, "rms_error.rel"),
     "method_boolean": ({"controller": {"method": True}}, "'method' must be a string"),
+    # options a controller forwards (**options, e.g. LinearMPC's MPCOptions) are typed too
+    "mpc_u_min_boolean": (
+        {"controller": {"type": "LinearMPC", "horizon": 5, "u_min": [True], "u_max": [1]}},
+        "'u_min' must be a number or an array of numbers",
+    ),
+    "mpc_soft_string": (
+        {"controller": {"type": "LinearMPC", "horizon": 5, "u_min": [-1], "u_max": [1], "soft": "yes"}},
+        "'soft' must be a boolean",
+    ),
+    "mpc_solver_number": (
+        {"controller": {"type": "LinearMPC", "horizon": 5, "u_min": [-1], "u_max": [1], "solver": 1}},
+        "'solver' must be a string",
+    ),
 }
 OSQP_TYPE_CASES = {
     "eps_abs_string": ({"eps_abs": "x"}, "'eps_abs' must be a number"),
@@ -400,6 +413,17 @@ OVERFLOW_CASES = {
     "seed_negative": (GOOD + "[sim]\nseed = -1\n", ["run"], "'seed' must be a non-negative integer"),
     "deep_nesting": (GOOD.replace("R = [0.1]", "R = " + "[" * 3000 + "]" * 3000), ["run"], "nested too deeply"),
     "deep_nesting_small": (GOOD.replace("R = [0.1]", "R = [[[[[[0.1]]]]]]"), ["run"], "nested more than"),
+    "Q_huge": (
+        GOOD.replace("[10, 1, 100, 1]", "[1e308, 1e308, 1e308, 1e308]"),
+        ["design", "lqr"],
+        "Q: its eigenvalues cannot be computed",
+    ),
+    "horizon_over_limit": (
+        GOOD.replace('type = "LQR"', 'type = "LinearMPC"\nhorizon = 99999\nu_min = [-1]\nu_max = [1]'),
+        ["run"],
+        "exceeds the limit of 10,000",
+    ),
+    "gravity_huge": (GOOD.replace('"CartPole"', '"CartPole"\ngravity = 1e308'), ["design", "lqr"], "overflows"),
     "Q_not_detectable": (GOOD.replace("[10, 1, 100, 1]", "[0, 0, 0, 0]"), ["design", "lqr"], "not detectable"),
     "Q_zero_on_cart": (GOOD.replace("[10, 1, 100, 1]", "[0, 1, 100, 1]"), ["run"], "mostly state 'x'"),
 }

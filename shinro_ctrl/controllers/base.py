@@ -98,6 +98,18 @@ class Controller(abc.ABC):
         params = list(inspect.signature(cls.from_plant).parameters.values())[1:]
         return tuple(p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
 
+    @classmethod
+    def option_annotations(cls) -> dict[str, Any]:
+        """Key → type annotation of the keys :meth:`option_keys` lists (the scenario layer checks types by them)."""
+        import inspect
+
+        params = list(inspect.signature(cls.from_plant).parameters.values())[1:]
+        return {
+            p.name: p.annotation
+            for p in params
+            if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD) and p.annotation is not p.empty
+        }
+
     @abc.abstractmethod
     def __call__(self, x: Any, ref: Any = None) -> np.ndarray:
         """Return the input ``u (m,)`` for the state ``x (n,)``."""

@@ -399,6 +399,11 @@ class LinearMPC(Controller):
         fields = [f.name for f in dataclasses.fields(MPCOptions)]
         return own + tuple(k for k in fields if k not in (*own, *PLANT_GIVEN))
 
+    @classmethod
+    def option_annotations(cls) -> dict[str, Any]:
+        """``from_plant``'s annotations and those of the :class:`MPCOptions` fields it forwards."""
+        return {**{f.name: f.type for f in dataclasses.fields(MPCOptions)}, **super().option_annotations()}
+
     # ================================================================ set-up
     def _qp_size(self) -> tuple[int, int]:
         """``(decision variables, nonzeros of P and A_con)`` of the QP (see :func:`~.qp.sparse.qp_size`)."""
