@@ -104,7 +104,7 @@ def _check_count(option: str, value: int, limit: int) -> None:
 def _check_output(path: str, inputs: Sequence[str | None] = ()) -> None:
     from shinro_ctrl.files import check_output_file
 
-    check_output_file(path, inputs=[i for i in inputs if i], what="--plot")
+    check_output_file(path, inputs=[i for i in inputs if i], what="--plot", kind=".png")
 
 
 def _check_scheduler(address: str, timeout: float = 5.0) -> None:
@@ -236,7 +236,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.out:
         check_output_folder(args.out, RUN_FILES_BOTH if both else RUN_FILES, inputs=inputs)
     if args.plot:
-        check_output_file(args.plot, inputs=inputs, what="--plot")
+        check_output_file(args.plot, inputs=inputs, what="--plot", kind=".png")  # a PNG whatever its name
     if args.video:
         check_output_file(args.video, inputs=inputs, what="--video")
     if args.video:  # before mujoco is imported: it reads MUJOCO_GL once

@@ -55,7 +55,7 @@ __all__ = [
 
 RUN_MANIFEST = ".shinro-run.json"  # written last into a run folder: the names (and sizes) of its files
 TEMP_SUFFIX = ".tmp"
-_MAGIC = {".png": b"\x89PNG\r\n\x1a\n", ".gif": b"GIF8", ".npz": b"PK\x03\x04"}
+_MAGIC = {".png": b"\x89PNG\r\n\x1a\n", ".gif": b"GIF8", ".npz": b"PK\x03\x04", ".mp4": b"ftyp"}
 
 
 # ---------------------------------------------------------------- locks
@@ -200,6 +200,10 @@ def atomic_write_set(files: Mapping[str | Path, str], journal_dir: str | Path) -
         The paths written, as given.
     """
     journal_dir = Path(journal_dir)
+    for path in files:  # everything that can be checked is checked before the first byte is written
+        target = _target(Path(path))
+        if target.is_dir():
+            raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", str(path))
     temps: list[tuple[int, str, Path]] = []
     jfd = -1
     try:
@@ -371,13 +375,15 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def check_output_file(path: str | Path, *, inputs: Iterable[str | Path] = (), what: str = "output") -> Path:
+def check_output_file(
+    path: str | Path, *, inputs: Iterable[str | Path] = (), what: str = "output", kind: str | None = None
+) -> Path:
     """Refuse, before any work, an output path that would destroy something the user owns.
 
     Refused: one of the command's ``inputs`` (also through a link), a folder,
     and an existing regular file that is not an earlier output of the same
-    kind (by its first bytes for ``.png``/``.gif``/``.npz``), such as a
-    scenario given as ``--plot``.
+    kind (by its first bytes: ``kind`` such as ``".png"``, else the suffix's
+    kind), such as a scenario or a photo given as ``--plot``.
 
     Raises:
         InvalidArgument: naming the path and the reason.
@@ -388,13 +394,14 @@ def check_output_file(path: str | Path, *, inputs: Iterable[str | Path] = (), wh
             raise InvalidArgument(f"{what} '{p}' is the input file '{inp}': an output never overwrites an input")
     if p.is_dir():
         raise InvalidArgument(f"{what} '{p}' is a folder; give a file name")
-    magic = _MAGIC.get(p.suffix.lower())
+    kind = (kind or p.suffix).lower()
+    magic = _MAGIC.get(kind)
     if p.is_file() and magic is not None and p.stat().st_size > 0:
         with open(p, "rb") as f:
-            head = f.read(len(magic))
-        if head != magic:
+            head = f.read(12)
+        if not (head.startswith(magic) or (kind == ".mp4" and head[4:8] == magic)):
             raise InvalidArgument(
-                f"{what} '{p}' exists and is not a {p.suffix.lower()[1:].upper()} file; "
+                f"{what} '{p}' exists and is not a {kind[1:].upper()} file; "
                 "refusing to overwrite it (remove it or choose another name)"
             )
     if p.exists() and not p.is_file() and not p.is_symlink():

@@ -946,3 +946,29 @@ def test_huge_but_finite_errors_give_finite_metrics_and_never_means_never(capsys
     assert m["rms_error"] == pytest.approx(5e200) and m["max_error"] == pytest.approx(5e200)
     text = format_metrics({"rms_error": float("inf"), "settling_time": float("inf")})
     assert "never" in text.splitlines()[1] and "never" not in text.splitlines()[0]
+
+
+@pytest.mark.parametrize(
+    "name,content", [("notes.txt", "my notes"), ("photo.jpg", "\xff\xd8\xff jpeg"), ("x.png", "text")]
+)
+def test_plot_never_overwrites_a_file_that_is_not_a_png(name, content, tmp_path, capsys, monkeypatch):
+    # item 2 with other inputs: whatever the name, only an earlier PNG is replaced
+    monkeypatch.chdir(tmp_path)
+    target = tmp_path / name
+    target.write_text(content)
+    for args in (["run", "--plot", name, "--duration", "0.1"], ["crosscheck", "pendulum", "--plot", name]):
+        assert main(args) == 2
+        out, err = capsys.readouterr()
+        assert "not a PNG file" in err and "running" not in out
+    assert target.read_text() == content
+
+
+def test_update_refuses_a_baseline_that_is_a_folder_before_writing_any(tmp_path, capsys):
+    _copy_regression(tmp_path)
+    before = {p.name: p.read_text() for p in tmp_path.glob("*.baseline.json")}
+    (tmp_path / "double_pendulum_lqr.baseline.json").unlink()
+    (tmp_path / "double_pendulum_lqr.baseline.json").mkdir()
+    assert main(["regress", str(tmp_path), "--update"]) == 2
+    assert "directory" in capsys.readouterr().err
+    assert (tmp_path / "cartpole_lqr.baseline.json").read_text() == before["cartpole_lqr.baseline.json"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no journal, no temporaries
