@@ -274,7 +274,10 @@ def recover_journals(directory: str | Path) -> int:
                 continue
             for tmp, target in moves:
                 if Path(tmp).exists():
-                    os.replace(tmp, target)
+                    try:
+                        os.replace(tmp, target)
+                    except OSError:  # a target that became a folder: its temporary is cleaned up as stale
+                        continue
             journal.unlink(missing_ok=True)
             done += 1
         finally:
