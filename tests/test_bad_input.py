@@ -837,6 +837,11 @@ def _api_cases():
             "NonFiniteError",
             "eps = 1e+300",
         ),
+        "fd_eps_below_resolution": (
+            lambda: CartPole().linearize([1e12, 0, 0, 0], [0], method="fd"),
+            "InvalidArgument",
+            "below float64's resolution",
+        ),
         "zoh_huge_dt": (lambda: CartPole(dt=1e6).get_model(discretization="zoh"), "NonFiniteError", "dt = 1e+06"),
         "rk4_huge_dt": (lambda: CartPole(dt=1e80).get_model(discretization="rk4"), "NonFiniteError", "rk4"),
         "dynamics_overflow": (

@@ -312,6 +312,14 @@ class Plant:
             A, B = self._exact(x0, u0)
         elif method == "fd":
             eps = check_positive("eps", eps)
+            z = np.concatenate([x0, u0])
+            if np.any(z + eps == z) or np.any(z - eps == z):
+                k = int(np.argmax(np.abs(z)))
+                raise InvalidArgument(
+                    f"{type(self).__name__}.linearize (fd): eps = {eps:g} is below float64's resolution at "
+                    f"|{(*self.state_names, *self.input_names)[k]}| = {abs(z[k]):g} (spacing "
+                    f"{np.spacing(abs(z[k])):g}); the finite differences would be zero: use a larger eps"
+                )
             with np.errstate(all="ignore"):
                 A, B = fd_jacobians(lambda X, U: self.equations(_NUMPY, X, U, self._params), x0, u0, eps)
         else:
