@@ -1,9 +1,10 @@
 """Scenario files: strict TOML parsing into dataclasses.
 
 A scenario has the tables ``[plant]`` (required), ``[engine]`` (optional;
-absent means standalone), ``[controller]`` (required), ``[sim]`` (optional)
-and ``[regression]`` (only for regression scenarios). See DESIGN.md and the
-README for every key.
+absent means standalone), ``[controller]`` (required), ``[plan]`` (only with
+a controller that tracks a plan, TVLQR), ``[sim]`` (optional), ``[estimator]``
+(optional; output feedback) and ``[regression]`` (only for regression
+scenarios). The docs page docs/scenarios.md lists every key.
 
 Parsing is strict and runs table by table in that order: an unknown table or
 key raises :class:`~shinro_ctrl.errors.ConfigError` naming the file, the
