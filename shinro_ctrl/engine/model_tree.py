@@ -148,14 +148,24 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
         path = str(p)
     label = path or m.names[: m.names.find(b"\0")].decode() or "<model>"
 
-    def name(kind: Any, i: int) -> str:
-        return kind(i).name or f"#{i}"
+    _check_supported(m, label)
+    joints, body_joints = _read_joints(m)
+    bodies = _read_bodies(m, body_joints)
+    actuators = [_read_actuator(m, a, label) for a in range(m.nu)]
+    return _tree_with_options(m, path, bodies, joints, actuators)
 
+
+def _name(kind: Any, i: int) -> str:
+    return kind(i).name or f"#{i}"
+
+
+def _check_supported(m: mujoco.MjModel, label: str) -> None:
+    """Raise InvalidArgument for the first model feature MjcfPlant does not support (see :func:`read_model_tree`)."""
     for j in range(m.njnt):
         t = int(m.jnt_type[j])
         if t in _BAD_JOINTS:
             raise InvalidArgument(
-                f"model '{label}': {_BAD_JOINTS[t]} joint '{name(m.joint, j)}' is not supported yet "
+                f"model '{label}': {_BAD_JOINTS[t]} joint '{_name(m.joint, j)}' is not supported yet "
                 "(MjcfPlant handles fixed-base trees of hinge and slide joints)"
             )
     if m.njnt == 0:
@@ -172,11 +182,11 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
         raise InvalidArgument(f"model '{label}': tendons are not supported yet ({m.ntendon} found)")
     if np.any(m.body_gravcomp != 0.0):
         b = int(np.flatnonzero(m.body_gravcomp)[0])
-        raise InvalidArgument(f"model '{label}': body '{name(m.body, b)}' uses gravcomp, which is not supported yet")
+        raise InvalidArgument(f"model '{label}': body '{_name(m.body, b)}' uses gravcomp, which is not supported yet")
     if np.any(m.dof_frictionloss != 0.0) and not m.opt.disableflags & int(_DSBL.mjDSBL_FRICTIONLOSS):
         d = int(np.flatnonzero(m.dof_frictionloss)[0])
         raise InvalidArgument(
-            f"model '{label}': joint '{name(m.joint, int(m.dof_jntid[d]))}' has frictionloss (a constraint "
+            f"model '{label}': joint '{_name(m.joint, int(m.dof_jntid[d]))}' has frictionloss (a constraint "
             "force), which is not supported yet"
         )
     for attr, what in (
@@ -188,7 +198,9 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
         if arr.size and np.any(arr != 0.0):
             row = int(np.flatnonzero(np.any(arr.reshape(arr.shape[0], -1) != 0.0, axis=1))[0])
             j = int(m.dof_jntid[row]) if attr.startswith("dof_") else row
-            raise InvalidArgument(f"model '{label}': joint '{name(m.joint, j)}' has {what}, which is not supported yet")
+            raise InvalidArgument(
+                f"model '{label}': joint '{_name(m.joint, j)}' has {what}, which is not supported yet"
+            )
     for attr, what in (
         ("actuator_armature", "armature"),
         ("actuator_damping", "damping"),
@@ -199,7 +211,7 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
         if arr.size and np.any(arr != 0.0):
             a = int(np.flatnonzero(np.any(arr.reshape(arr.shape[0], -1) != 0.0, axis=1))[0])
             raise InvalidArgument(
-                f"model '{label}': actuator '{name(m.actuator, a)}' has {what}, which is not supported yet "
+                f"model '{label}': actuator '{_name(m.actuator, a)}' has {what}, which is not supported yet "
                 "(put rotor inertia and damping on the joint: armature, damping)"
             )
     if np.any(np.asarray(getattr(m, "actuator_ctrlnum", np.ones(m.nu))) != 1):
@@ -207,6 +219,9 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
     if m.opt.density != 0.0 or m.opt.viscosity != 0.0:
         raise InvalidArgument(f"model '{label}': fluid forces (density/viscosity) are not supported yet")
 
+
+def _read_joints(m: mujoco.MjModel) -> tuple[list[JointInfo], dict[int, list[int]]]:
+    """The joints, and body index -> indices of the joints on that body."""
     joints = []
     body_joints: dict[int, list[int]] = {}
     for j in range(m.njnt):
@@ -229,7 +244,12 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
                 range=(float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])),
             )
         )
-    bodies = [
+    return joints, body_joints
+
+
+def _read_bodies(m: mujoco.MjModel, body_joints: dict[int, list[int]]) -> list[BodyInfo]:
+    """The bodies in MuJoCo's order (body 0 is the world)."""
+    return [
         BodyInfo(
             name=m.body(b).name,
             parent=int(m.body_parentid[b]) if b else -1,
@@ -244,55 +264,58 @@ def read_model_tree(model: str | os.PathLike | mujoco.MjModel, *, path: str = ""
         for b in range(m.nbody)
     ]
 
-    actuators = []
-    for a in range(m.nu):
-        aname = name(m.actuator, a)
-        if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
-            kind = mujoco.mjtTrn(int(m.actuator_trntype[a])).name
-            raise InvalidArgument(
-                f"model '{label}': actuator '{aname}' uses transmission {kind}; only joint transmissions are "
-                "supported yet"
-            )
-        if int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE):
-            kind = mujoco.mjtDyn(int(m.actuator_dyntype[a])).name
-            raise InvalidArgument(
-                f"model '{label}': actuator '{aname}' has activation dynamics {kind}; only actuators without "
-                "(motor, position, velocity, general with dyntype none) are supported yet"
-            )
-        gt, bt = int(m.actuator_gaintype[a]), int(m.actuator_biastype[a])
-        if gt not in _GAIN or bt not in _BIAS:
-            raise InvalidArgument(
-                f"model '{label}': actuator '{aname}' has gain {mujoco.mjtGain(gt).name} and bias "
-                f"{mujoco.mjtBias(bt).name}; supported: fixed/affine gain, none/affine bias"
-            )
-        gain = tuple(float(c) for c in m.actuator_gainprm[a, :3])
-        bias = tuple(float(c) for c in m.actuator_biasprm[a, :3])
-        kind = "general"
-        if _GAIN[gt] == "fixed" and _BIAS[bt] == "none" and gain[0] == 1.0:
-            kind = "motor"
-        elif _GAIN[gt] == "fixed" and _BIAS[bt] == "affine" and bias[0] == 0.0:
-            if bias[1] == -gain[0] and bias[1] != 0.0:
-                kind = "position"
-            elif bias[1] == 0.0 and bias[2] == -gain[0]:
-                kind = "velocity"
-        clamp_ctrl = bool(m.actuator_ctrllimited[a]) and not m.opt.disableflags & int(_DSBL.mjDSBL_CLAMPCTRL)
-        actuators.append(
-            ActuatorInfo(
-                name=m.actuator(a).name,
-                kind=kind,
-                joint=int(m.actuator_trnid[a, 0]),
-                gear=float(m.actuator_gear[a, 0]),
-                gaintype=_GAIN[gt],
-                gainprm=gain,  # type: ignore[arg-type]
-                biastype=_BIAS[bt],
-                biasprm=bias,  # type: ignore[arg-type]
-                ctrlrange=tuple(float(c) for c in m.actuator_ctrlrange[a]) if clamp_ctrl else None,  # type: ignore[arg-type]
-                forcerange=tuple(float(c) for c in m.actuator_forcerange[a])  # type: ignore[arg-type]
-                if m.actuator_forcelimited[a]
-                else None,
-            )
-        )
 
+def _read_actuator(m: mujoco.MjModel, a: int, label: str) -> ActuatorInfo:
+    """Actuator ``a``, or InvalidArgument naming it when its transmission, dynamics, gain or bias is unsupported."""
+    aname = _name(m.actuator, a)
+    if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+        kind = mujoco.mjtTrn(int(m.actuator_trntype[a])).name
+        raise InvalidArgument(
+            f"model '{label}': actuator '{aname}' uses transmission {kind}; only joint transmissions are supported yet"
+        )
+    if int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE):
+        kind = mujoco.mjtDyn(int(m.actuator_dyntype[a])).name
+        raise InvalidArgument(
+            f"model '{label}': actuator '{aname}' has activation dynamics {kind}; only actuators without "
+            "(motor, position, velocity, general with dyntype none) are supported yet"
+        )
+    gt, bt = int(m.actuator_gaintype[a]), int(m.actuator_biastype[a])
+    if gt not in _GAIN or bt not in _BIAS:
+        raise InvalidArgument(
+            f"model '{label}': actuator '{aname}' has gain {mujoco.mjtGain(gt).name} and bias "
+            f"{mujoco.mjtBias(bt).name}; supported: fixed/affine gain, none/affine bias"
+        )
+    gain = tuple(float(c) for c in m.actuator_gainprm[a, :3])
+    bias = tuple(float(c) for c in m.actuator_biasprm[a, :3])
+    kind = "general"
+    if _GAIN[gt] == "fixed" and _BIAS[bt] == "none" and gain[0] == 1.0:
+        kind = "motor"
+    elif _GAIN[gt] == "fixed" and _BIAS[bt] == "affine" and bias[0] == 0.0:
+        if bias[1] == -gain[0] and bias[1] != 0.0:
+            kind = "position"
+        elif bias[1] == 0.0 and bias[2] == -gain[0]:
+            kind = "velocity"
+    clamp_ctrl = bool(m.actuator_ctrllimited[a]) and not m.opt.disableflags & int(_DSBL.mjDSBL_CLAMPCTRL)
+    return ActuatorInfo(
+        name=m.actuator(a).name,
+        kind=kind,
+        joint=int(m.actuator_trnid[a, 0]),
+        gear=float(m.actuator_gear[a, 0]),
+        gaintype=_GAIN[gt],
+        gainprm=gain,  # type: ignore[arg-type]
+        biastype=_BIAS[bt],
+        biasprm=bias,  # type: ignore[arg-type]
+        ctrlrange=tuple(float(c) for c in m.actuator_ctrlrange[a]) if clamp_ctrl else None,  # type: ignore[arg-type]
+        forcerange=tuple(float(c) for c in m.actuator_forcerange[a])  # type: ignore[arg-type]
+        if m.actuator_forcelimited[a]
+        else None,
+    )
+
+
+def _tree_with_options(
+    m: mujoco.MjModel, path: str, bodies: list[BodyInfo], joints: list[JointInfo], actuators: list[ActuatorInfo]
+) -> ModelTree:
+    """The :class:`ModelTree` with the model's options (gravity, step, integrator, disabled terms)."""
     flags = int(m.opt.disableflags)
     return ModelTree(
         name=m.names[: m.names.find(b"\0")].decode(),

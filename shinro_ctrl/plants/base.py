@@ -20,18 +20,20 @@ of :class:`Plant` lists every hook a new plant may implement.
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, is_dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import CasadiBackend, ListBackend, NumpyBackend, ScalarBackend
-from shinro_ctrl.errors import ConfigError, InvalidArgument, NonFiniteError, SimulationDiverged
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, SimulationDiverged
 from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd_jacobians
+from shinro_ctrl.plants._config_mixin import ConfigMixin
+from shinro_ctrl.plants._engine_mode import EngineModeMixin
+from shinro_ctrl.plants._state_io import StateIOMixin
 from shinro_ctrl.validation import as_vector, check_positive, did_you_mean, unknown_keys
 
 __all__ = ["PLANT_ALIASES_REGISTRY", "PLANT_REGISTRY", "MjcfPatch", "Plant"]
@@ -90,7 +92,7 @@ class MjcfPatch:
     geom_size: dict[str, tuple[float, ...]] = field(default_factory=dict)
 
 
-class Plant:
+class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
     """Base class of every plant model.
 
     Subclasses set the class attributes below, call :meth:`_init` from their
@@ -126,6 +128,12 @@ class Plant:
     The underscore names (``_f``, ``_integrate``, ``_clip_state``,
     ``_engine_read``, ``_engine_write``, ``_engine_apply``) are aliases kept
     for plants written against them: a subclass may define either name.
+
+    The engine hooks and attaching an engine live in
+    ``plants/_engine_mode.py``, :meth:`state_limits`, :meth:`body_force_map` and
+    :meth:`output_matrix` in ``plants/_state_io.py``, :meth:`from_config` in
+    ``plants/_config_mixin.py`` (mixins of this class); this list stays the one
+    place that names every hook.
 
     Attributes:
         state_names: Names of the state components, length ``n``.
@@ -419,65 +427,6 @@ class Plant:
 
     _clip_state = clip_state
 
-    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Declared limits ``(lo (n,), hi (n,))`` of the state (±inf where none), e.g. ``state_bounds``."""
-        return np.full(self.state_dim, -np.inf), np.full(self.state_dim, np.inf)
-
-    def body_force_map(self, body: str) -> np.ndarray:
-        """``G (n, 3)``: how a world-frame force ``F`` [N] at ``body``'s centre of mass changes ``ẋ`` (``ẋ += G F``).
-
-        Used for ``[sim] disturbance`` body forces in the standalone loop
-        (MuJoCo applies the force itself). Plants that accept such forces
-        override this; the base accepts none.
-
-        Raises:
-            InvalidArgument: the plant takes no force on ``body``.
-        """
-        raise InvalidArgument(
-            f"{type(self).__name__} takes no body-force disturbance on '{body}'; disturb an input "
-            f"({', '.join(self.input_names)}) instead"
-        )
-
-    def output_matrix(self, measured: Any = None) -> np.ndarray:
-        """The measurement matrix ``C (p, n)`` of the measured states: ``y = C x``.
-
-        Args:
-            measured: State names (or indices) in the order of ``y``; None
-                means every state (``C = I``).
-
-        Returns:
-            The rows of the identity at the measured states, ``(p, n)``.
-
-        Raises:
-            InvalidArgument: an unknown name (listing the valid ones), an index
-                out of range, a repeated state, or an empty list.
-        """
-        names = self.state_names
-        if measured is None:
-            return np.eye(self.state_dim)
-        if isinstance(measured, str) or not hasattr(measured, "__iter__"):
-            measured = [measured]
-        idx: list[int] = []
-        for s in measured:
-            if isinstance(s, str):
-                if s not in names:
-                    hint = did_you_mean(s, names)
-                    raise InvalidArgument(
-                        f"measured: unknown state '{s}' of {type(self).__name__}"
-                        f"{hint if 'did you mean' in hint else ''} (valid: {', '.join(names)})"
-                    )
-                i = names.index(s)
-            elif isinstance(s, int | np.integer) and not isinstance(s, bool) and 0 <= s < self.state_dim:
-                i = int(s)
-            else:
-                raise InvalidArgument(f"measured: expected state names ({', '.join(names)}) but found {s!r}")
-            if i in idx:
-                raise InvalidArgument(f"measured: state '{names[i]}' is listed twice")
-            idx.append(i)
-        if not idx:
-            raise InvalidArgument(f"measured: expected at least one state name ({', '.join(names)}) but found []")
-        return np.eye(self.state_dim)[idx]
-
     def step(self, u: Any) -> np.ndarray:
         """Advance one step of ``dt`` with input ``u`` held.
 
@@ -539,162 +488,6 @@ class Plant:
         self.state = x.copy()
         if self._engine is not None:
             self.engine_write(self._engine, x)
-
-    # ---------------------------------------------------------------- engine
-    @property
-    def engine(self) -> Any:
-        """The attached physics engine, or None (standalone)."""
-        return self._engine
-
-    def physics_engine(self, engine: Any) -> None:
-        """Attach a physics engine (or detach with None).
-
-        On attach the plant's state is read from the engine; on detach the
-        plant keeps the last state it had.
-        """
-        if engine is not None and self.asset is None:
-            raise InvalidArgument(f"{type(self).__name__} has no MuJoCo model to attach an engine to")
-        self._check_engine(engine)
-        self._engine = engine
-        if engine is not None:
-            self.state = self.engine_read(engine)
-
-    def _check_engine(self, engine: Any) -> None:
-        """Raise InvalidArgument unless ``engine`` is None or behaves like a MujocoEngine."""
-        needed = ("step", "forward", "get_joint_qpos", "get_joint_vel", "set_joint_ctrl")
-        if engine is not None and not all(callable(getattr(engine, a, None)) for a in needed):
-            raise InvalidArgument(
-                f"{type(self).__name__}.physics_engine expects a MujocoEngine (or None), got {type(engine).__name__}"
-            )
-        if engine is not None and getattr(engine, "model", None) is not None:
-            self._check_engine_matches(engine)
-
-    def _check_engine_matches(self, engine: Any) -> None:
-        """Raise InvalidArgument when ``engine`` was built for another plant (type, ``dt`` or a parameter).
-
-        The engine's compiled model is compared with what :meth:`mjcf_patch` would
-        write into it (see ``MujocoEngine.for_plant``): step, gravity, body masses
-        and positions, joint damping; a body or joint the patch names but the
-        model lacks means another plant type. The first mismatch is named.
-        """
-        try:
-            patch = self.mjcf_patch()
-        except NotImplementedError:
-            return
-        m, name = engine.model, type(self).__name__
-        rel = 1e-6
-        built_for = getattr(engine, "plant_type", None)
-        if isinstance(built_for, str) and built_for != name:
-            raise InvalidArgument(
-                f"{name}.physics_engine: the engine was built for another plant type: {built_for}, not {name}; "
-                "build it with MujocoEngine.for_plant(plant)"
-            )
-
-        def differs(a: Any, b: Any) -> bool:
-            a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-            return a.shape != b.shape or bool(np.any(np.abs(a - b) > rel * np.maximum(1.0, np.abs(b))))
-
-        def mismatch(what: str, engine_value: Any, plant_value: Any) -> InvalidArgument:
-            return InvalidArgument(
-                f"{name}.physics_engine: the engine was built for another plant: {what} is {engine_value} in the "
-                f"engine but {plant_value} in the plant; build it with MujocoEngine.for_plant(plant)"
-            )
-
-        engine_dt = float(getattr(engine, "dt", m.opt.timestep))
-        if differs(engine_dt, self.dt):
-            raise mismatch("dt", f"{engine_dt:g} s", f"{self.dt:g} s")
-        if differs(m.opt.gravity, patch.gravity):
-            raise mismatch("gravity", list(np.round(m.opt.gravity, 6)), list(patch.gravity))
-        for kind, names in (
-            ("body", [*patch.inertials, *patch.body_pos, *patch.body_inertia]),
-            ("joint", list(patch.joint_damping)),
-        ):
-            for item in names:
-                try:
-                    getattr(m, kind)(item)
-                except KeyError:
-                    raise InvalidArgument(
-                        f"{name}.physics_engine: the engine was built for another plant type: its model "
-                        f"({engine.source}) has no {kind} '{item}', which {name} needs"
-                    ) from None
-        for body, (mass, ipos) in patch.inertials.items():
-            if differs(m.body(body).mass[0], mass):
-                raise mismatch(f"the mass of body '{body}'", f"{m.body(body).mass[0]:g} kg", f"{mass:g} kg")
-            if differs(m.body(body).ipos, ipos):
-                raise mismatch(f"the centre of mass of body '{body}'", list(m.body(body).ipos), list(ipos))
-        for body, pos in patch.body_pos.items():
-            if differs(m.body(body).pos, pos):
-                raise mismatch(f"the position of body '{body}'", list(m.body(body).pos), list(pos))
-        for joint, damping in patch.joint_damping.items():
-            dof = int(m.joint(joint).dofadr[0])
-            if differs(m.dof_damping[dof], damping):
-                raise mismatch(f"the damping of joint '{joint}'", f"{m.dof_damping[dof]:g}", f"{damping:g}")
-
-    def mjcf_patch(self) -> MjcfPatch:
-        """How the plant's MJCF asset must be edited to match its parameters."""
-        raise NotImplementedError(f"{type(self).__name__} has no matched MuJoCo model")
-
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
-        """How the plant's state relates to MuJoCo's ``z = [qpos..., qvel...]``.
-
-        Returns:
-            ``(T (n, n), perm (n,))`` with ``x_plant = T @ z`` (``z`` in the
-            order of ``mjd_transitionFD``); ``perm[i]`` is the index in ``z``
-            of the coordinate state ``i`` is built on (same joint, same
-            derivative order), so ``T == eye(n)[perm]`` unless the plant uses
-            other coordinates. Inputs map 1:1 onto actuators (``ctrl = u``).
-        """
-        raise NotImplementedError(f"{type(self).__name__} has no MuJoCo state map")
-
-    def engine_read(self, engine: Any) -> np.ndarray:
-        """Hook: the plant state ``x (n,)`` read from the engine's joints (engine mode)."""
-        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
-
-    def engine_write(self, engine: Any, x: np.ndarray) -> None:
-        """Hook: write the plant state ``x (n,)`` into the engine's joints (engine mode)."""
-        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
-
-    def engine_apply(self, engine: Any, u: np.ndarray) -> None:
-        """Hook: apply the input ``u (m,)`` to the engine's actuators (engine mode)."""
-        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
-
-    _engine_read = engine_read
-    _engine_write = engine_write
-    _engine_apply = engine_apply
-
-    # ---------------------------------------------------------------- config
-    @classmethod
-    def config_keys(cls) -> tuple[str, ...]:
-        """The keys a ``[plant]`` table may hold: the constructor's arguments."""
-        sig = inspect.signature(cls.__init__)
-        return tuple(k for k in sig.parameters if k not in ("self", "backend"))
-
-    @classmethod
-    def from_config(cls, config: Any, *, engine: Any = None) -> Plant:
-        """Build the plant from a mapping or dataclass of constructor arguments.
-
-        Args:
-            config: Constructor keyword arguments (a ``type`` key is ignored).
-            engine: Optional engine to attach.
-
-        Raises:
-            ConfigError: an unknown key (with the closest valid one) or an
-                invalid value (naming the key).
-        """
-        if is_dataclass(config) and not isinstance(config, type):
-            config = asdict(config)
-        kwargs = {k: v for k, v in dict(config).items() if k != "type"}
-        allowed = cls.config_keys()
-        bad = unknown_keys(kwargs, allowed)
-        if bad:
-            raise ConfigError(f"[plant] {cls.__name__}: unknown key '{bad[0]}'{did_you_mean(bad[0], allowed)}")
-        try:
-            plant = cls(**kwargs)
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f"[plant] {cls.__name__}: {exc}") from exc
-        if engine is not None:
-            plant.physics_engine(engine)
-        return plant
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v:g}" for k, v in self._params.items())
