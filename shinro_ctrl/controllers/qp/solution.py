@@ -1,0 +1,56 @@
+"""The outcome of one ``LinearMPC`` call, whichever backend solved it."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+__all__ = ["MPCSolution"]
+
+
+@dataclasses.dataclass(frozen=True)
+class MPCSolution:
+    """The outcome of one :class:`LinearMPC` call.
+
+    Attributes:
+        status: The backend's status (OSQP's string, ``"solved"``,
+            ``"primal infeasible"``, …, or DAQP's exit flag name).
+        iterations: ADMM iterations (OSQP, re-solve included) or active-set
+            iterations (DAQP).
+        solve_time_s: Wall time of the whole call [s], Python work included.
+        osqp_solve_time_s: The QP solver's own solve time [s] (OSQP's or
+            DAQP's; the name predates the DAQP backend).
+        objective: Value of the MPC cost (constant reference terms included);
+            NaN when the solve failed.
+        states: Predicted states ``(N + 1, n)`` in absolute units.
+        inputs: Planned inputs ``(N, m)`` in absolute units (before clipping).
+        u: The input returned by the call ``(m,)`` (clipped to its hard bounds).
+        fallback_used: True when the solve failed and the shifted previous plan
+            was applied instead (``fallback="shift"``).
+        message: Why the solve failed (empty when solved).
+        max_slack: Largest slack of the soft state bounds over the horizon,
+            i.e. the planned bound violation (0 for hard bounds).
+        backend: ``"osqp"`` or ``"daqp"``.
+        active_set_size: Inequality constraints active at the solution
+            (nonzero multipliers; -1 when not solved).
+        kkt_residual: KKT residual of the returned solution: OSQP's
+            ``max(prim_res, dual_res)``, or the condensed QP's stationarity,
+            feasibility and complementarity residual (NaN when not solved).
+    """
+
+    status: str
+    iterations: int
+    solve_time_s: float
+    osqp_solve_time_s: float
+    objective: float
+    states: np.ndarray
+    inputs: np.ndarray
+    u: np.ndarray
+    fallback_used: bool = False
+    message: str = ""
+    max_slack: float = 0.0
+    backend: str = "osqp"
+    active_set_size: int = -1
+    kkt_residual: float = math.nan
