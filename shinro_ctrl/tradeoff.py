@@ -376,14 +376,7 @@ def run_tradeoff(
     _apply(doc, key, lo, names)  # a bad key fails here, before any work
     values = np.logspace(math.log10(lo), math.log10(hi), points)
     loop = engine or ("mujoco" if scenario.engine is not None else "standalone")
-    m = _KEY.match(key)
-    if m.group(2) is None and m.group(3) is None:
-        current_value = 1.0
-    else:
-        which = m.group(1)
-        labels = names[0] if which == "Q" else names[1]
-        i = int(m.group(2)) if m.group(2) is not None else labels.index(m.group(3))
-        current_value = float(_weight(doc, which, len(labels))[i, i])
+    current_value = _current_value(doc, key, names)
 
     t0 = time.perf_counter()
     n_tasks = min(points, workers * 2) if workers > 1 else 1
@@ -391,6 +384,41 @@ def run_tradeoff(
     jobs = [
         _Job(doc, source, engine, key, tuple(float(values[i]) for i in c), tuple(int(i) for i in c)) for c in chunks
     ]
+    results, current = _run_jobs(jobs, doc, source, engine, workers)
+    result = TradeoffResult(
+        key,
+        values,
+        [r[1] for r in results],
+        [r[2] for r in results],
+        current,
+        current_value,
+        loop,
+        time.perf_counter() - t0,
+    )
+    if out is not None:
+        result.save(out)
+    return result
+
+
+def _current_value(doc: dict[str, Any], key: str, names: Any) -> float:
+    """The scenario's own value of the swept weight: 1 for a multiplier, else the diagonal entry."""
+    m = _KEY.match(key)
+    if m.group(2) is None and m.group(3) is None:
+        return 1.0
+    which = m.group(1)
+    labels = names[0] if which == "Q" else names[1]
+    i = int(m.group(2)) if m.group(2) is not None else labels.index(m.group(3))
+    return float(_weight(doc, which, len(labels))[i, i])
+
+
+def _run_jobs(
+    jobs: list[_Job], doc: dict[str, Any], source: str | None, engine: str | None, workers: int
+) -> tuple[list[tuple[int, dict[str, float], str]], Any]:
+    """Run the chunks (in this process or a forkserver pool) and the scenario's own weights.
+
+    Returns:
+        ``(results sorted by point index, the scenario's own metrics)``.
+    """
     results: list[tuple[int, dict[str, float], str]] = []
     if workers == 1:
         for job in jobs:
@@ -408,16 +436,4 @@ def run_tradeoff(
                 results.extend(f.result())
             current = cur_future.result()
     results.sort(key=lambda r: r[0])
-    result = TradeoffResult(
-        key,
-        values,
-        [r[1] for r in results],
-        [r[2] for r in results],
-        current,
-        current_value,
-        loop,
-        time.perf_counter() - t0,
-    )
-    if out is not None:
-        result.save(out)
-    return result
+    return results, current

@@ -202,7 +202,31 @@ def analyze_controller(
         C = np.eye(n)[[snames.index(s) for s in meas]]
     structure = structure_report(A, B, C, discrete=dt is not None, state_names=snames)
     margins = loop_margins((A, B), K, dt=dt, input_names=inames)
-    # responses on a discrete model (a continuous loop is sampled at 1 ms)
+    t, x_lin, responses = _linear_responses(A, B, K, dt, E, poles, duration, x_init, x0, snames, n_p, tracked)
+    u0 = np.asarray(getattr(controller, "u0", np.zeros(m)), dtype=float)
+    return DesignAnalysis(A, B, K, dt, snames, inames, poles, structure, margins, t, x_lin, responses, meas, x0, u0)
+
+
+def _linear_responses(
+    A: np.ndarray,
+    B: np.ndarray,
+    K: np.ndarray,
+    dt: float | None,
+    E: np.ndarray,
+    poles: PoleTable,
+    duration: float | None,
+    x_init: Any,
+    x0: np.ndarray,
+    snames: tuple[str, ...],
+    n_p: int,
+    tracked: Any,
+) -> tuple[np.ndarray, np.ndarray, dict[str, StepMetrics]]:
+    """The initial-condition and unit-step responses of :func:`analyze_controller`: ``(t, x_lin, responses)``.
+
+    Computed on a discrete model (a continuous loop is sampled at 1 ms); ``E (n, n_p)`` maps a
+    reference step onto the closed loop.
+    """
+    n, m = B.shape
     if dt is None:
         import scipy.linalg
 
@@ -240,5 +264,4 @@ def analyze_controller(
             responses[f"step: {name}"] = step_metrics(t, X[:, j], initial=0.0, final=float(x_ss[j]), target=1.0)
         except InvalidArgument:  # the state does not move at all: nothing to measure
             continue
-    u0 = np.asarray(getattr(controller, "u0", np.zeros(m)), dtype=float)
-    return DesignAnalysis(A, B, K, dt, snames, inames, poles, structure, margins, t, x_lin, responses, meas, x0, u0)
+    return t, x_lin, responses
