@@ -15,13 +15,12 @@ target pose, solves IK for it and commands the joints.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, is_dataclass
 from typing import Any
 
 import casadi as cs
 import numpy as np
 
-from shinro_ctrl.errors import ConfigError, InvalidArgument
+from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.kinematics import (
     IKResult,
     KinematicsBuffer,
@@ -32,6 +31,7 @@ from shinro_ctrl.kinematics import (
     so3_log_flat,
 )
 from shinro_ctrl.plants._arm6 import ARM6, ARM6_AXES, ARM6_BODIES, ARM6_JOINTS, shipped_arm6
+from shinro_ctrl.plants._arm_config import _as_dict, with_engine_limits
 from shinro_ctrl.plants._arm_engine import ArmEngineMode
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_matrix, as_vector, check_positive
@@ -468,39 +468,8 @@ class ArmRobot(ArmEngineMode, Plant):
         cfg = _as_dict(config)
         if engine is None:
             return super().from_config(cfg)
-        num = cfg.get("num_dof", 6)
-        custom = any(k in cfg for k in ("joint_offsets", "rot_axes"))
-        if not custom and isinstance(num, int | np.integer) and not isinstance(num, bool) and num == 6:
-            # No geometry: the shipped arm's (as standalone), with the limits read from the MJCF below.
-            shipped = shipped_arm6()
-            for key in ("joint_offsets", "rot_axes", "joint_names"):
-                cfg.setdefault(key, shipped[key])
-        elif not custom:
-            return super().from_config(cfg, engine=engine)  # incomplete geometry: the constructor says what is missing
-        names = cfg.get("joint_names")
-        if names is None and isinstance(num, int):
-            names = [f"joint_{i}" for i in range(num)] if custom else list(ARM6_JOINTS)
-        try:
-            limits = np.array([engine.get_joint_limits(n) for n in (names or [])], dtype=float)
-        except KeyError as exc:
-            raise ConfigError(f"[plant] ArmRobot: {exc.args[0] if exc.args else exc}") from None
-        if "joint_limits" in cfg:
-            given = np.asarray(cfg["joint_limits"], dtype=float)
-            if given.shape != limits.shape or not np.allclose(given, limits, rtol=0.0, atol=1e-9):
-                raise ConfigError(
-                    "[plant] ArmRobot: joint_limits disagree with the MJCF joint ranges "
-                    f"{limits.tolist()}; omit them to use the model's"
-                )
-        cfg["joint_limits"] = limits if limits.size else cfg.get("joint_limits")
-        return super().from_config(cfg, engine=engine)
+        return super().from_config(with_engine_limits(cfg, engine), engine=engine)
 
     def __repr__(self) -> str:
         mode = "standalone" if self._engine is None else "engine"
         return f"ArmRobot(num_dof={self.num_dof}, axes={''.join(self.axes)!r}, dt={self.dt:g}, {mode})"
-
-
-def _as_dict(config: Any) -> dict:
-    """A config mapping or dataclass as a plain dict without its ``type`` key."""
-    if is_dataclass(config) and not isinstance(config, type):
-        config = asdict(config)
-    return {k: v for k, v in dict(config).items() if k != "type"}
