@@ -36,65 +36,25 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import casadi as cs
 import numpy as np
 import scipy.linalg
 
+from shinro_ctrl.controllers._nmpc_ipopt import NMPCIpopt
+from shinro_ctrl.controllers._nmpc_rti import NMPCRealTime
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.qp.ltv import CondensedLTV, SparseLTV
-from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
+from shinro_ctrl.controllers.qp.solution import NMPCSolution
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, check_positive
 
 __all__ = ["NMPCSolution", "NonlinearMPC"]
 
 SOLVERS = ("auto", "daqp", "osqp", "ipopt")
 INTEGRATORS = ("rk4", "semi_implicit")
-
-
-@dataclass(frozen=True)
-class NMPCSolution:
-    """The outcome of one :class:`NonlinearMPC` call.
-
-    Attributes:
-        status: ``"solved"`` (KKT residual below ``tol``), ``"rti"`` (the
-            real-time iteration budget was used up first), or the failure.
-        iterations: SQP iterations (QP solves) of the call; IPOPT's iterations
-            with ``solver="ipopt"``.
-        kkt_residual: KKT residual of the OCP at the last linearization point
-            (stationarity and complementarity with the QP's multipliers, and
-            the shooting defects), ∞-norm; IPOPT's final one for ``"ipopt"``.
-        qp_status: The last QP's status (DAQP's exit flag in words, or OSQP's status).
-        qp_iterations: Active-set iterations of the last QP.
-        time_linearization_s: Defects and Jacobians (CasADi) [s].
-        time_condensing_s: Building the condensed QP [s].
-        time_qp_s: QP solves [s].
-        time_other_s: Everything else (shift, step, line search) [s].
-        solve_time_s: Wall time of the whole call [s].
-        states: Predicted states ``(N + 1, n)``.
-        inputs: Planned inputs ``(N, m)`` (before clipping).
-        u: The input returned ``(m,)`` (clipped to the hard bounds).
-        objective: OCP cost of the predicted trajectory.
-        message: Why the call failed (empty when it did not).
-    """
-
-    status: str
-    iterations: int
-    kkt_residual: float
-    qp_status: str
-    qp_iterations: int
-    time_linearization_s: float
-    time_condensing_s: float
-    time_qp_s: float
-    time_other_s: float
-    solve_time_s: float
-    states: np.ndarray
-    inputs: np.ndarray
-    u: np.ndarray
-    objective: float
-    message: str = ""
 
 
 def _weight(name: str, value: Any, size: int) -> np.ndarray:
@@ -123,7 +83,7 @@ def rk4_step(f: cs.Function, x: Any, u: Any, h: float) -> Any:
     return x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
-class NonlinearMPC(Controller):
+class NonlinearMPC(NMPCRealTime, NMPCIpopt, Controller):
     r"""Nonlinear MPC by real-time iterations (or SQP, or IPOPT) on the plant's exact dynamics.
 
     See the module docstring for the OCP and the algorithm. Build it with
@@ -204,6 +164,20 @@ class NonlinearMPC(Controller):
         n, m = int(f.size1_in(0)), int(f.size1_in(1))
         self.n, self.m = n, m
         self.state_dim, self.input_dim = n, m
+        self._set_options(horizon, dt, iterations, init_iterations, cold_start, hold, tol, solver, integrator)
+        self._set_weights(Q, R, x_ref, u_ref)
+        self._set_bounds(u_min, u_max, x_min, x_max, soft, soft_weight_l1, soft_weight_quad, state_names, input_names)
+        self._build_step(f, integrator, position_indices, velocity_indices)
+        self._set_terminal(Qf)
+        self._build_qp(osqp_settings)
+        self.reset()
+
+    # ================================================================ set-up
+    def _set_options(
+        self, horizon: int, dt: float, iterations: int, init_iterations: int, cold_start: str, hold: int,
+        tol: float, solver: str, integrator: str,
+    ) -> None:  # fmt: skip
+        """Validate and keep the scalar options."""
         for name, value, low in (("horizon", horizon, 1), ("iterations", iterations, 1), ("hold", hold, 1)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise InvalidArgument(f"{name} must be an int >= {low}, got {value!r}")
@@ -226,6 +200,10 @@ class NonlinearMPC(Controller):
         if integrator not in INTEGRATORS:
             raise InvalidArgument(f"integrator must be one of {', '.join(INTEGRATORS)}, got {integrator!r}")
         self.integrator = integrator
+
+    def _set_weights(self, Q: Any, R: Any, x_ref: Any, u_ref: Any) -> None:
+        """Validate and keep the weights and the references."""
+        n, m = self.n, self.m
         self.Q = _weight("Q", Q, n)
         self.R = _weight("R", R, m)
         if np.min(np.linalg.eigvalsh(self.R)) <= 0:
@@ -234,6 +212,13 @@ class NonlinearMPC(Controller):
             raise InvalidArgument("Q must be positive semidefinite")
         self.x0 = np.zeros(n) if x_ref is None else as_vector("x0", x_ref, n)
         self.u0 = np.zeros(m) if u_ref is None else as_vector("u0", u_ref, m)
+
+    def _set_bounds(
+        self, u_min: Any, u_max: Any, x_min: Any, x_max: Any, soft: bool, soft_weight_l1: float,
+        soft_weight_quad: float, state_names: Any, input_names: Any,
+    ) -> None:  # fmt: skip
+        """Validate and keep the bounds, the slack weights and the names."""
+        n, m = self.n, self.m
         self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
         self.x_min, self.x_max = bound_pair("x_min", "x_max", x_min, x_max, n)
         self.soft = bool(soft)
@@ -245,7 +230,9 @@ class NonlinearMPC(Controller):
         self.state_names = tuple(state_names) if state_names is not None else tuple(f"x[{i}]" for i in range(n))
         self.input_names = tuple(input_names) if input_names is not None else tuple(f"u[{i}]" for i in range(m))
 
-        # ------------------------------------------------- the discrete step F
+    def _build_step(self, f: cs.Function, integrator: str, position_indices: Any, velocity_indices: Any) -> None:
+        """The discrete step ``F`` and the compiled linearization of all stages."""
+        n, m = self.n, self.m
         xs, us = cs.SX.sym("x", n), cs.SX.sym("u", m)
         if integrator == "rk4":
             x_next = rk4_step(f, xs, us, self.dt)
@@ -269,7 +256,9 @@ class NonlinearMPC(Controller):
         #: All stages at once: ``G_kᵀ`` side by side, ``(n + m + 1, N n)`` (stored as ``(N, n, n + m + 1)``).
         self.linearization = cs.Function("lin", [X, U], [stage.map(N)(X[:, :N], U, X[:, 1:])], ["X", "U"], ["G"])
 
-        # ----------------------------------------------------- terminal weight
+    def _set_terminal(self, Qf: str | Any) -> None:
+        """The terminal weight ``Q_f`` and the stacked weights ``W``."""
+        n, N = self.n, self.N
         if Qf is None:
             self.Qf = self.Q.copy()
         elif isinstance(Qf, str):
@@ -280,7 +269,9 @@ class NonlinearMPC(Controller):
             self.Qf = _weight("Qf", Qf, n)
         self.W = np.stack([self.Q] * (N - 1) + [self.Qf])
 
-        # ------------------------------------------------------ numeric buffers
+    def _build_qp(self, osqp_settings: Mapping[str, Any] | None) -> None:
+        """The numeric buffers the compiled linearization writes into, and the QP (or IPOPT)."""
+        n, m, N = self.n, self.m, self.N
         self._X = np.zeros((N + 1, n))
         self._U = np.zeros((N, m))
         self._G = np.zeros((N, n, n + m + 1))  # [A_k, B_k, d_k] of every stage
@@ -309,9 +300,7 @@ class NonlinearMPC(Controller):
         else:
             self.qp = None
             self._build_ipopt()
-        self.reset()
 
-    # ================================================================ set-up
     def _dare(self) -> np.ndarray:
         xs, us = cs.SX.sym("x", self.n), cs.SX.sym("u", self.m)
         xn = self.F(xs, us)
@@ -421,43 +410,6 @@ class NonlinearMPC(Controller):
         self._mu = 0.0
         self._ipopt_guess: np.ndarray | None = None
 
-    # ============================================================ the RTI step
-    def _linearize(self) -> None:
-        """Defects and Jacobians of all stages at ``(X̄, Ū)`` (one compiled call)."""
-        self._eval()
-
-    def _condense(self) -> None:
-        N, n = self.N, self.n
-        np.subtract(self._X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
-        np.subtract(self._U, self.u0, out=self._du.reshape(N, self.m))
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by feedback
-            self.qp.build(self._e, self._du)
-        self.qp.set_bounds(self._U, self._X[1:])
-
-    def _shift(self) -> None:
-        X, U = self._X, self._U
-        X[:-1] = X[1:]
-        U[:-1] = U[1:]
-
-    def prepare(self) -> None:
-        """Preparation phase: shift the previous solution and linearize/condense for the next state.
-
-        Called by :meth:`__call__` after each feedback; call it yourself to
-        overlap it with the time before the next measurement.
-        """
-        t0 = time.perf_counter()
-        if self.solver == "ipopt" or not self._started:
-            return
-        if not self._prepared:
-            self._shift()
-        t1 = time.perf_counter()
-        self._linearize()
-        t2 = time.perf_counter()
-        self._condense()
-        t3 = time.perf_counter()
-        self._prepared = True
-        self._t_prep = (t2 - t1, t3 - t2, t1 - t0)
-
     def _check_x(self, x: Any, ref: Any) -> np.ndarray:
         x = np.asarray(x, dtype=float)
         if x.shape != (self.n,):
@@ -499,283 +451,6 @@ class NonlinearMPC(Controller):
             self.last = _replace_times(last, lin, cond, other, time.perf_counter() - t0)
         self._u_hold[:] = u
         return u
-
-    def feedback(self, x: Any, ref: Any = None) -> np.ndarray:
-        """Feedback phase: solve the prepared QP for the measured ``x (n,)`` and take the step.
-
-        With ``iterations > 1`` SQP iterations follow until the KKT residual is
-        below ``tol``. The first call after :meth:`reset` starts cold (see
-        ``cold_start``).
-
-        Returns:
-            The input ``u (m,)`` clipped to ``[u_min, u_max]``.
-        """
-        t_start = time.perf_counter()
-        x = self._check_x(x, ref)
-        if self.solver == "ipopt":
-            return self._solve_ipopt(x, t_start)
-        t_lin = t_cond = t_qp = 0.0
-        fresh = not self._started
-        if fresh:
-            self._prepared = False
-            if self.cold_start == "ipopt":
-                t0 = time.perf_counter()
-                self._ipopt_guess = None
-                X, U, _, _ = self._ipopt_solve(x)
-                t_qp += time.perf_counter() - t0
-                self._X[:] = X
-                self._U[:] = U
-                budget, cold = self.iterations, False
-            else:
-                self._X[:] = x
-                self._U[:] = np.clip(self.u0, self.u_min, self.u_max)
-                budget, cold = self.init_iterations, True
-            self._started = True
-        else:
-            budget, cold = self.iterations, False
-        if not self._prepared:
-            if not fresh:
-                self._shift()
-            t0 = time.perf_counter()
-            self._linearize()
-            t1 = time.perf_counter()
-            self._condense()
-            t_lin, t_cond = t1 - t0, time.perf_counter() - t1
-        self._prepared = False
-        dx0 = x - self._X[0]
-        status = "rti"
-        kkt = math.inf
-        it = 0
-        qp_status = ""
-        qp_it = 0
-        while True:
-            t0 = time.perf_counter()
-            z, ok, qp_status, qp_it = self.qp.solve(dx0)
-            t_qp += time.perf_counter() - t0
-            it += 1
-            if not ok:
-                self._fail(x, qp_status, t_start)
-            kkt = max(self.qp.kkt(z), float(np.max(np.abs(self._D))), float(np.max(np.abs(dx0))))
-            if it > 1 and kkt < self.tol:
-                status = "solved"
-                break
-            self._step(x, z, dx0, line_search=it > 1 or cold)
-            if it >= budget:
-                break
-            dx0 = np.zeros(self.n)
-            t0 = time.perf_counter()
-            self._linearize()
-            t1 = time.perf_counter()
-            self._condense()
-            t_lin += t1 - t0
-            t_cond += time.perf_counter() - t1
-        u = np.clip(self._U[0], self.u_min, self.u_max)
-        total = time.perf_counter() - t_start
-        self.last = NMPCSolution(
-            status=status,
-            iterations=it,
-            kkt_residual=kkt,
-            qp_status=qp_status,
-            qp_iterations=qp_it,
-            time_linearization_s=t_lin,
-            time_condensing_s=t_cond,
-            time_qp_s=t_qp,
-            time_other_s=total - t_lin - t_cond - t_qp,
-            solve_time_s=total,
-            states=self._X.copy(),
-            inputs=self._U.copy(),
-            u=u,
-            objective=self.objective(self._X, self._U),
-        )
-        return u
-
-    def _step(self, x: np.ndarray, z: np.ndarray, dx0: np.ndarray, *, line_search: bool) -> None:
-        N, m = self.N, self.m
-        dU, dX = self.qp.step(z, dx0)
-        if line_search:
-            alpha = self._line_search(dX, dU.reshape(N, m), z)
-        else:
-            alpha = 1.0
-        self._X[0] = x
-        self._X[1:] += alpha * dX
-        self._U += alpha * dU.reshape(N, m)
-
-    # ============================================================= SQP merit
-    def objective(self, X: np.ndarray, U: np.ndarray) -> float:
-        """The OCP cost of a trajectory ``X (N + 1, n)``, ``U (N, m)`` (slack terms included)."""
-        E = X - self._ref
-        dU = U - self.u0
-        J = 0.5 * float(np.einsum("ki,ij,kj->", E[:-1], self.Q, E[:-1]))
-        J += 0.5 * float(E[-1] @ self.Qf @ E[-1])
-        J += 0.5 * float(np.einsum("ki,ij,kj->", dU, self.R, dU))
-        if self.soft:
-            s = np.maximum(np.max(X[1:] - self.x_max, axis=0), np.max(self.x_min - X[1:], axis=0))
-            s = np.maximum(s[np.isfinite(s)], 0.0)
-            J += self.soft_weights[0] * float(s.sum()) + 0.5 * self.soft_weights[1] * float(s @ s)
-        return J
-
-    def _multiplier_bound(self, dX: np.ndarray) -> float:
-        """``‖λ‖_∞`` of the dynamics multipliers of the QP solution (backward recursion)."""
-        N, n = self.N, self.n
-        qp = self.qp
-        if hasattr(qp, "dynamics_multipliers"):  # the sparse QP has them
-            return float(np.max(np.abs(qp.dynamics_multipliers())))
-        nu_rows = qp.state_bound_multipliers()
-        Xp = self._X[1:] + dX - self._ref
-        lam_next = np.zeros(n)
-        big = 0.0
-        for k in range(N - 1, -1, -1):
-            lam_k = self.W[k] @ Xp[k] + nu_rows[k]
-            if k + 1 < N:
-                lam_k += lam_next @ self._A[k + 1]
-            big = max(big, float(np.max(np.abs(lam_k))))
-            lam_next = lam_k
-        return big
-
-    def _line_search(self, dX: np.ndarray, dU: np.ndarray, z: np.ndarray) -> float:
-        self._mu = max(self._mu, 1.5 * self._multiplier_bound(dX) + 1e-6)
-        mu = self._mu
-        X0, U0 = self._X.copy(), self._U.copy()
-        defect0 = float(np.abs(self._D).sum())
-        phi0 = self.objective(X0, U0) + mu * defect0
-        E = X0 - self._ref
-        grad = float(np.einsum("ki,ij,kj->", E[1:-1], self.Q, dX[:-1])) + float(E[-1] @ self.Qf @ dX[-1])
-        grad += float(np.einsum("ki,ij,kj->", U0 - self.u0, self.R, dU))
-        slope = grad - mu * defect0
-        alpha = 1.0
-        for _ in range(30):
-            self._X[1:] = X0[1:] + alpha * dX
-            self._U[:] = U0 + alpha * dU
-            self._linearize()
-            phi = self.objective(self._X, self._U) + mu * float(np.abs(self._D).sum())
-            # the last term absorbs rounding of phi near convergence (else tiny steps stall the iteration)
-            if phi <= phi0 + 1e-4 * alpha * min(slope, 0.0) + 1e-12 * max(1.0, abs(phi0)):
-                break
-            alpha *= 0.5
-        self._X[:] = X0
-        self._U[:] = U0
-        return alpha
-
-    def _fail(self, x: np.ndarray, status: str, t_start: float) -> None:
-        message = f"NonlinearMPC: the QP failed ({status}) at x = {np.array2string(x, precision=4)}"
-        reason = self.qp.explain()
-        if reason:
-            message += f"; {reason}"
-        self.last = NMPCSolution(
-            status=status, iterations=0, kkt_residual=math.nan, qp_status=status, qp_iterations=0,
-            time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=0.0, time_other_s=0.0,
-            solve_time_s=time.perf_counter() - t_start, states=self._X.copy(), inputs=self._U.copy(),
-            u=np.full(self.m, np.nan), objective=math.nan, message=message,
-        )  # fmt: skip
-        self._started = False  # the next call starts cold
-        raise MPCInfeasible(message)
-
-    # ================================================================= IPOPT
-    def _build_ipopt(self) -> None:
-        n, m, N = self.n, self.m, self.N
-        X = cs.MX.sym("X", n, N + 1)
-        U = cs.MX.sym("U", m, N)
-        bounded = np.flatnonzero(np.isfinite(self.x_min) | np.isfinite(self.x_max))
-        ns = bounded.size if self.soft else 0
-        S = cs.MX.sym("S", ns)
-        P = cs.MX.sym("P", 2 * n)
-        x_meas, r = P[:n], P[n:]
-        E = X - cs.repmat(r, 1, N + 1)
-        dU = U - cs.repmat(cs.DM(self.u0), 1, N)
-        J = 0.5 * cs.sum2(cs.sum1(E[:, :N] * cs.mtimes(cs.DM(self.Q), E[:, :N])))
-        J += 0.5 * cs.bilin(cs.DM(self.Qf), E[:, N], E[:, N])
-        J += 0.5 * cs.sum2(cs.sum1(dU * cs.mtimes(cs.DM(self.R), dU)))
-        if ns:
-            J += self.soft_weights[0] * cs.sum1(S) + 0.5 * self.soft_weights[1] * cs.sumsqr(S)
-        Fk = self.F.map(N)(X[:, :N], U)
-        g = [X[:, 0] - x_meas, cs.vec(Fk - X[:, 1:])]
-        lbg = [np.zeros(n), np.zeros(n * N)]
-        ubg = [np.zeros(n), np.zeros(n * N)]
-        lbx_X = np.full((N + 1, n), -np.inf)
-        ubx_X = np.full((N + 1, n), np.inf)
-        if ns:
-            for j, i in enumerate(bounded):
-                if np.isfinite(self.x_max[i]):
-                    g.append(X[i, 1:].T - S[j])
-                    lbg.append(np.full(N, -np.inf))
-                    ubg.append(np.full(N, self.x_max[i]))
-                if np.isfinite(self.x_min[i]):
-                    g.append(X[i, 1:].T + S[j])
-                    lbg.append(np.full(N, self.x_min[i]))
-                    ubg.append(np.full(N, np.inf))
-        else:
-            lbx_X[1:] = self.x_min
-            ubx_X[1:] = self.x_max
-        w = cs.vertcat(cs.vec(X), cs.vec(U), S)
-        nlp = {"x": w, "f": J, "g": cs.vertcat(*g), "p": P}
-        opts = {
-            "print_time": False,
-            "ipopt": {"print_level": 0, "sb": "yes", "tol": self.tol, "max_iter": 3000},
-        }
-        self._ipopt = cs.nlpsol("nmpc", "ipopt", nlp, opts)
-        self._lbw = np.concatenate([lbx_X.ravel(), np.tile(self.u_min, N), np.zeros(ns)])
-        self._ubw = np.concatenate([ubx_X.ravel(), np.tile(self.u_max, N), np.full(ns, np.inf)])
-        self._lbg = np.concatenate(lbg)
-        self._ubg = np.concatenate(ubg)
-
-    def _solve_ipopt(self, x: np.ndarray, t_start: float) -> np.ndarray:
-        t0 = time.perf_counter()
-        X, U, stats, obj = self._ipopt_solve(x)
-        t_qp = time.perf_counter() - t0
-        u = np.clip(U[0], self.u_min, self.u_max)
-        total = time.perf_counter() - t_start
-        iters = int(stats.get("iter_count", 0))
-        self.last = NMPCSolution(
-            status="solved", iterations=iters, kkt_residual=math.nan, qp_status=str(stats.get("return_status")),
-            qp_iterations=iters, time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=t_qp,
-            time_other_s=total - t_qp, solve_time_s=total, states=X.copy(), inputs=U.copy(), u=u,
-            objective=obj,
-        )  # fmt: skip
-        self._started = True
-        return u
-
-    def _ipopt_solve(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, Any], float]:
-        """The OCP from ``x`` solved by IPOPT, warm-started from the previous solution shifted.
-
-        Returns:
-            ``(X (N + 1, n), U (N, m), IPOPT's stats, objective)``.
-
-        Raises:
-            MPCInfeasible: IPOPT did not succeed.
-        """
-        if self._ipopt is None:
-            self._build_ipopt()
-        n, m, N = self.n, self.m, self.N
-        nX = n * (N + 1)
-        if self._ipopt_guess is None:
-            guess = np.concatenate(
-                [
-                    np.tile(x, N + 1),
-                    np.tile(np.clip(self.u0, self.u_min, self.u_max), N),
-                    np.zeros(self._lbw.size - nX - N * m),
-                ]
-            )
-        else:
-            guess = self._ipopt_guess.copy()
-            Xg = guess[:nX].reshape(N + 1, n)
-            Ug = guess[nX : nX + N * m].reshape(N, m)
-            Xg[:-1] = Xg[1:].copy()
-            Ug[:-1] = Ug[1:].copy()
-            Xg[0] = x
-        sol = self._ipopt(
-            x0=guess, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg, p=np.concatenate([x, self._ref])
-        )
-        stats = self._ipopt.stats()
-        w = np.asarray(sol["x"], dtype=float).ravel()
-        if not stats.get("success", False) or not np.all(np.isfinite(w)):
-            status = str(stats.get("return_status", "failed"))
-            self._ipopt_guess = None
-            self._started = False
-            raise MPCInfeasible(f"NonlinearMPC (ipopt): {status} at x = {np.array2string(x, precision=4)}")
-        self._ipopt_guess = w
-        X = w[:nX].reshape(N + 1, n)
-        U = w[nX : nX + N * m].reshape(N, m)
-        return X, U, stats, float(sol["f"])
 
     def describe(self) -> str:
         """One paragraph: horizon, integrator, solver, bounds."""

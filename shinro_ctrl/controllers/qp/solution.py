@@ -1,4 +1,4 @@
-"""The outcome of one ``LinearMPC`` call, whichever backend solved it."""
+"""The outcome of one MPC call: ``LinearMPC``'s (whichever backend solved it) and ``NonlinearMPC``'s."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-__all__ = ["MPCSolution"]
+__all__ = ["MPCSolution", "NMPCSolution"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,3 +54,46 @@ class MPCSolution:
     backend: str = "osqp"
     active_set_size: int = -1
     kkt_residual: float = math.nan
+
+
+@dataclasses.dataclass(frozen=True)
+class NMPCSolution:
+    """The outcome of one :class:`~shinro_ctrl.controllers.nmpc.NonlinearMPC` call.
+
+    Attributes:
+        status: ``"solved"`` (KKT residual below ``tol``), ``"rti"`` (the
+            real-time iteration budget was used up first), or the failure.
+        iterations: SQP iterations (QP solves) of the call; IPOPT's iterations
+            with ``solver="ipopt"``.
+        kkt_residual: KKT residual of the OCP at the last linearization point
+            (stationarity and complementarity with the QP's multipliers, and
+            the shooting defects), ∞-norm; IPOPT's final one for ``"ipopt"``.
+        qp_status: The last QP's status (DAQP's exit flag in words, or OSQP's status).
+        qp_iterations: Active-set iterations of the last QP.
+        time_linearization_s: Defects and Jacobians (CasADi) [s].
+        time_condensing_s: Building the condensed QP [s].
+        time_qp_s: QP solves [s].
+        time_other_s: Everything else (shift, step, line search) [s].
+        solve_time_s: Wall time of the whole call [s].
+        states: Predicted states ``(N + 1, n)``.
+        inputs: Planned inputs ``(N, m)`` (before clipping).
+        u: The input returned ``(m,)`` (clipped to the hard bounds).
+        objective: OCP cost of the predicted trajectory.
+        message: Why the call failed (empty when it did not).
+    """
+
+    status: str
+    iterations: int
+    kkt_residual: float
+    qp_status: str
+    qp_iterations: int
+    time_linearization_s: float
+    time_condensing_s: float
+    time_qp_s: float
+    time_other_s: float
+    solve_time_s: float
+    states: np.ndarray
+    inputs: np.ndarray
+    u: np.ndarray
+    objective: float
+    message: str = ""
