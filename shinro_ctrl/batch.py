@@ -143,16 +143,7 @@ def lqr_batch_rollout(
         raise InvalidArgument(f"batch rollout not supported: {reason}")
     clip = batch_clip(plant)
     n, m, dt = plant.state_dim, plant.input_dim, plant.dt
-    sizes = {np.shape(v) for v in params.values()}
-    if len(sizes) != 1 or len(next(iter(sizes))) != 1:
-        raise InvalidArgument(f"params must all be (N,) arrays of one length, got shapes {sorted(sizes)}")
-    N = next(iter(sizes))[0]
-    P = {k: real_array(f"params[{k!r}]", v) for k, v in params.items()}
-    x0_ = real_array("x0", x0)
-    if x0_.shape not in ((n,), (N, n)):
-        raise InvalidArgument(f"x0: expected shape ({n},) or ({N}, {n}) for {N} instances but found {x0_.shape}")
-    X = np.array(np.broadcast_to(x0_, (N, n)))
-    r = as_vector("ref", ref, n)
+    N, P, X, r = _batch_inputs(n, params, x0, ref)
     K, u0, u_min, u_max, saturate, x_min, x_max = _law(controller, n, m)
     x_bounds = x_min is not None or x_max is not None
     qi = np.asarray(plant.position_indices, dtype=int)
@@ -198,6 +189,23 @@ def lqr_batch_rollout(
     elapsed = clock() - start
     metrics = acc.finish(t, call_times, alive)
     return BatchRollout(metrics=metrics, diverged_step=died, t=t, finite=alive, elapsed_s=elapsed)
+
+
+def _batch_inputs(
+    n: int, params: Mapping[str, np.ndarray], x0: np.ndarray, ref: np.ndarray
+) -> tuple[int, dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """Validated ``(N, params, X (N, n) a fresh copy of x0, ref (n,))`` of :func:`lqr_batch_rollout`."""
+    sizes = {np.shape(v) for v in params.values()}
+    if len(sizes) != 1 or len(next(iter(sizes))) != 1:
+        raise InvalidArgument(f"params must all be (N,) arrays of one length, got shapes {sorted(sizes)}")
+    N = next(iter(sizes))[0]
+    P = {k: real_array(f"params[{k!r}]", v) for k, v in params.items()}
+    x0_ = real_array("x0", x0)
+    if x0_.shape not in ((n,), (N, n)):
+        raise InvalidArgument(f"x0: expected shape ({n},) or ({N}, {n}) for {N} instances but found {x0_.shape}")
+    X = np.array(np.broadcast_to(x0_, (N, n)))
+    r = as_vector("ref", ref, n)
+    return N, P, X, r
 
 
 def _law(controller: Any, n: int, m: int) -> tuple:

@@ -161,19 +161,7 @@ def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6)
     xe, ue = plant.equilibrium()
     x0 = as_vector("x0", xe if x0 is None else x0, plant.state_dim).copy()
     u0 = as_vector("u0", ue if u0 is None else u0, plant.input_dim).copy()
-    try:
-        T, _ = plant.engine_state_map(x0)
-    except NotImplementedError as exc:
-        raise InvalidArgument(f"{type(plant).__name__} has no MuJoCo state map to cross-check against") from exc
-    # With a state-dependent coordinate map x = g(z), A_x = T A_z T⁻¹ + (dT/dt) T⁻¹: the comparison is
-    # exact only where T does not change along the motion (any equilibrium; zero body rates for a free body).
-    T_ahead, _ = plant.engine_state_map(x0 + 1e-6 * plant.dynamics(x0, u0))  # T a microsecond later
-    if np.abs(T_ahead - T).max() > 1e-12 * max(1.0, np.abs(T).max()):
-        raise InvalidArgument(
-            f"{type(plant).__name__}: MuJoCo's coordinates differ from the plant's by a map that changes along the "
-            "motion at this point, so the linearizations are not comparable; choose an operating point where it "
-            "does not (an equilibrium, or zero angular rates)"
-        )
+    T = _comparable_state_map(plant, x0, u0)
 
     A_e, B_e = plant.linearize(x0, u0, method="exact")  # first call compiles
     t_exact = _median_time(lambda: plant.linearize(x0, u0, method="exact"))
@@ -219,6 +207,24 @@ def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6)
         time_mujoco_s=t_mj,
         time_build_s=t_build,
     )
+
+
+def _comparable_state_map(plant: Any, x0: np.ndarray, u0: np.ndarray) -> np.ndarray:
+    """``T (n, n)`` of ``plant.engine_state_map`` at ``x0``, refused where it changes along the motion."""
+    try:
+        T, _ = plant.engine_state_map(x0)
+    except NotImplementedError as exc:
+        raise InvalidArgument(f"{type(plant).__name__} has no MuJoCo state map to cross-check against") from exc
+    # With a state-dependent coordinate map x = g(z), A_x = T A_z T⁻¹ + (dT/dt) T⁻¹: the comparison is
+    # exact only where T does not change along the motion (any equilibrium; zero body rates for a free body).
+    T_ahead, _ = plant.engine_state_map(x0 + 1e-6 * plant.dynamics(x0, u0))  # T a microsecond later
+    if np.abs(T_ahead - T).max() > 1e-12 * max(1.0, np.abs(T).max()):
+        raise InvalidArgument(
+            f"{type(plant).__name__}: MuJoCo's coordinates differ from the plant's by a map that changes along the "
+            "motion at this point, so the linearizations are not comparable; choose an operating point where it "
+            "does not (an equilibrium, or zero angular rates)"
+        )
+    return T
 
 
 def _errors(A: np.ndarray, B: np.ndarray, A2: np.ndarray, B2: np.ndarray) -> tuple[float, float]:

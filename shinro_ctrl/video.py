@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl._video_camera import _framing, _moving_bounds, _stamp
 from shinro_ctrl.errors import InvalidArgument, ShinroError
 from shinro_ctrl.progress import Progress
 
@@ -325,39 +326,6 @@ def write_mp4(frames: Sequence[np.ndarray], path: str | Path, fps: float, *, ffm
     return path
 
 
-# ------------------------------------------------------------------- camera
-def _moving_bounds(engine: Any) -> tuple[np.ndarray, np.ndarray] | None:
-    """Axis-aligned box ``(lo (3,), hi (3,))`` [m] around the geoms of moving bodies, at the current state."""
-    model, data = engine.model, engine.data
-    moving = np.asarray(model.geom_bodyid) != 0
-    if not np.any(moving):
-        return None
-    pos = np.asarray(data.geom_xpos)[moving]
-    rad = np.minimum(np.asarray(model.geom_rbound)[moving], 0.5 * float(model.stat.extent) + 1e-9)[:, None]
-    return (pos - rad).min(axis=0), (pos + rad).max(axis=0)
-
-
-def _framing(lo: np.ndarray, hi: np.ndarray, fovy_deg: float, aspect: float, extent: float) -> dict[str, Any]:
-    """A free-camera pose that keeps the box ``[lo, hi]`` in view."""
-    center = 0.5 * (lo + hi)
-    size = np.maximum(hi - lo, 1e-3)
-    radius = max(0.5 * float(np.linalg.norm(size)), 0.05 * extent, 0.05)
-    half_v = math.radians(fovy_deg) / 2
-    half_h = math.atan(math.tan(half_v) * aspect)
-    distance = 1.1 * radius / math.sin(min(half_v, half_h))
-    planar = size[2] < 0.3 * max(size[0], size[1])  # ground robots: look down on the plane
-    return {"center": center, "distance": distance, "azimuth": 90.0, "elevation": -50.0 if planar else -12.0}
-
-
-def _stamp(image: np.ndarray, text: str) -> np.ndarray:
-    """A copy of ``image`` with ``text`` in its top-left corner."""
-    from PIL import Image, ImageDraw
-
-    im = Image.fromarray(image)
-    ImageDraw.Draw(im).text((6, 4), text, fill=(235, 235, 235))
-    return np.asarray(im)
-
-
 # ------------------------------------------------------------------ render
 def _render_model(sim: Any) -> str | None:
     """The MJCF model the scenario names (None: the plant's asset); raise if there is none."""
@@ -448,20 +416,8 @@ def render_rollout(
     states, times = x[idx], t[idx]
 
     start = time.perf_counter()
-    # Pass 1: the plant writes each state into MuJoCo (its own coordinates, IK for an arm);
-    # keep MuJoCo's full state for pass 2 and the box the moving parts sweep.
-    snapshots = []
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for _ in _replay(plant, states):
-        engine.forward()  # some plants only write qpos (a pinned base); refresh what the box reads
-        snapshots.append(engine.get_state_vector())
-        box = _moving_bounds(engine)
-        if box is not None:
-            lo, hi = np.minimum(lo, box[0]), np.maximum(hi, box[1])
-    try:
-        renderer = engine.make_renderer(width, height, shadows=shadows)
-    except RuntimeError as exc:
-        raise VideoError(f"{exc}; for offscreen rendering: apt-get install libosmesa6 and MUJOCO_GL=osmesa") from exc
+    snapshots, lo, hi = _snapshots(plant, engine, states)  # pass 1
+    renderer = _make_renderer(engine, width, height, shadows)
     frames: list[np.ndarray] = []
     bar = Progress(len(snapshots), f"video {Path(path).name}", progress, delay=1.0, unit="frames")
     try:
@@ -471,11 +427,7 @@ def render_rollout(
             renderer.look_at(view["center"], view["distance"], azimuth=view["azimuth"], elevation=view["elevation"])
         for k, z in enumerate(snapshots):
             engine.set_state_vector(z)
-            try:
-                image = renderer.render(camera)
-            except (KeyError, ValueError) as exc:
-                raise VideoError(f"camera {camera!r}: {exc}") from exc
-            frames.append(_stamp(image, f"t = {times[k]:.2f} s") if label else image.copy())
+            frames.append(_frame(renderer, camera, f"t = {times[k]:.2f} s" if label else None))
             if on_frame is not None:
                 on_frame(k, frames[-1])
             bar.update(k + 1)
@@ -484,3 +436,39 @@ def render_rollout(
         bar.close()
     out = write_gif(frames, path, play_fps) if suffix == ".gif" else write_mp4(frames, path, play_fps)
     return VideoInfo(Path(out), len(frames), play_fps, stride, width, height, time.perf_counter() - start)
+
+
+def _snapshots(plant: Any, engine: Any, states: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Pass 1 of :func:`render_rollout`: MuJoCo's full state for each frame and the box the moving parts sweep.
+
+    The plant writes each state into MuJoCo (its own coordinates, IK for an arm).
+
+    Returns:
+        ``(snapshots, lo (3,), hi (3,))``; ``lo`` stays ``+inf`` when no part moves.
+    """
+    snapshots = []
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for _ in _replay(plant, states):
+        engine.forward()  # some plants only write qpos (a pinned base); refresh what the box reads
+        snapshots.append(engine.get_state_vector())
+        box = _moving_bounds(engine)
+        if box is not None:
+            lo, hi = np.minimum(lo, box[0]), np.maximum(hi, box[1])
+    return snapshots, lo, hi
+
+
+def _make_renderer(engine: Any, width: int, height: int, shadows: bool) -> Any:
+    """The engine's offscreen renderer, or VideoError with the OSMesa hint."""
+    try:
+        return engine.make_renderer(width, height, shadows=shadows)
+    except RuntimeError as exc:
+        raise VideoError(f"{exc}; for offscreen rendering: apt-get install libosmesa6 and MUJOCO_GL=osmesa") from exc
+
+
+def _frame(renderer: Any, camera: str | None, stamp: str | None) -> np.ndarray:
+    """One rendered image (a copy), with ``stamp`` printed in its corner when given."""
+    try:
+        image = renderer.render(camera)
+    except (KeyError, ValueError) as exc:
+        raise VideoError(f"camera {camera!r}: {exc}") from exc
+    return _stamp(image, stamp) if stamp is not None else image.copy()

@@ -30,12 +30,7 @@ duration entering as variable bounds and the cost weights as parameters, so
 
 from __future__ import annotations
 
-import ctypes
 import math
-import os
-import sys
-import tempfile
-import threading
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -44,6 +39,7 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument, PlanningFailed
+from shinro_ctrl.planning._capture import _captured
 from shinro_ctrl.planning.trajectory import METHODS, Trajectory
 from shinro_ctrl.validation import as_vector, bound_pair, did_you_mean
 
@@ -300,7 +296,7 @@ class TrajectoryOptimizer:
             PlanningFailed: start or goal outside the state bounds, or IPOPT
                 did not converge (its status and the worst constraint named).
         """
-        n, m, N, nu = self.n, self.m, self.knots, self._nu
+        n = self.n
         x_start = as_vector("x_start", x_start, n)
         x_goal = np.asarray(x_goal, dtype=float)
         if x_goal.shape != (n,) or np.any(np.isinf(x_goal)):
@@ -310,6 +306,66 @@ class TrajectoryOptimizer:
         self._check_inside("x_start", x_start)
         self._check_inside("x_goal", x_goal)
 
+        lbx, ubx = self._box(x_start, x_goal, lo, hi, u_goal)
+        w0 = self._guess(initial_guess, x_start, x_goal, lo, hi)
+
+        sol, error, stats, status, iters, elapsed, solver, out = self._run_ipopt(w0, lbx, ubx, weights)
+        if status == "Invalid_Option":
+            raise InvalidArgument(
+                f"ipopt: IPOPT rejected an option (status Invalid_Option); check the names and values in ipopt="
+                f"{self._opts['ipopt']!r}"
+            )
+        if solver is not self.solver:
+            status += " (after a retry with mu_strategy 'adaptive')"
+        if sol is None:
+            raise PlanningFailed(f"IPOPT stopped with an evaluation error after {iters} iterations: {error}")
+        wv = np.asarray(sol["x"], dtype=float).ravel()
+        T, X, U = self._unpack(wv)
+        D = np.asarray(self._defects(wv), dtype=float)  # (n, N - 1)
+        max_defect = float(np.abs(D).max())
+        if not stats.get("success", False) or not np.all(np.isfinite(wv)):
+            raise PlanningFailed(self._failure(status, iters, D, T, X, U, lbx, ubx, out.text()))
+
+        return self._trajectory(T, X, U, elapsed, iters, float(sol["f"]), max_defect, status)
+
+    def _trajectory(
+        self,
+        T: float,
+        X: np.ndarray,
+        U: np.ndarray,
+        elapsed: float,
+        iters: int,
+        objective: float,
+        max_defect: float,
+        status: str,
+    ) -> Trajectory:
+        """The solved :class:`Trajectory`, with ``xdot`` (and the right-hand ``xdot`` of multiple shooting)."""
+        N, nu = self.knots, self._nu
+        Uk = U if nu == N else np.vstack([U, U[-1:]])
+        t = np.linspace(0.0, T, N)
+        xdot = self.plant.dynamics(X, Uk)
+        xdot_right = self.plant.dynamics(X[1:], U) if self.method == "multiple_shooting" else None
+        return Trajectory(
+            t=t,
+            x=X.copy(),
+            u=Uk.copy(),
+            xdot=xdot,
+            method=self.method,
+            solve_time=elapsed,
+            iterations=iters,
+            objective=objective,
+            max_defect=max_defect,
+            status=status,
+            state_names=self.state_names,
+            input_names=self.input_names,
+            xdot_right=xdot_right,
+        )
+
+    def _box(
+        self, x_start: np.ndarray, x_goal: np.ndarray, lo: float, hi: float, u_goal: Any
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds ``(lbx, ubx)`` of the decision vector: ``T``, the state and input bounds, start, goal, ``u_goal``."""
+        n, m, N, nu = self.n, self.m, self.knots, self._nu
         lbx = np.concatenate([[lo], np.tile(self.x_min, N), np.tile(self.u_min, nu)])
         ubx = np.concatenate([[hi], np.tile(self.x_max, N), np.tile(self.u_max, nu)])
         lbx[1 : 1 + n] = ubx[1 : 1 + n] = x_start
@@ -327,8 +383,15 @@ class TrajectoryOptimizer:
                     f"u_min/u_max [{self.u_min[j]:g}, {self.u_max[j]:g}]"
                 )
             lbx[len(lbx) - m :] = ubx[len(ubx) - m :] = u_goal
-        w0 = self._guess(initial_guess, x_start, x_goal, lo, hi)
+        return lbx, ubx
 
+    def _run_ipopt(self, w0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray, weights: Any) -> tuple:
+        """Solve, retrying once with ``mu_strategy`` adaptive on the statuses in ``RETRY_STATUSES``.
+
+        Returns:
+            ``(sol or None, evaluation error or None, stats, status, iterations, seconds, solver used,
+            captured output)``.
+        """
         t0 = time.perf_counter()
         solver = self.solver
         iters = 0
@@ -347,41 +410,7 @@ class TrajectoryOptimizer:
                     break
                 solver = self._adaptive_solver()
         elapsed = time.perf_counter() - t0
-        if status == "Invalid_Option":
-            raise InvalidArgument(
-                f"ipopt: IPOPT rejected an option (status Invalid_Option); check the names and values in ipopt="
-                f"{self._opts['ipopt']!r}"
-            )
-        if solver is not self.solver:
-            status += " (after a retry with mu_strategy 'adaptive')"
-        if sol is None:
-            raise PlanningFailed(f"IPOPT stopped with an evaluation error after {iters} iterations: {error}")
-        wv = np.asarray(sol["x"], dtype=float).ravel()
-        T, X, U = self._unpack(wv)
-        D = np.asarray(self._defects(wv), dtype=float)  # (n, N - 1)
-        max_defect = float(np.abs(D).max())
-        if not stats.get("success", False) or not np.all(np.isfinite(wv)):
-            raise PlanningFailed(self._failure(status, iters, D, T, X, U, lbx, ubx, out.text()))
-
-        Uk = U if nu == N else np.vstack([U, U[-1:]])
-        t = np.linspace(0.0, T, N)
-        xdot = self.plant.dynamics(X, Uk)
-        xdot_right = self.plant.dynamics(X[1:], U) if self.method == "multiple_shooting" else None
-        return Trajectory(
-            t=t,
-            x=X.copy(),
-            u=Uk.copy(),
-            xdot=xdot,
-            method=self.method,
-            solve_time=elapsed,
-            iterations=iters,
-            objective=float(sol["f"]),
-            max_defect=max_defect,
-            status=status,
-            state_names=self.state_names,
-            input_names=self.input_names,
-            xdot_right=xdot_right,
-        )
+        return sol, error, stats, status, iters, elapsed, solver, out
 
     def _adaptive_solver(self) -> cs.Function:
         """The same NLP with IPOPT's adaptive barrier update (built on first need)."""
@@ -417,67 +446,3 @@ class TrajectoryOptimizer:
         if tail:
             msg += "; solver output: " + " | ".join(s.strip() for s in tail)
         return msg
-
-
-def _c_fflush() -> Any:
-    try:
-        fflush = ctypes.CDLL(None).fflush
-    except (OSError, AttributeError, TypeError):  # pragma: no cover - no C runtime by that name
-        return lambda: None
-    fflush.argtypes = [ctypes.c_void_p]
-    return lambda: fflush(None)
-
-
-_fflush = _c_fflush()
-_LOCK = threading.Lock()  # fds 1 and 2 are process-wide: one captured solve at a time
-
-
-class _captured:
-    """Capture what C code prints on file descriptors 1 and 2 during a block (when ``active``)."""
-
-    def __init__(self, active: bool):
-        self.active = active
-        self._text = ""
-
-    def __enter__(self) -> _captured:
-        if not self.active:
-            return self
-        _LOCK.acquire()
-        for stream in (sys.stdout, sys.stderr):  # keep Python's buffered text in order
-            try:
-                if stream is not None:
-                    stream.flush()
-            except (OSError, ValueError):
-                pass
-        self._saved = []
-        try:
-            self._tmp = tempfile.TemporaryFile(mode="w+b")
-            for fd in (1, 2):
-                self._saved.append((fd, os.dup(fd)))
-                os.dup2(self._tmp.fileno(), fd)
-        except OSError:  # no usable descriptors (embedded interpreters): do not capture
-            self._restore()
-            self.active = False
-            _LOCK.release()
-        return self
-
-    def _restore(self) -> None:
-        _fflush()
-        for fd, saved in self._saved:
-            os.dup2(saved, fd)
-            os.close(saved)
-        self._saved = []
-
-    def __exit__(self, *exc: Any) -> None:
-        if not self.active:
-            return
-        try:
-            self._restore()
-            self._tmp.seek(0)
-            self._text = self._tmp.read().decode("utf-8", "replace")
-            self._tmp.close()
-        finally:
-            _LOCK.release()
-
-    def text(self) -> str:
-        return self._text

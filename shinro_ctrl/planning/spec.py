@@ -97,50 +97,63 @@ def check_plan(spec: Any, n: int, m: int) -> dict[str, Any]:
             raise InvalidArgument(f"'method': unknown transcription {meth!r}{did_you_mean(str(meth), METHODS)}")
         out["method"] = meth
     if "duration" in spec:
-        d = spec["duration"]
-        if isinstance(d, int | float) and not isinstance(d, bool):
-            lo = hi = float(d)
-            out["duration"] = float(d)
-        elif isinstance(d, list | tuple) and len(d) == 2:
-            lo, hi = _vector("duration", d, 2)
-            out["duration"] = [lo, hi]
-        else:
-            raise InvalidArgument(f"'duration' must be a time [s] or a [T_min, T_max] pair, got {d!r}")
-        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
-            raise InvalidArgument(f"'duration' must satisfy 0 < T_min <= T_max, got {d!r}")
+        out["duration"] = _duration(spec["duration"])
     if "cost" in spec:
-        c = spec["cost"]
-        if isinstance(c, str):
-            if c not in ("effort", "time"):
-                raise InvalidArgument(f"'cost': unknown preset {c!r}{did_you_mean(c, ('effort', 'time'))}")
-            out["cost"] = c
-        elif isinstance(c, Mapping):
-            for key in c:
-                if key not in ("time", "effort"):
-                    raise InvalidArgument(f"'cost': unknown key '{key}'{did_you_mean(str(key), ('time', 'effort'))}")
-            cost: dict[str, Any] = {}
-            if "time" in c:
-                cost["time"] = _vector("cost.time", [c["time"]], 1)[0]
-            if "effort" in c:
-                e = c["effort"]
-                as_list = isinstance(e, list)
-                cost["effort"] = _vector("cost.effort", e, m) if as_list else _vector("cost.effort", [e], 1)[0]
-            out["cost"] = cost
-        else:
-            raise InvalidArgument(f"'cost' must be 'effort', 'time' or {{ time = w, effort = w }}, got {c!r}")
+        out["cost"] = _cost(spec["cost"], m)
     if "bounds" in spec:
-        b = spec["bounds"]
-        if not isinstance(b, Mapping):
-            raise InvalidArgument(f"'bounds' must be a table {{ u_min = [...], ... }}, got {b!r}")
-        for key in b:
-            if key not in BOUND_KEYS:
-                raise InvalidArgument(f"'bounds': unknown key '{key}'{did_you_mean(str(key), BOUND_KEYS)}")
-        out["bounds"] = {
-            key: _vector(f"bounds.{key}", b[key], m if key.startswith("u") else n, allow_inf=True)
-            for key in BOUND_KEYS
-            if key in b
-        }
+        out["bounds"] = _bounds(spec["bounds"], n, m)
     return out
+
+
+def _duration(d: Any) -> float | list[float]:
+    """The plan's ``duration``: a time or a ``[T_min, T_max]`` pair with ``0 < T_min <= T_max``."""
+    if isinstance(d, int | float) and not isinstance(d, bool):
+        lo = hi = float(d)
+        out = float(d)
+    elif isinstance(d, list | tuple) and len(d) == 2:
+        lo, hi = _vector("duration", d, 2)
+        out = [lo, hi]
+    else:
+        raise InvalidArgument(f"'duration' must be a time [s] or a [T_min, T_max] pair, got {d!r}")
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise InvalidArgument(f"'duration' must satisfy 0 < T_min <= T_max, got {d!r}")
+    return out
+
+
+def _cost(c: Any, m: int) -> str | dict[str, Any]:
+    """The plan's ``cost``: a preset name or ``{time = w, effort = w or (m,)}``."""
+    if isinstance(c, str):
+        if c not in ("effort", "time"):
+            raise InvalidArgument(f"'cost': unknown preset {c!r}{did_you_mean(c, ('effort', 'time'))}")
+        return c
+    elif isinstance(c, Mapping):
+        for key in c:
+            if key not in ("time", "effort"):
+                raise InvalidArgument(f"'cost': unknown key '{key}'{did_you_mean(str(key), ('time', 'effort'))}")
+        cost: dict[str, Any] = {}
+        if "time" in c:
+            cost["time"] = _vector("cost.time", [c["time"]], 1)[0]
+        if "effort" in c:
+            e = c["effort"]
+            as_list = isinstance(e, list)
+            cost["effort"] = _vector("cost.effort", e, m) if as_list else _vector("cost.effort", [e], 1)[0]
+        return cost
+    else:
+        raise InvalidArgument(f"'cost' must be 'effort', 'time' or {{ time = w, effort = w }}, got {c!r}")
+
+
+def _bounds(b: Any, n: int, m: int) -> dict[str, list[float]]:
+    """The plan's ``bounds`` table (``u_min``/``u_max`` of ``m``, ``x_min``/``x_max`` of ``n`` values)."""
+    if not isinstance(b, Mapping):
+        raise InvalidArgument(f"'bounds' must be a table {{ u_min = [...], ... }}, got {b!r}")
+    for key in b:
+        if key not in BOUND_KEYS:
+            raise InvalidArgument(f"'bounds': unknown key '{key}'{did_you_mean(str(key), BOUND_KEYS)}")
+    return {
+        key: _vector(f"bounds.{key}", b[key], m if key.startswith("u") else n, allow_inf=True)
+        for key in BOUND_KEYS
+        if key in b
+    }
 
 
 def equilibrium_input(plant: Any, x: np.ndarray, u_guess: np.ndarray, *, tol: float = 1e-8) -> np.ndarray | None:

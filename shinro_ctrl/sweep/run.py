@@ -83,9 +83,7 @@ def run_sweep(
     scenario = parse_scenario(doc, source=source or "<dict>", path=Path(source) if source else None)
     check_keys(ranges, sweep_keys(plant_class(scenario.plant.type).from_config(scenario.plant.params)))
     nominal = build_nominal(doc, source, engine)  # designs the controller
-    tol = STABLE_TOL_FACTOR * scenario.sim.settle_tol if stable_tol is None else float(stable_tol)
-    if not (math.isfinite(tol) and tol > 0):
-        raise ConfigError(f"stable_tol must be positive and finite, got {stable_tol!r}")
+    tol = _stable_tol(scenario.sim.settle_tol, stable_tol)
 
     values = draw_samples(ranges, samples, grid=grid, seed=seed)
     names = tuple(k.removeprefix("plant.") for k in ranges)
@@ -94,18 +92,7 @@ def run_sweep(
     base = SweepJob(doc, source, engine, names, (), (), tol)
     bar = Progress(values.shape[0], f"sweep {scenario.name}", progress, delay=0.0, unit="samples")
     timings: dict[str, float] = {}
-    used_workers = 1 if chosen in ("serial", "batch") else workers
-    try:
-        if chosen == "batch":
-            outcomes = run_batch(nominal, names, values, tol, bar, timings)
-        elif chosen == "serial":
-            outcomes = run_serial(nominal, base, values, bar)
-        elif chosen == "pool":
-            outcomes = run_pool(base, values, workers, bar)
-        else:
-            outcomes, used_workers = run_dask(base, values, scheduler, bar)
-    finally:
-        bar.close()
+    outcomes, used_workers = _execute(chosen, nominal, base, names, values, tol, bar, timings, workers, scheduler)
 
     rows = _rows(outcomes, values, ranges, timings)
     result = SweepResult(
@@ -127,6 +114,42 @@ def run_sweep(
     if out is not None:
         result.save(out)
     return result
+
+
+def _stable_tol(settle_tol: float, stable_tol: float | None) -> float:
+    """The stability band: ``STABLE_TOL_FACTOR × settle_tol`` unless given; positive and finite."""
+    tol = STABLE_TOL_FACTOR * settle_tol if stable_tol is None else float(stable_tol)
+    if not (math.isfinite(tol) and tol > 0):
+        raise ConfigError(f"stable_tol must be positive and finite, got {stable_tol!r}")
+    return tol
+
+
+def _execute(
+    chosen: str,
+    nominal: Any,
+    base: SweepJob,
+    names: tuple[str, ...],
+    values: np.ndarray,
+    tol: float,
+    bar: Progress,
+    timings: dict[str, float],
+    workers: int,
+    scheduler: Any,
+) -> tuple[list, int]:
+    """Run every sample with the chosen executor; returns ``(outcomes, workers used)`` (the bar is closed)."""
+    used_workers = 1 if chosen in ("serial", "batch") else workers
+    try:
+        if chosen == "batch":
+            outcomes = run_batch(nominal, names, values, tol, bar, timings)
+        elif chosen == "serial":
+            outcomes = run_serial(nominal, base, values, bar)
+        elif chosen == "pool":
+            outcomes = run_pool(base, values, workers, bar)
+        else:
+            outcomes, used_workers = run_dask(base, values, scheduler, bar)
+    finally:
+        bar.close()
+    return outcomes, used_workers
 
 
 def _load_doc(config: str | Path | Mapping[str, Any], duration: float | None) -> tuple[dict[str, Any], str | None]:
