@@ -50,7 +50,7 @@ class NMPCRealTime:
     def prepare(self) -> None:
         """Preparation phase: shift the previous solution and linearize/condense for the next state.
 
-        Called by :meth:`__call__` after each feedback; call it yourself to
+        Called by :meth:`~shinro_ctrl.controllers.nmpc.NonlinearMPC.__call__` after each feedback; call it yourself to
         overlap it with the time before the next measurement.
         """
         t0 = time.perf_counter()
@@ -70,7 +70,7 @@ class NMPCRealTime:
         """Feedback phase: solve the prepared QP for the measured ``x (n,)`` and take the step.
 
         With ``iterations > 1`` SQP iterations follow until the KKT residual is
-        below ``tol``. The first call after :meth:`reset` starts cold (see
+        below ``tol``. The first call after :meth:`~shinro_ctrl.controllers.nmpc.NonlinearMPC.reset` starts cold (see
         ``cold_start``).
 
         Returns:
@@ -140,7 +140,7 @@ class NMPCRealTime:
         return u
 
     def _begin(self, x: np.ndarray) -> tuple[int, bool, float]:
-        """The first trajectory after :meth:`reset`: ``(SQP budget, cold, IPOPT time)`` (see ``cold_start``)."""
+        """The first trajectory after ``reset()``: ``(SQP budget, cold, IPOPT time)`` (see ``cold_start``)."""
         t_qp = 0.0
         self._prepared = False
         if self.cold_start == "ipopt":

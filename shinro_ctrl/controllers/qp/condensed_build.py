@@ -39,7 +39,7 @@ class DenseRowGroup:
     """A block of constraint rows of one kind at consecutive stages.
 
     Row ``start + (k − first_stage)·width + j`` holds component ``labels[j]``
-    at stage ``k`` (indices into :attr:`CondensedQP.G`'s rows, before any row
+    at stage ``k`` (indices into :attr:`~shinro_ctrl.controllers.qp.condensed.CondensedQP.G`'s rows, before any row
     is dropped as fixed).
 
     Attributes:
@@ -70,7 +70,9 @@ class DenseRowGroup:
 
 
 def condensed_size(n: int, m: int, N: int, *, u_rows: int, rate_rows: int, x_rows: int, soft: bool) -> int:
-    """Dense matrix entries a :class:`CondensedQP` holds (the quantity :data:`MAX_DENSE_SIZE` caps).
+    """Dense matrix entries a :class:`~shinro_ctrl.controllers.qp.condensed.CondensedQP` holds.
+
+    The quantity :data:`~shinro_ctrl.controllers.qp.condensed.MAX_DENSE_SIZE` caps.
 
     Args:
         n, m, N: States, inputs, horizon.

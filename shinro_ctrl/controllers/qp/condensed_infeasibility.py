@@ -25,7 +25,7 @@ class DenseQP:
     """The condensed QP of one state: ``min ½ zᵀHz + fᵀz  s.t.  lower ≤ A z ≤ upper``.
 
     ``A`` stacks the slack rows (an identity block, ``s ≥ 0``) over the
-    constraint rows of :attr:`CondensedQP.G` (unscaled, fixed rows included,
+    constraint rows of :attr:`~shinro_ctrl.controllers.qp.condensed.CondensedQP.G` (unscaled, fixed rows included,
     as their own rows of zeros); the constant ``const`` completes the MPC cost
     ``J = ½ zᵀHz + fᵀz + const``.
 

@@ -10,7 +10,7 @@ from shinro_ctrl.controllers.qp.options import MPCOptions
 __all__ = ["AUTO_DAQP_MAX_VARIABLES", "choose_solver", "dense_size"]
 
 #: ``solver="auto"`` uses DAQP while the condensed QP has at most this many
-#: variables ``N·m`` plus slacks (and fits :data:`~.qp.condensed.MAX_DENSE_SIZE`).
+#: variables ``N·m`` plus slacks (and fits :data:`~shinro_ctrl.controllers.qp.condensed.MAX_DENSE_SIZE`).
 #: Measured with ``benchmarks/mpc.py --crossover`` (median call, warm closed
 #: loop, both backends exact): see :func:`choose_solver`.
 AUTO_DAQP_MAX_VARIABLES = 250
@@ -29,7 +29,7 @@ def choose_solver(n: int, m: int, N: int, opts: MPCOptions) -> str:
     level with OSQP near ``nz`` = 400 on the cart-pole and already 1.6x slower
     at ``nz = 360`` on the soft-bounded quadrotor (``N = 60``). Rule:
     ``"daqp"`` when ``nz <= AUTO_DAQP_MAX_VARIABLES`` (250) and the dense
-    matrices fit :data:`~.qp.condensed.MAX_DENSE_SIZE`, else ``"osqp"``.
+    matrices fit :data:`~shinro_ctrl.controllers.qp.condensed.MAX_DENSE_SIZE`, else ``"osqp"``.
 
     Args:
         n: States.

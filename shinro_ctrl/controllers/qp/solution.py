@@ -12,7 +12,7 @@ __all__ = ["MPCSolution", "NMPCSolution"]
 
 @dataclasses.dataclass(frozen=True)
 class MPCSolution:
-    """The outcome of one :class:`LinearMPC` call.
+    """The outcome of one :class:`~shinro_ctrl.controllers.mpc.LinearMPC` call.
 
     Attributes:
         status: The backend's status (OSQP's string, ``"solved"``,
