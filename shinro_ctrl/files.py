@@ -25,7 +25,6 @@ import ctypes
 import ctypes.util
 import errno
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -33,6 +32,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from shinro_ctrl._text_formats import _json_safe, dump_toml
 from shinro_ctrl.errors import InvalidArgument
 
 try:  # POSIX advisory locks; without them (Windows) nothing counts as provably stale
@@ -458,47 +458,7 @@ def _check_writable_parent(p: Path, what: str) -> None:
 
 
 # ---------------------------------------------------------------- formats
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    if isinstance(value, Mapping):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    return value
-
-
 def dump_json(path: str | Path, data: Any) -> Path:
     """Write ``data`` as indented JSON atomically (infinities as the strings ``"inf"``)."""
     text = json.dumps(_json_safe(data), indent=2, sort_keys=True) + "\n"
     return atomic_write(path, lambda f: f.write(text))
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, Mapping):
-        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def dump_toml(data: Mapping[str, Mapping[str, Any]]) -> str:
-    """Render a two-level document (tables of values) as TOML text."""
-    lines: list[str] = []
-    for table, body in data.items():
-        lines.append(f"[{table}]")
-        lines.extend(f"{k} = {_toml_value(v)}" for k, v in body.items())
-        lines.append("")
-    return "\n".join(lines)
