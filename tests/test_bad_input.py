@@ -522,6 +522,28 @@ def test_run_out_refuses_a_folder_holding_the_input_scenario(tmp_path, capsys):
     assert other.read_text() == text and sorted(p.name for p in tmp_path.iterdir()) == ["mine.toml", "scenario.toml"]
 
 
+def test_plan_checks_its_outputs_before_solving(tmp_path, capsys):
+    # plan --out / --plot go through run's output checks: no input or foreign file overwritten, nothing solved first
+    from shinro_ctrl.resources import shipped_config
+
+    scenario = tmp_path / "swing.toml"
+    scenario.write_text(shipped_config("cartpole_swingup_mujoco.toml").read_text())
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "swing_plan.npz").write_text("my notes")
+    cases = [
+        (["--plot", str(scenario)], "is the input file"),
+        (["--out", str(scenario)], "is not a folder"),
+        (["--out", str(tmp_path / "o")], "is not a NPZ file"),
+        (["--out", str(tmp_path / "p"), "--plot", str(tmp_path / "p" / "swing_plan.npz")], "is the plan file"),
+    ]
+    for extra, needle in cases:
+        assert main(["plan", str(scenario), *extra]) == 2
+        out, err = capsys.readouterr()
+        assert needle in err and "solve time" not in out, err
+    assert (tmp_path / "o" / "swing_plan.npz").read_text() == "my notes"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o", "swing.toml"]
+
+
 @pytest.mark.parametrize("option", ["--plot", "--video"])
 def test_plot_onto_the_input_file_is_refused(option, tmp_path, capsys):
     scenario = tmp_path / "mine.toml"

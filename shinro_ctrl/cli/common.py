@@ -1,0 +1,215 @@
+"""Shared pieces of the command line: the parser class, number and vector parsing, argument and output checks,
+matrix printing and the one-line error report."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import sys
+from collections.abc import Sequence
+
+import numpy as np
+
+from shinro_ctrl.errors import InvalidArgument, ShinroError
+
+__all__ = ["parse_number", "parse_vector", "side_by_side"]
+
+EXIT_USER_ERROR = 2
+_USER_ERRORS = (ShinroError, OSError)  # anything else is a bug and keeps its traceback
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors and our exit status."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise _UsageError(f"{self.prog}: {message}")
+
+
+class _UsageError(Exception):
+    pass
+
+
+_PI_TERM = re.compile(r"^([+-]?)(\d*\.?\d*)\*?pi(?:/(\d+\.?\d*))?$")
+
+
+def parse_number(text: str) -> float:
+    """A float, also accepting ``pi``, ``-pi``, ``2pi``, ``pi/2``, ``0.5*pi``."""
+    text = text.strip().lower()
+    try:
+        return float(text)
+    except ValueError:
+        pass
+    m = _PI_TERM.match(text)
+    if not m:
+        raise InvalidArgument(f"not a number: '{text}'")
+    sign = -1.0 if m.group(1) == "-" else 1.0
+    factor = float(m.group(2)) if m.group(2) not in ("", ".") else 1.0
+    div = float(m.group(3)) if m.group(3) else 1.0
+    if div == 0.0:
+        raise InvalidArgument(f"not a number: '{text}' (division by zero)")
+    return sign * factor * math.pi / div
+
+
+def parse_vector(text: str) -> np.ndarray:
+    """A comma- or space-separated list of numbers (see :func:`parse_number`)."""
+    parts = [p for p in re.split(r"[,\s]+", text.strip().strip("[]")) if p]
+    if not parts:
+        raise InvalidArgument("empty vector")
+    return np.array([parse_number(p) for p in parts])
+
+
+def _matrix_lines(M: np.ndarray, width: int = 11) -> list[str]:
+    return [" ".join(f"{v + 0.0:{width}.5g}" for v in row) for row in np.atleast_2d(M)]
+
+
+def side_by_side(blocks: Sequence[tuple[str, np.ndarray]], gap: str = "   ") -> str:
+    """Render matrices next to each other under their titles."""
+    cols = []
+    for title, M in blocks:
+        lines = _matrix_lines(M)
+        w = max([len(title), *(len(s) for s in lines)])
+        cols.append([title.ljust(w)] + [s.ljust(w) for s in lines])
+    height = max(len(c) for c in cols)
+    for c in cols:
+        c.extend([" " * len(c[0])] * (height - len(c)))
+    return "\n".join(gap.join(c[i] for c in cols).rstrip() for i in range(height))
+
+
+# ------------------------------------------------------------ argument checks
+RUN_FILES = ("result.npz", "metrics.json", "scenario.toml", "run.png")
+RUN_FILES_BOTH = ("standalone", "mujoco", "run.png")
+SWEEP_FILES = ("sweep.csv", "sweep.json", "sweep.png")
+CROSSCHECK_PLANTS = ("pendulum", "cartpole", "double_pendulum", "quadrotor")  # plants with a MuJoCo state map
+MAX_SAMPLES = 1_000_000
+MAX_WORKERS = 256
+
+
+def _check_step(option: str, value: float) -> None:
+    if not (math.isfinite(value) and 0 < value <= 1.0):
+        raise InvalidArgument(f"{option} must be a finite step in (0, 1], got {value:g}")
+
+
+def _check_count(option: str, value: int, limit: int) -> None:
+    if not 1 <= value <= limit:
+        raise InvalidArgument(f"{option} must be an integer in [1, {limit:,}], got {value}")
+
+
+def _check_output(path: str, inputs: Sequence[str | None] = ()) -> None:
+    from shinro_ctrl.files import check_output_file
+
+    check_output_file(path, inputs=[i for i in inputs if i], what="--plot", kind=".png")
+
+
+def _check_scheduler(address: str, timeout: float = 5.0) -> None:
+    """Fail fast (one line, a few seconds) when a Dask scheduler address cannot be reached."""
+    import socket
+    from urllib.parse import urlparse
+
+    url = urlparse(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = url.hostname, url.port
+    except ValueError:
+        host, port = None, None
+    if not host or not port:
+        raise InvalidArgument(f"--scheduler must look like tcp://HOST:PORT, got '{address}'")
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        raise InvalidArgument(f"cannot reach the Dask scheduler at '{address}': {exc.strerror or exc}") from None
+
+
+def _crosscheck_plant(name: str, plant_class):
+    """A plant from a short name or class name, or the plant (with its parameters) of a scenario file."""
+    from pathlib import Path
+
+    from shinro_ctrl.plants import PLANT_ALIASES, MjcfPlant, is_model_file
+
+    if is_model_file(name):  # an MJCF/URDF model file: the plant is the file, the state map the identity
+        return MjcfPlant(name)
+    if name.endswith(".toml") or Path(name).is_file():
+        from shinro_ctrl.config import load_scenario
+
+        scenario = load_scenario(name)
+        plant = plant_class(scenario.plant.type).from_config(scenario.plant.params)
+    else:
+        plant = plant_class(name)()
+    supported = {PLANT_ALIASES.get(a, a) for a in CROSSCHECK_PLANTS} | {"MjcfPlant"}
+    if type(plant).__name__ not in supported:
+        raise InvalidArgument(
+            f"crosscheck supports {', '.join(CROSSCHECK_PLANTS)} (plants whose MuJoCo model maps onto their state); "
+            f"got {type(plant).__name__}"
+        )
+    return plant
+
+
+# ------------------------------------------------------------ error report
+_NUMERIC_ERRORS = (OverflowError, FloatingPointError, RecursionError, MemoryError)
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _one_line(exc: BaseException) -> str:
+    msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    if isinstance(exc, KeyError) and msg.startswith(("'", '"')):
+        msg = msg[1:-1]
+    if isinstance(exc, _NUMERIC_ERRORS) and not isinstance(exc, ShinroError):  # ours already say what overflowed
+        what = {
+            RecursionError: "input nested too deeply",
+            MemoryError: "out of memory (reduce the problem size)",
+        }.get(type(exc), "numeric overflow (a value too large for float64)")
+        return f"{what}: {msg}" if msg else what
+    return msg or type(exc).__name__
+
+
+def _silence_stdout() -> None:
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _looks_like_value(token: str) -> bool:
+    """A token starting with '-' that is a (vector of) number(s), not an option: '-0.1,0', '-pi,0', '-1e-3'."""
+    if not token.startswith("-") or token.startswith("--"):
+        return False
+    try:
+        parse_vector(token)
+    except InvalidArgument:
+        return False
+    return True
+
+
+def _join_negative_values(parser: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """``--x0 -0.1,0`` → ``--x0=-0.1,0``: argparse takes a value starting with '-' for an option."""
+    takes_value = set()
+    subparsers = [parser]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            subparsers.extend(action.choices.values())
+    for p in subparsers:
+        for action in p._actions:
+            if action.option_strings and action.nargs is None:  # an option that takes one value
+                takes_value.update(action.option_strings)
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        token = argv[i]
+        if token in takes_value and i + 1 < len(argv) and _looks_like_value(argv[i + 1]):
+            out.append(f"{token}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(token)
+        i += 1
+    return out

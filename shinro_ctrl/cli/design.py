@@ -1,0 +1,134 @@
+"""The ``design`` command: a controller's gain or problem, its linear analysis, report and weight trade-off."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+
+from shinro_ctrl.errors import InvalidArgument
+
+__all__ = ["cmd_design"]
+
+
+def cmd_design(args: argparse.Namespace) -> int:
+    from shinro_ctrl.sim import RobotSim
+
+    sim = RobotSim.from_config(args.config)  # the scenario's own loop: a bad [engine] table is reported too
+    ctrl = sim.controller
+    kind = {"lqr": "LQR", "mpc": "LinearMPC"}[args.kind]
+    if type(ctrl).__name__ != kind:
+        raise InvalidArgument(f"{args.config} configures a {type(ctrl).__name__} controller, not {kind}")
+    _check_design_options(args)  # before anything is printed
+    np.set_printoptions(precision=5, suppress=True, linewidth=120)
+    if args.kind == "lqr":
+        _print_lqr(ctrl, sim.initial_state)
+    else:
+        _print_mpc(sim)
+    return _design_analysis(args, sim)
+
+
+def _check_design_options(args: argparse.Namespace) -> None:
+    """``--tradeoff`` and its options, and ``--report``: checked (output paths too) before any work."""
+    if args.tradeoff is not None:
+        from shinro_ctrl.tradeoff import parse_tradeoff
+
+        if args.kind != "lqr":
+            raise InvalidArgument("--tradeoff sweeps LQR weights: use 'design lqr'")
+        if not args.out:
+            raise InvalidArgument("--tradeoff needs --out DIR for tradeoff.csv, tradeoff.json and tradeoff.png")
+        if args.points < 2 or args.workers < 1:
+            raise InvalidArgument(f"--points must be >= 2 and --workers >= 1, got {args.points} and {args.workers}")
+        parse_tradeoff(args.tradeoff)
+        from shinro_ctrl.files import check_output_folder
+        from shinro_ctrl.tradeoff import OUTPUT_FILES
+
+        check_output_folder(args.out, OUTPUT_FILES, inputs=[args.config])
+    elif args.out or args.engine or args.points != 20 or args.workers != 2:
+        raise InvalidArgument("--out, --engine, --points and --workers go with --tradeoff KEY=LO:HI")
+    if args.report:
+        from pathlib import Path
+
+        from shinro_ctrl.files import check_output_file
+
+        report = Path(args.report)
+        if report.suffix.lower() not in (".html", ".htm"):
+            raise InvalidArgument(f"--report: expected a FILE.html, got '{report}'")
+        check_output_file(report, inputs=[args.config], what="--report")
+        if report.is_file() and report.stat().st_size and not report.read_bytes()[:15].lower() == b"<!doctype html>":
+            raise InvalidArgument(f"--report '{report}' exists and is not an HTML report; refusing to overwrite it")
+
+
+def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
+    """The LQR's model, gain, closed-loop poles and predicted cost from ``x_init``."""
+    model = ctrl.model  # the Controller contract: the LinearModel designed on, or None
+    if not ctrl.discrete:
+        method = model.method if model is not None else "exact"
+        print(f"model: continuous-time {method} linearization (continuous design: K and the poles are continuous)")
+    elif model is not None:
+        print(f"model: {model.discretization} discretization of the {model.method} linearization, dt = {model.dt:g} s")
+    print("K =")
+    print(ctrl.K)
+    print("closed-loop poles:")
+    for p in ctrl.poles:
+        size = f"|p| = {abs(p):.6f}" if getattr(ctrl, "discrete", True) else f"Re p = {p.real:+.6f}"
+        print(f"  {p.real:+.6f} {p.imag:+.6f}j   {size}")
+    print(f"predicted cost ½ x0ᵀ S x0 from {np.round(x_init, 6).tolist()}: {ctrl.cost_to_go(x_init):.6g}")
+
+
+def _print_mpc(sim: Any) -> None:
+    """The MPC problem and the solve statistics of a short closed-loop run (at most 2 s)."""
+    ctrl = sim.controller
+    print(ctrl.describe())
+    result = sim.run(min(sim.scenario.sim.duration, 2.0))
+    solve = result.solve_times
+    print(
+        f"closed loop ({len(solve)} steps, {sim.loop}): median call {1e3 * np.median(solve):.3f} ms, "
+        f"p95 {1e3 * np.percentile(solve, 95):.3f} ms, max {1e3 * solve.max():.3f} ms"
+    )
+    print(f"constraint violations: {result.metrics['constraint_violations']}")
+
+
+def _design_analysis(args: argparse.Namespace, sim) -> int:
+    """``design``: poles, structure, margins, linear step metrics; ``--report`` and ``--tradeoff``."""
+    from shinro_ctrl.analysis import analyze_controller
+
+    plant = sim.plant
+    tracked = [plant.state_names[i] for i in sim.tracked]
+    analysis = analyze_controller(
+        sim.controller,
+        x_init=sim.initial_state,
+        measured=tracked,
+        tracked=tracked,
+        state_names=plant.state_names,
+        input_names=plant.input_names,
+    )
+    if args.kind == "mpc":
+        print("linear analysis of the unconstrained first move (finite-horizon Riccati gain):")
+    print(analysis.format())
+    if args.report:
+        from shinro_ctrl.analysis.report import write_report
+        from shinro_ctrl.sim import RobotSim
+
+        run = RobotSim(sim.scenario, engine="standalone").run()
+        path = write_report(
+            args.report,
+            analysis,
+            title=f"{sim.scenario.name}: {type(plant).__name__} + {type(sim.controller).__name__}",
+            nonlinear=(run.t, run.x, run.u),
+            x_ref=run.ref,
+            u_min=run.u_min,
+            u_max=run.u_max,
+            description=repr(plant),
+        )
+        print(f"report: {path}")
+    if args.tradeoff:
+        from shinro_ctrl.tradeoff import parse_tradeoff, run_tradeoff
+
+        key, lo, hi = parse_tradeoff(args.tradeoff)
+        result = run_tradeoff(
+            args.config, key, lo, hi, points=args.points, engine=args.engine, out=args.out, workers=args.workers
+        )
+        print(result.summary())
+    return 0

@@ -1,0 +1,123 @@
+"""Commands that inspect models: ``linearize``, ``crosscheck`` and ``list``."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from shinro_ctrl.cli.common import CROSSCHECK_PLANTS, _check_output, _check_step, parse_vector, side_by_side
+from shinro_ctrl.errors import InvalidArgument
+
+__all__ = ["cmd_crosscheck", "cmd_linearize", "cmd_list"]
+
+
+# ------------------------------------------------------------------ linearize
+def cmd_linearize(args: argparse.Namespace) -> int:
+    from shinro_ctrl.linearization import compare
+    from shinro_ctrl.plants import plant_from_name
+
+    if args.plot and not args.eps_sweep:
+        raise InvalidArgument("--plot goes with --eps-sweep")
+    _check_step("--eps", args.eps)
+    if args.plot:
+        _check_output(args.plot)
+    plant = plant_from_name(args.plant)  # a plant name or an MJCF/URDF model file
+    x0 = None if args.x0 is None else parse_vector(args.x0)
+    u0 = None if args.u0 is None else parse_vector(args.u0)
+    cmp = compare(plant, x0, u0, eps=args.eps)
+    xe, ue = plant._operating_point(x0, u0)
+    print(f"{type(plant).__name__}: continuous-time Jacobians at")
+    print(f"  x0 = {dict(zip(plant.state_names, [round(float(v), 6) for v in xe], strict=True))}")
+    print(f"  u0 = {dict(zip(plant.input_names, [round(float(v), 6) for v in ue], strict=True))}")
+    print()
+    print(side_by_side([("A exact (CasADi)", cmp.A_exact), (f"A finite diff (eps={args.eps:g})", cmp.A_fd)]))
+    print()
+    print(side_by_side([("B exact (CasADi)", cmp.B_exact), ("B finite diff", cmp.B_fd)]))
+    print()
+    print(f"max |exact - fd| = {cmp.max_abs_error:.3e}   max relative = {cmp.max_rel_error:.3e}")
+    if args.eps_sweep:
+        from shinro_ctrl.reports import eps_sweep, plot_eps_sweep
+
+        xs, us = xe, ue
+        if args.x0 is None and args.u0 is None:
+            # At an equilibrium f(x0) = 0 and FD has no rounding error to show: sweep beside it instead.
+            xs = xe + 0.1 * np.arange(1, plant.state_dim + 1) / plant.state_dim
+            us = ue + 0.1
+            print(f"\n(no --x0 given: the sweep uses x0 = {np.round(xs, 4).tolist()}, u0 = {np.round(us, 4).tolist()},")
+            print(" off the equilibrium, where f(x0) = 0 would hide FD's rounding error)")
+        sweep = eps_sweep(plant, xs, us)
+        print()
+        print("FD error against a complex-step reference, by step size:")
+        for e, err in zip(sweep.eps[::4], sweep.fd_error[::4], strict=True):
+            print(f"  eps = {e:8.1e}   max error = {err:8.2e}")
+        print(f"  best eps = {sweep.best_eps:.1e}; exact (CasADi) error = {sweep.exact_error:.2e}")
+        if args.plot:
+            print(f"plot: {plot_eps_sweep(sweep, args.plot, title=f'{type(plant).__name__}: FD step sweep')}")
+    elif args.plot:
+        raise InvalidArgument("--plot goes with --eps-sweep")
+    return 0
+
+
+# ----------------------------------------------------------------- crosscheck
+def cmd_crosscheck(args: argparse.Namespace) -> int:
+    from shinro_ctrl.crosscheck import crosscheck, format_crosscheck
+    from shinro_ctrl.plants import plant_class
+
+    _check_step("--eps", args.eps)
+    if args.plot:
+        _check_output(args.plot, inputs=[args.plant])
+    plant = _crosscheck_plant(args.plant, plant_class)
+    x0 = None if args.x0 is None else parse_vector(args.x0)
+    u0 = None if args.u0 is None else parse_vector(args.u0)
+    result = crosscheck(plant, x0, u0, eps=args.eps)
+    print(format_crosscheck(result))
+    if args.plot:
+        from shinro_ctrl.reports import plot_crosscheck
+
+        print(f"plot: {plot_crosscheck(result, args.plot)}")
+    return 0
+
+
+# ----------------------------------------------------------------------- list
+def cmd_list(args: argparse.Namespace) -> int:
+    from shinro_ctrl.controllers import CONTROLLERS
+    from shinro_ctrl.plants import PLANT_ALIASES, PLANTS
+    from shinro_ctrl.resources import list_configs
+
+    alias = {v: k for k, v in PLANT_ALIASES.items()}
+    print("plants:")
+    for name, cls in PLANTS.items():
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        print(f"  {name:22s} {alias.get(name, ''):16s} {doc}")
+    print("controllers:")
+    for name in CONTROLLERS:
+        print(f"  {name}")
+    print("scenarios:")
+    for name in list_configs():
+        print(f"  {name}")
+    return 0
+
+
+def _crosscheck_plant(name: str, plant_class):
+    """A plant from a short name or class name, or the plant (with its parameters) of a scenario file."""
+    from pathlib import Path
+
+    from shinro_ctrl.plants import PLANT_ALIASES, MjcfPlant, is_model_file
+
+    if is_model_file(name):  # an MJCF/URDF model file: the plant is the file, the state map the identity
+        return MjcfPlant(name)
+    if name.endswith(".toml") or Path(name).is_file():
+        from shinro_ctrl.config import load_scenario
+
+        scenario = load_scenario(name)
+        plant = plant_class(scenario.plant.type).from_config(scenario.plant.params)
+    else:
+        plant = plant_class(name)()
+    supported = {PLANT_ALIASES.get(a, a) for a in CROSSCHECK_PLANTS} | {"MjcfPlant"}
+    if type(plant).__name__ not in supported:
+        raise InvalidArgument(
+            f"crosscheck supports {', '.join(CROSSCHECK_PLANTS)} (plants whose MuJoCo model maps onto their state); "
+            f"got {type(plant).__name__}"
+        )
+    return plant
