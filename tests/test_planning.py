@@ -341,6 +341,18 @@ track = ["x", "theta"]
     assert main(["plan", str(tmp_path / "missing.toml")]) == 2
 
 
+def test_plan_plot_labels_axes_with_units_like_run_plots(swingups, tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    figures = []
+    monkeypatch.setattr(plt, "close", figures.append)  # keep the figure Trajectory.plot closes, to read its labels
+    swingups["trapezoid"].plot(tmp_path / "plan.png")
+    monkeypatch.undo()
+    labels = [ax.get_ylabel() for ax in figures[0].axes]
+    plt.close(figures[0])
+    assert labels == ["x [m]", "x_dot [m/s]", "theta [rad]", "theta_dot [rad/s]", "force [N]"]
+
+
 def test_ipopt_is_quiet_unless_verbose(plant, capfd):
     quiet = TrajectoryOptimizer(plant, knots=11, method="trapezoid")
     quiet.solve(START, [0.2, 0, np.pi, 0], duration=2.0)

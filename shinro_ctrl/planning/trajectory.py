@@ -228,6 +228,7 @@ class Trajectory:
         import matplotlib.pyplot as plt
 
         from shinro_ctrl.files import atomic_write
+        from shinro_ctrl.plots import axis_label  # units as on run plots: "theta [rad]", "force [N]"
 
         n, m = self.state_dim, self.input_dim
         ts = np.linspace(self.t[0], self.t[-1], samples)
@@ -237,13 +238,13 @@ class Trajectory:
             ax = axes[i, 0]
             ax.plot(ts, xs[:, i], color="C0", lw=1.3)
             ax.plot(self.t, self.x[:, i], ".", color="C0", ms=3)
-            ax.set_ylabel(self.state_names[i] if self.state_names else f"x{i}", rotation=0, ha="right")
+            ax.set_ylabel(axis_label(self.state_names[i]) if self.state_names else f"x{i}", fontsize=9)
             ax.grid(alpha=0.3)
         for j in range(m):
             ax = axes[n + j, 0]
             ax.plot(ts, us[:, j], color="C2", lw=1.3)
             ax.plot(self.t, self.u[:, j], ".", color="C2", ms=3)
-            ax.set_ylabel(self.input_names[j] if self.input_names else f"u{j}", rotation=0, ha="right")
+            ax.set_ylabel(axis_label(self.input_names[j], is_input=True) if self.input_names else f"u{j}", fontsize=9)
             ax.grid(alpha=0.3)
         axes[-1, 0].set_xlabel("time [s]")
         fig.suptitle(
