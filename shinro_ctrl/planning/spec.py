@@ -126,7 +126,7 @@ def _cost(c: Any, m: int) -> str | dict[str, Any]:
         if c not in ("effort", "time"):
             raise InvalidArgument(f"'cost': unknown preset {c!r}{did_you_mean(c, ('effort', 'time'))}")
         return c
-    elif isinstance(c, Mapping):
+    if isinstance(c, Mapping):
         for key in c:
             if key not in ("time", "effort"):
                 raise InvalidArgument(f"'cost': unknown key '{key}'{did_you_mean(str(key), ('time', 'effort'))}")
@@ -138,8 +138,7 @@ def _cost(c: Any, m: int) -> str | dict[str, Any]:
             as_list = isinstance(e, list)
             cost["effort"] = _vector("cost.effort", e, m) if as_list else _vector("cost.effort", [e], 1)[0]
         return cost
-    else:
-        raise InvalidArgument(f"'cost' must be 'effort', 'time' or {{ time = w, effort = w }}, got {c!r}")
+    raise InvalidArgument(f"'cost' must be 'effort', 'time' or {{ time = w, effort = w }}, got {c!r}")
 
 
 def _bounds(b: Any, n: int, m: int) -> dict[str, list[float]]:
