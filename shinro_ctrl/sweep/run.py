@@ -78,10 +78,7 @@ def run_sweep(
     t_start = time.perf_counter()
     ranges = _check_args(method, samples, workers, metric, params, grid)
     doc, source = _load_doc(config, duration)
-    from shinro_ctrl.plants import plant_class
-
-    scenario = parse_scenario(doc, source=source or "<dict>", path=Path(source) if source else None)
-    check_keys(ranges, sweep_keys(plant_class(scenario.plant.type).from_config(scenario.plant.params)))
+    scenario = _parse_checked(doc, source, ranges)
     nominal = build_nominal(doc, source, engine)  # designs the controller
     tol = _stable_tol(scenario.sim.settle_tol, stable_tol)
 
@@ -114,6 +111,15 @@ def run_sweep(
     if out is not None:
         result.save(out)
     return result
+
+
+def _parse_checked(doc: dict[str, Any], source: str | None, ranges: Mapping[str, Any]) -> Any:
+    """The parsed scenario, once every swept key is known to be one of its plant's parameters."""
+    from shinro_ctrl.plants import plant_class
+
+    scenario = parse_scenario(doc, source=source or "<dict>", path=Path(source) if source else None)
+    check_keys(ranges, sweep_keys(plant_class(scenario.plant.type).from_config(scenario.plant.params)))
+    return scenario
 
 
 def _stable_tol(settle_tol: float, stable_tol: float | None) -> float:
