@@ -112,9 +112,7 @@ class LinearModel:
             if len(names) != size:
                 raise InvalidArgument(f"{what}_names: expected {size} names but found {len(names)}")
         A, B, dt = (self.A, self.B, self.dt) if discrete else (self.A_c, self.B_c, 0)
-        return control.ss(
-            A, B, Cm, np.zeros((Cm.shape[0], m)), dt, states=states, inputs=inputs, outputs=outputs
-        )
+        return control.ss(A, B, Cm, np.zeros((Cm.shape[0], m)), dt, states=states, inputs=inputs, outputs=outputs)
 
 
 def discretize(A_c: np.ndarray, B_c: np.ndarray, dt: float, method: str = "euler") -> tuple[np.ndarray, np.ndarray]:

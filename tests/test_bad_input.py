@@ -8,6 +8,7 @@ subprocess to prove the wiring. Fault cases (interrupted writes) follow.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -999,3 +1000,34 @@ def test_update_refuses_a_baseline_that_is_a_folder_before_writing_any(tmp_path,
     assert "directory" in capsys.readouterr().err
     assert (tmp_path / "cartpole_lqr.baseline.json").read_text() == before["cartpole_lqr.baseline.json"]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no journal, no temporaries
+
+
+@pytest.mark.parametrize(
+    "changes,where",
+    [
+        ({"engine": {"type": "mujoco", "model": "0"}}, "[engine] model"),
+        ({"engine": {"type": "mujoco", "model": "no_such_dir/robot.xml"}}, "[engine] model"),
+        ({"plant": {"type": "MjcfPlant", "model": "no_such_robot.xml"}}, "[plant] MjcfPlant"),
+        ({"plant": {"type": "no_such_robot.urdf"}}, "[plant] MjcfPlant"),
+        (
+            {
+                "controller": {"type": "TVLQR", "Q": [1, 1, 1, 1], "R": [1]},
+                "plan": {"file": "no_such_plan.npz"},
+            },
+            "plan file not found",
+        ),
+        (
+            {"controller": {"type": "TVLQR", "Q": [1, 1, 1, 1], "R": [1]}, "plan": {"file": "."}},
+            "is a directory",
+        ),
+    ],
+    ids=["engine_model", "engine_model_dir", "plant_model", "plant_model_shorthand", "plan_file", "plan_dir"],
+)
+def test_a_missing_file_a_scenario_names_is_a_config_error_naming_the_key(changes, where, tmp_path, monkeypatch):
+    """Through the Python API too (not only the CLI, which treats OSError as a user error): the project's error."""
+    from shinro_ctrl.sim import RobotSim
+
+    monkeypatch.chdir(tmp_path)
+    doc = {**_doc({}), **changes}
+    with pytest.raises(ConfigError, match=re.escape(where)):
+        RobotSim.from_config(doc)

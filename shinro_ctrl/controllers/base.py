@@ -116,4 +116,3 @@ class Controller(abc.ABC):
 
     def reset(self) -> None:  # noqa: B027 - an optional hook: a memoryless controller has nothing to forget
         """Forget any internal memory (warm starts, previous input)."""
-

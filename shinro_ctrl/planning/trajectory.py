@@ -199,6 +199,9 @@ class Trajectory:
             InvalidArgument: the file is not a saved trajectory.
         """
         path = Path(path)
+        if not path.is_file():
+            where = " (it is a directory)" if path.is_dir() else ""
+            raise FileNotFoundError(f"plan file not found: '{path}'{where}")
         try:
             with np.load(path, allow_pickle=False) as z:
                 stats = z["stats"]

@@ -45,7 +45,7 @@ class ConfigMixin:
             raise ConfigError(f"[plant] {cls.__name__}: unknown key '{bad[0]}'{did_you_mean(bad[0], allowed)}")
         try:
             plant = cls(**kwargs)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, FileNotFoundError) as exc:  # a missing model file is a bad [plant] value
             raise ConfigError(f"[plant] {cls.__name__}: {exc}") from exc
         if engine is not None:
             plant.physics_engine(engine)

@@ -86,7 +86,7 @@ class RobotSim:
             self.controller = ccls.from_plant(self.plant, **options)
         except ShinroError as exc:
             raise type(exc)(f"{src}: [controller] {exc}") from exc
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, FileNotFoundError) as exc:  # FileNotFoundError: a plan file it loads
             raise ConfigError(f"{src}: [controller] {exc}") from exc
         _install_ik(self.plant, self.controller)
         from shinro_ctrl.output_feedback import build_estimator
@@ -110,9 +110,13 @@ class RobotSim:
         from shinro_ctrl.engine import MujocoEngine
 
         ecfg = self.scenario.engine
-        engine = MujocoEngine.for_plant(
-            plant, substeps=ecfg.substeps if ecfg else 1, model=ecfg.model if ecfg else None
-        )
+        try:
+            engine = MujocoEngine.for_plant(
+                plant, substeps=ecfg.substeps if ecfg else 1, model=ecfg.model if ecfg else None
+            )
+        except FileNotFoundError as exc:  # a scenario's model that does not exist is a scenario error
+            src = str(self.scenario.path) if self.scenario.path else self.scenario.name
+            raise ConfigError(f"{src}: [engine] model: {exc}") from exc
         plant.physics_engine(engine)
         return engine
 
