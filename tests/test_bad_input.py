@@ -1031,3 +1031,24 @@ def test_a_missing_file_a_scenario_names_is_a_config_error_naming_the_key(change
     doc = {**_doc({}), **changes}
     with pytest.raises(ConfigError, match=re.escape(where)):
         RobotSim.from_config(doc)
+
+
+@pytest.mark.parametrize("big", [1e308, -1e308, 1e200])
+@pytest.mark.parametrize("name", ["ArmRobot", "CartPole", "DoublePendulum", "HolonomicMobileRobot", "Quadrotor"])
+def test_a_huge_input_to_step_is_finite_or_our_error_and_never_a_numpy_warning(name, big):
+    """Overflow inside a step (wheel speeds, IK toward a target out of reach, dynamics) is reported, not warned."""
+    import warnings
+
+    import numpy as np
+
+    from shinro_ctrl.plants import plant_class
+
+    plant = plant_class(name)()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a RuntimeWarning from numpy fails the test
+        try:
+            for _ in range(3):
+                plant.step(np.full(plant.input_dim, big))
+        except ShinroError:
+            return
+    assert np.isfinite(plant.get_state()).all()

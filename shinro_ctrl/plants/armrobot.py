@@ -14,13 +14,14 @@ target pose, solves IK for it and commands the joints.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
 import casadi as cs
 import numpy as np
 
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.errors import InvalidArgument, SimulationDiverged
 from shinro_ctrl.kinematics import (
     IKResult,
     KinematicsBuffer,
@@ -286,19 +287,22 @@ class ArmRobot(ArmEngineMode, Plant):
         def error_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             p, R, J = kin(q)
             e = np.concatenate([pt - p, so3_log_flat((Rt @ R.T).ravel().tolist())])
-            errs[0], errs[1] = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
+            errs[0], errs[1] = math.hypot(*e[:3]), math.hypot(*e[3:])  # hypot: no overflow for far targets
             return e, J
 
-        q, it, _, J = damped_least_squares(
-            error_jacobian,
-            q,
-            self._lo,
-            self._hi,
-            max_iters=max_iters,
-            max_step=max_step,
-            lam=lam,
-            converged=lambda e: errs[0] < tol and errs[1] < tol,
-        )
+        with np.errstate(over="ignore", invalid="ignore"):  # a target far out of reach: checked below
+            q, it, _, J = damped_least_squares(
+                error_jacobian,
+                q,
+                self._lo,
+                self._hi,
+                max_iters=max_iters,
+                max_step=max_step,
+                lam=lam,
+                converged=lambda e: errs[0] < tol and errs[1] < tol,
+            )
+        if not np.isfinite(q).all():
+            raise SimulationDiverged(f"ArmRobot IK toward a non-finite or overflowing target ended at q = {q}")
         if not full_output:
             return q
         return IKResult(q, errs[0] < tol and errs[1] < tol, it, errs[0], errs[1], J.copy(), 1)

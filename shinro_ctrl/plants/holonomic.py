@@ -188,10 +188,15 @@ class HolonomicMobileRobot(Plant):
             NonFiniteError: ``u_world`` holds NaN or inf.
         """
         u = self._input(u_world)
-        speeds = self.A_kinematics @ self._world_to_body(u, float(self.state[2])) / self.r
-        new = self.integrate(self.state, u)
-        if not math.isfinite(new.sum()):
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below, not warned about
+            speeds = self.A_kinematics @ self._world_to_body(u, float(self.state[2])) / self.r
+            new = self.integrate(self.state, u)
+        if not np.isfinite(new).all():
             raise SimulationDiverged(f"HolonomicMobileRobot pose became non-finite: {new}")
+        if not np.isfinite(speeds).all():
+            raise SimulationDiverged(
+                f"HolonomicMobileRobot wheel speeds overflowed for the command {u} (wheel radius {self.r:g} m)"
+            )
         self.state = new
         if self._engine is not None:
             self._pending_wheel_delta = speeds * self.dt
