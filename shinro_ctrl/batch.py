@@ -18,7 +18,6 @@ those bits, so compare diverging instances by verdict, not by value.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -28,7 +27,7 @@ import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.plants import Plant
-from shinro_ctrl.sim import bound_excess
+from shinro_ctrl.sim.metrics import StreamingMetrics, bound_excess
 from shinro_ctrl.validation import as_vector, real_array
 
 __all__ = ["BatchRollout", "batch_clip", "batch_unsupported_reason", "lqr_batch_rollout"]
@@ -152,7 +151,7 @@ def lqr_batch_rollout(
     t = np.arange(steps + 1) * dt
     alive = np.ones(N, dtype=bool)
     died = np.full(N, -1, dtype=int)
-    acc = _StreamingMetrics(N, tracked, r, settle_tol)
+    acc = StreamingMetrics(N, tracked, r, settle_tol)
     x_excess = np.zeros(N)  # bound excess of the current state (index k); none at k = 0
     call_times = np.empty(steps)
     clock = time.perf_counter
@@ -221,61 +220,3 @@ def _law(controller: Any, n: int, m: int) -> tuple:
     if x_max is not None and np.shape(x_max) != (n,):
         x_max = None
     return K, u0, u_min, u_max, saturate, x_min, x_max
-
-
-class _StreamingMetrics:
-    """The metrics of :func:`shinro_ctrl.sim.compute_metrics`, accumulated per instance while stepping (O(N) memory).
-
-    Same definitions: ``e_k = ‖x_k[tracked] − r[tracked]‖₂``; rms over the ``T + 1``
-    samples; settling after the last sample outside ``settle_tol``; a violation counted at
-    index ``k`` from input ``k`` and state ``k``.
-    """
-
-    def __init__(self, N: int, tracked: list[int], r: np.ndarray, settle_tol: float):
-        self.tr = np.asarray(tracked, dtype=int)
-        self.r_tr = r[self.tr]
-        self.settle_tol = settle_tol
-        self.e2_sum = np.zeros(N)
-        self.e_max = np.zeros(N)
-        self.e = np.zeros(N)
-        self.last_out = np.full(N, -1, dtype=int)
-        self.u_abs_max = np.zeros(N)
-        self.viol_count = np.zeros(N, dtype=int)
-        self.viol_max = np.zeros(N)
-
-    def track(self, X: np.ndarray, k: int) -> None:
-        """The tracking error of sample ``k``."""
-        e = self.e = np.linalg.norm(X[:, self.tr] - self.r_tr, axis=1)
-        np.add(self.e2_sum, e * e, out=self.e2_sum)
-        np.maximum(self.e_max, e, out=self.e_max)
-        self.last_out[e > self.settle_tol] = k
-
-    def inputs(self, U: np.ndarray, viol: np.ndarray) -> None:
-        """The inputs of one step and the violation at its index."""
-        np.maximum(self.u_abs_max, np.abs(U).max(axis=1), out=self.u_abs_max)
-        self.violation(viol)
-
-    def violation(self, viol: np.ndarray) -> None:
-        self.viol_count += viol > 0
-        np.maximum(self.viol_max, viol, out=self.viol_max)
-
-    def finish(self, t: np.ndarray, call_times: np.ndarray, alive: np.ndarray) -> dict[str, np.ndarray]:
-        """Metric name -> ``(N,)`` (NaN for diverged instances)."""
-        steps = t.shape[0] - 1
-        N = alive.shape[0]
-        last_out = self.last_out
-        settling = np.where(last_out < 0, 0.0, t[np.minimum(last_out + 1, steps)])
-        settling[last_out == steps] = math.inf
-        metrics = {
-            "rms_error": np.sqrt(self.e2_sum / (steps + 1)),
-            "max_error": self.e_max,
-            "final_error": self.e,
-            "settling_time": settling,
-            "max_abs_input": self.u_abs_max,
-            "constraint_violations": self.viol_count.astype(float),
-            "max_violation": self.viol_max,
-            "solve_time_median_s": np.full(N, float(np.median(call_times)) / max(N, 1)),
-        }
-        for v in metrics.values():
-            v[~alive] = math.nan
-        return metrics

@@ -3,12 +3,21 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from shinro_ctrl.errors import NonFiniteError
 
-__all__ = ["NEVER_METRICS", "bound_excess", "compute_metrics", "format_metrics", "response_metrics"]
+__all__ = [
+    "NEVER_METRICS",
+    "StreamingMetrics",
+    "bound_excess",
+    "compute_metrics",
+    "format_metrics",
+    "response_metrics",
+    "settling_time",
+]
 
 NEVER_METRICS = ("settling_time", "rise_time")  # inf means the event never happened, not an overflow
 
@@ -29,6 +38,26 @@ def bound_excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | Non
         over = sign * (values[:, finite] - b[finite]) - 1e-9 * (1.0 + np.abs(b[finite]))
         out = np.maximum(out, np.maximum(over, 0.0).max(axis=1))
     return out
+
+
+def settling_time(t: np.ndarray, last_outside: Any) -> np.ndarray:
+    """Settling time from the index of the last sample outside the tolerance band.
+
+    The run has settled at ``t[k + 1]`` when sample ``k`` is the last whose
+    tracking error exceeds the tolerance: ``0`` when no sample does (``k = -1``),
+    ``inf`` when the final sample does.
+
+    Args:
+        t: Sample times ``(T + 1,)`` [s].
+        last_outside: ``k`` (a scalar, or ``(N,)`` for N instances).
+
+    Returns:
+        The settling time(s) [s], shaped like ``last_outside``.
+    """
+    last = np.asarray(last_outside)
+    steps = t.shape[0] - 1
+    settled = np.where(last < 0, 0.0, t[np.minimum(last + 1, steps)])
+    return np.where(last == steps, math.inf, settled)
 
 
 def compute_metrics(
@@ -76,12 +105,7 @@ def compute_metrics(
             "where its metrics can be computed"
         )
     outside = np.nonzero(e > settle_tol)[0]
-    if outside.size == 0:
-        settling = 0.0
-    elif outside[-1] == len(e) - 1:
-        settling = math.inf
-    else:
-        settling = float(t[outside[-1] + 1])
+    settling = float(settling_time(t, outside[-1] if outside.size else -1))
 
     viol = np.zeros(len(t))
     viol[:-1] = np.maximum(viol[:-1], bound_excess(u, u_min, u_max))
@@ -139,3 +163,60 @@ def format_metrics(metrics: dict[str, float]) -> str:
             val = f"{v:.6g}"
         rows.append(f"  {k:22s} {val:>14s} {units.get(k, '')}".rstrip())
     return "\n".join(rows)
+
+
+class StreamingMetrics:
+    """The metrics of :func:`compute_metrics` for ``N`` instances, accumulated while stepping (O(N) memory).
+
+    Used by the vectorized batch rollout (:mod:`shinro_ctrl.batch`). Same
+    definitions: ``e_k = ‖x_k[tracked] − r[tracked]‖₂``; rms over the ``T + 1``
+    samples; :func:`settling_time` after the last sample outside
+    ``settle_tol``; a violation counted at index ``k`` from input ``k`` and
+    state ``k``.
+    """
+
+    def __init__(self, N: int, tracked: list[int], r: np.ndarray, settle_tol: float):
+        self.tr = np.asarray(tracked, dtype=int)
+        self.r_tr = r[self.tr]
+        self.settle_tol = settle_tol
+        self.e2_sum = np.zeros(N)
+        self.e_max = np.zeros(N)
+        self.e = np.zeros(N)
+        self.last_out = np.full(N, -1, dtype=int)
+        self.u_abs_max = np.zeros(N)
+        self.viol_count = np.zeros(N, dtype=int)
+        self.viol_max = np.zeros(N)
+
+    def track(self, X: np.ndarray, k: int) -> None:
+        """The tracking error of sample ``k``."""
+        e = self.e = np.linalg.norm(X[:, self.tr] - self.r_tr, axis=1)
+        np.add(self.e2_sum, e * e, out=self.e2_sum)
+        np.maximum(self.e_max, e, out=self.e_max)
+        self.last_out[e > self.settle_tol] = k
+
+    def inputs(self, U: np.ndarray, viol: np.ndarray) -> None:
+        """The inputs of one step and the violation at its index."""
+        np.maximum(self.u_abs_max, np.abs(U).max(axis=1), out=self.u_abs_max)
+        self.violation(viol)
+
+    def violation(self, viol: np.ndarray) -> None:
+        self.viol_count += viol > 0
+        np.maximum(self.viol_max, viol, out=self.viol_max)
+
+    def finish(self, t: np.ndarray, call_times: np.ndarray, alive: np.ndarray) -> dict[str, np.ndarray]:
+        """Metric name -> ``(N,)`` (NaN for diverged instances)."""
+        steps = t.shape[0] - 1
+        N = alive.shape[0]
+        metrics = {
+            "rms_error": np.sqrt(self.e2_sum / (steps + 1)),
+            "max_error": self.e_max,
+            "final_error": self.e,
+            "settling_time": settling_time(t, self.last_out),
+            "max_abs_input": self.u_abs_max,
+            "constraint_violations": self.viol_count.astype(float),
+            "max_violation": self.viol_max,
+            "solve_time_median_s": np.full(N, float(np.median(call_times)) / max(N, 1)),
+        }
+        for v in metrics.values():
+            v[~alive] = math.nan
+        return metrics
