@@ -332,12 +332,15 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
                 A, B = fd_jacobians(lambda X, U: self.equations(_NUMPY, X, U, self._params), x0, u0, eps)
         else:
             raise InvalidArgument(f"unknown linearization method {method!r}; valid: exact, fd")
-        where = f"at x0 = {x0.tolist()}, u0 = {u0.tolist()}" + (f" with eps = {eps:g}" if method == "fd" else "")
-        self._check_finite_model(A, B, f"{type(self).__name__}.linearize ({method}) {where}")
+        if not _all_finite(A, B):
+            where = f"at x0 = {x0.tolist()}, u0 = {u0.tolist()}" + (f" with eps = {eps:g}" if method == "fd" else "")
+            self._check_finite_model(A, B, f"{type(self).__name__}.linearize ({method}) {where}")
         return A, B
 
     def _check_finite_model(self, A: np.ndarray, B: np.ndarray, what: str) -> None:
         """Raise :class:`NonFiniteError` naming the first non-finite entry of ``A`` / ``B``."""
+        if _all_finite(A, B):
+            return
         for name, M, cols in (("A", A, self.state_names), ("B", B, self.input_names)):
             bad = np.argwhere(~np.isfinite(M))
             if bad.size:
@@ -361,7 +364,8 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
         A_c, B_c = self.linearize(x0, u0, method=method, eps=eps)
         with np.errstate(all="ignore"):
             A, B = discretize(A_c, B_c, self.dt, discretization)
-        self._check_finite_model(A, B, f"{type(self).__name__} {discretization} model at dt = {self.dt:g} s")
+        if not _all_finite(A, B):
+            self._check_finite_model(A, B, f"{type(self).__name__} {discretization} model at dt = {self.dt:g} s")
         return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization)
 
     def statespace(self, x0: Any = None, u0: Any = None, *, discrete: bool = True, measured: Any = None) -> Any:
@@ -492,3 +496,10 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v:g}" for k, v in self._params.items())
         return f"{type(self).__name__}({args}, dt={self.dt:g})"
+
+
+def _all_finite(A: np.ndarray, B: np.ndarray) -> bool:
+    """True when every entry of ``A`` and ``B`` is finite (a Python-float sum first: ~4x cheaper than ``isfinite``)."""
+    if math.isfinite(sum(A.ravel().tolist()) + sum(B.ravel().tolist())):
+        return True
+    return bool(np.isfinite(A).all() and np.isfinite(B).all())  # the sum overflowed, or there is a NaN/inf
