@@ -11,12 +11,12 @@ Hessian ``H``, the gradient map ``F`` and the rows ``ℓ − E e_0 ≤ G z ≤ h
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.linalg
 
+from shinro_ctrl.controllers.qp.sparse import RowGroup
 from shinro_ctrl.errors import InvalidArgument
 
 __all__ = [
@@ -34,39 +34,10 @@ INF = 1e30  # DAQP_INF: DAQP treats |bound| >= 1e30 as absent; finite, so 0·bou
 _INF = INF
 
 
-@dataclass(frozen=True)
-class DenseRowGroup:
-    """A block of constraint rows of one kind at consecutive stages.
-
-    Row ``start + (k − first_stage)·width + j`` holds component ``labels[j]``
-    at stage ``k`` (indices into :attr:`~shinro_ctrl.controllers.qp.condensed.CondensedQP.G`'s rows, before any row
-    is dropped as fixed).
-
-    Attributes:
-        name: ``"input bounds"``, ``"rate bounds"`` or ``"state bounds"``.
-        start: First row.
-        width: Rows per stage.
-        first_stage: Stage of the first block.
-        stages: Number of stages.
-        labels: Meaning of each row within a stage (length ``width``).
-    """
-
-    name: str
-    start: int
-    width: int
-    first_stage: int
-    stages: int
-    labels: tuple[str, ...]
-
-    @property
-    def stop(self) -> int:
-        """One past the last row."""
-        return self.start + self.width * self.stages
-
-    def locate(self, row: int) -> tuple[int, str]:
-        """The ``(stage, label)`` of a row inside this group."""
-        k, j = divmod(row - self.start, self.width)
-        return self.first_stage + k, self.labels[j]
+#: A block of constraint rows of one kind at consecutive stages of ``G`` (``"input bounds"``, ``"rate bounds"``
+#: or ``"state bounds"``; row indices before any row is dropped as fixed): the sparse QP's
+#: :class:`~shinro_ctrl.controllers.qp.sparse.RowGroup`, so both QPs locate and explain rows with the same code.
+DenseRowGroup = RowGroup
 
 
 def condensed_size(n: int, m: int, N: int, *, u_rows: int, rate_rows: int, x_rows: int, soft: bool) -> int:

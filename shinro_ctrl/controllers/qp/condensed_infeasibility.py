@@ -16,6 +16,7 @@ import numpy as np
 import scipy.optimize
 
 from shinro_ctrl.controllers.qp.condensed_build import DenseRowGroup
+from shinro_ctrl.controllers.qp.diagnose import explain_certificate
 
 __all__ = ["CondensedDiagnosis", "DenseQP"]
 
@@ -44,20 +45,6 @@ class DenseQP:
     lower: np.ndarray
     upper: np.ndarray
     const: float
-
-
-def _stages(stages: list[int]) -> str:
-    """``[0, 1, 2, 5]`` -> ``"0-2, 5"``."""
-    out: list[str] = []
-    start = prev = stages[0]
-    for s in [*stages[1:], None]:
-        if s is not None and s == prev + 1:
-            prev = s
-            continue
-        out.append(f"{start}" if start == prev else f"{start}-{prev}")
-        if s is not None:
-            start = prev = s
-    return ", ".join(out)
 
 
 class CondensedDiagnosis:
@@ -131,27 +118,4 @@ class CondensedDiagnosis:
         marg = -np.asarray(res.ineqlin.marginals)
         y[up] += marg[:nu_]
         y[dn] += marg[nu_:]
-        return self._explain(y)
-
-    def _explain(self, weight: np.ndarray) -> str:
-        peak = float(np.max(np.abs(weight)))
-        involved: dict[str, list[int]] = {}
-        first: dict[str, int] = {}
-        for g in self._group_list:
-            seg = np.abs(weight[g.start : g.stop])
-            gmax = float(seg.max(initial=0.0))
-            if gmax <= 1e-9 * peak:
-                continue
-            hits = np.flatnonzero(seg > 1e-3 * gmax)
-            involved[g.name] = sorted({g.first_stage + int(h) // g.width for h in hits})
-            first[g.name] = g.start + int(hits[0])
-        culprit = next((nm for nm in ("state bounds", "rate bounds", "input bounds") if nm in first), None)
-        if culprit is None:  # pragma: no cover - a certificate always has a row
-            return "the infeasibility certificate is empty"
-        k, label = self.groups[culprit].locate(first[culprit])
-        others = [f"{nm} at stages {_stages(s)}" for nm, s in involved.items() if nm != culprit]
-        return (
-            f"{culprit} at stage {k} ({label}) cannot be met from this state under the dynamics"
-            f" (conflict over stages {_stages(involved[culprit])})"
-            + (" together with the " + "; ".join(others) if others else "")
-        )
+        return explain_certificate(y, self._group_list)

@@ -65,7 +65,7 @@ def _group_of(groups: list[RowGroup], row: int) -> RowGroup:
 
 
 def explain_certificate(cert: np.ndarray, groups: list[RowGroup]) -> str:
-    """Turn OSQP's primal infeasibility certificate into a sentence.
+    """Turn a primal infeasibility certificate into a sentence (OSQP's, or the condensed QP's elastic-LP one).
 
     The certificate ``δy`` (``Aᵀ δy = 0``, ``uᵀ δy₊ + lᵀ δy₋ < 0``) is
     nonzero on the rows that together cannot hold. Its entries spread over
@@ -85,7 +85,9 @@ def explain_certificate(cert: np.ndarray, groups: list[RowGroup]) -> str:
         involved[g.name] = sorted({g.first_stage + int(h) // g.width for h in hits})
         first[g.name] = g.start + int(hits[0])
     culprit = next((name for name in ("state bounds", "rate bounds", "input bounds") if name in first), None)
-    if culprit is None:  # pragma: no cover - equalities alone are always feasible
+    if culprit is None:  # pragma: no cover - equalities alone are always feasible; a certificate always has a row
+        if not involved:
+            return "the infeasibility certificate is empty"
         return "the certificate involves only the dynamics (" + ", ".join(involved) + ")"
     k, label = next(g for g in groups if g.name == culprit).locate(first[culprit])
     others = [
