@@ -119,30 +119,6 @@ def _check_scheduler(address: str, timeout: float = 5.0) -> None:
         raise InvalidArgument(f"cannot reach the Dask scheduler at '{address}': {exc.strerror or exc}") from None
 
 
-def _crosscheck_plant(name: str, plant_class):
-    """A plant from a short name or class name, or the plant (with its parameters) of a scenario file."""
-    from pathlib import Path
-
-    from shinro_ctrl.plants import PLANT_ALIASES, MjcfPlant, is_model_file
-
-    if is_model_file(name):  # an MJCF/URDF model file: the plant is the file, the state map the identity
-        return MjcfPlant(name)
-    if name.endswith(".toml") or Path(name).is_file():
-        from shinro_ctrl.config import load_scenario
-
-        scenario = load_scenario(name)
-        plant = plant_class(scenario.plant.type).from_config(scenario.plant.params)
-    else:
-        plant = plant_class(name)()
-    supported = {PLANT_ALIASES.get(a, a) for a in CROSSCHECK_PLANTS} | {"MjcfPlant"}
-    if type(plant).__name__ not in supported:
-        raise InvalidArgument(
-            f"crosscheck supports {', '.join(CROSSCHECK_PLANTS)} (plants whose MuJoCo model maps onto their state); "
-            f"got {type(plant).__name__}"
-        )
-    return plant
-
-
 # ------------------------------------------------------------ error report
 _NUMERIC_ERRORS = (OverflowError, FloatingPointError, RecursionError, MemoryError)
 
