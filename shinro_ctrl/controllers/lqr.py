@@ -13,7 +13,37 @@ from shinro_ctrl.controllers.lqi import integral_action
 from shinro_ctrl.errors import InvalidArgument, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
 
-__all__ = ["LQR", "check_closed_loop", "check_detectable", "check_stabilizable", "riccati"]
+__all__ = ["LQR", "check_closed_loop", "check_detectable", "check_stabilizable", "riccati", "riccati_solution"]
+
+
+def riccati_solution(
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, discrete: bool = True, what: str = "the LQR design"
+) -> np.ndarray:
+    """The stabilizing Riccati solution ``S`` alone (see :func:`riccati`; a terminal cost needs no gain).
+
+    Args:
+        A, B, Q, R, discrete, what: As for :func:`riccati`.
+
+    Returns:
+        ``S`` ``(n, n)``, symmetrized.
+
+    Raises:
+        NotStabilizable: no finite stabilizing solution.
+    """
+    name = "DARE" if discrete else "CARE"
+    try:
+        if discrete:
+            S = scipy.linalg.solve_discrete_are(A, B, Q, R)
+        else:
+            S = scipy.linalg.solve_continuous_are(A, B, Q, R)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise NotStabilizable(
+            f"no stabilizing {name} solution for {what} ({exc}); (A, B) must be stabilizable and (A, Q) "
+            "detectable: check that every unstable mode is observable through Q"
+        ) from exc
+    if not np.all(np.isfinite(S)):
+        raise NotStabilizable(f"the {name} solution for {what} is not finite")
+    return 0.5 * (S + S.T)
 
 
 def riccati(
@@ -40,20 +70,7 @@ def riccati(
     Raises:
         NotStabilizable: no finite stabilizing solution.
     """
-    name = "DARE" if discrete else "CARE"
-    try:
-        if discrete:
-            S = scipy.linalg.solve_discrete_are(A, B, Q, R)
-        else:
-            S = scipy.linalg.solve_continuous_are(A, B, Q, R)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        raise NotStabilizable(
-            f"no stabilizing {name} solution for {what} ({exc}); (A, B) must be stabilizable and (A, Q) "
-            "detectable: check that every unstable mode is observable through Q"
-        ) from exc
-    if not np.all(np.isfinite(S)):
-        raise NotStabilizable(f"the {name} solution for {what} is not finite")
-    S = 0.5 * (S + S.T)
+    S = riccati_solution(A, B, Q, R, discrete=discrete, what=what)
     if discrete:
         BtS = B.T @ S
         K = np.linalg.solve(R + BtS @ B, BtS @ A)

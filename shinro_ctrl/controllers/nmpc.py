@@ -41,14 +41,14 @@ from typing import Any
 
 import casadi as cs
 import numpy as np
-import scipy.linalg
 
 from shinro_ctrl.controllers._nmpc_ipopt import NMPCIpopt
 from shinro_ctrl.controllers._nmpc_rti import NMPCRealTime
 from shinro_ctrl.controllers.base import Controller
+from shinro_ctrl.controllers.lqr import riccati_solution
 from shinro_ctrl.controllers.qp.ltv import CondensedLTV, SparseLTV
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
-from shinro_ctrl.errors import InvalidArgument, NonFiniteError, NotStabilizable
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 from shinro_ctrl.validation import as_vector, bound_pair, check_positive
 
 __all__ = ["NMPCSolution", "NonlinearMPC"]
@@ -306,13 +306,7 @@ class NonlinearMPC(NMPCRealTime, NMPCIpopt, Controller):
         xn = self.F(xs, us)
         jac = cs.Function("F_jac", [xs, us], [cs.jacobian(xn, xs), cs.jacobian(xn, us)])
         A, B = (np.array(M, dtype=float) for M in jac(self.x0, self.u0))
-        try:
-            P = scipy.linalg.solve_discrete_are(A, B, self.Q, self.R)
-        except (np.linalg.LinAlgError, ValueError) as exc:
-            raise NotStabilizable(f"Qf='lqr': no stabilizing DARE solution at the target ({exc})") from exc
-        if not np.all(np.isfinite(P)):
-            raise NotStabilizable("Qf='lqr': the DARE solution at the target is not finite")
-        return 0.5 * (P + P.T)
+        return riccati_solution(A, B, self.Q, self.R, what="Qf='lqr' at the target")
 
     @classmethod
     def from_plant(

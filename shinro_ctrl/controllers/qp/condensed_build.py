@@ -14,10 +14,10 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
+from shinro_ctrl.controllers.lqr import riccati
 from shinro_ctrl.controllers.qp.sparse import RowGroup
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.errors import InvalidArgument, NotStabilizable
 
 __all__ = [
     "INF",
@@ -73,14 +73,9 @@ def prestabilizing_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarr
     """
     n, m = B.shape
     try:
-        P = scipy.linalg.solve_discrete_are(A, B, Q, R)
-    except (np.linalg.LinAlgError, ValueError):
+        K, _ = riccati(A, B, Q, R, what="the pre-stabilizing gain")
+    except NotStabilizable:
         return np.zeros((m, n))
-    if not np.all(np.isfinite(P)):
-        return np.zeros((m, n))
-    P = 0.5 * (P + P.T)
-    BtP = B.T @ P
-    K = np.linalg.solve(R + BtP @ B, BtP @ A)
     if np.max(np.abs(np.linalg.eigvals(A - B @ K)), initial=0.0) >= 1.0:
         return np.zeros((m, n))
     return K
