@@ -26,6 +26,7 @@ __all__ = [
     "check_positive",
     "closest",
     "did_you_mean",
+    "measurement_matrix",
     "state_space",
     "unknown_keys",
     "weight_matrix",
@@ -240,6 +241,17 @@ def state_space(A: Any, B: Any) -> tuple[np.ndarray, np.ndarray]:
         if not np.all(np.isfinite(M)):
             raise NonFiniteError(f"{name} must be finite")
     return A_, B_
+
+
+def measurement_matrix(C: Any, n: int) -> np.ndarray:
+    """A measurement matrix ``C`` ``(p, n)`` of ``y = C x``; a vector ``(n,)`` is one row (``p = 1``).
+
+    Raises:
+        InvalidArgument: not ``n`` columns (the check of :func:`as_matrix`, named ``C``).
+        NonFiniteError: NaN or inf.
+    """
+    C = np.atleast_2d(np.asarray(C, dtype=float))
+    return as_matrix("C", C, (C.shape[0], n))
 
 
 def bound_vector(name: str, value: Any, size: int, default: float) -> np.ndarray:

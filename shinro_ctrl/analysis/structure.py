@@ -26,7 +26,7 @@ import numpy as np
 import scipy.linalg
 
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.validation import as_matrix, state_space
+from shinro_ctrl.validation import measurement_matrix, state_space
 
 __all__ = ["Mode", "StructureReport", "gramian", "structure_report"]
 
@@ -247,8 +247,7 @@ def structure_report(
     if len(names) != n:
         raise InvalidArgument(f"state_names: expected {n} names but found {len(names)}")
     if C is not None:
-        C = np.atleast_2d(np.asarray(C, dtype=float))
-        C = as_matrix("C", C, (C.shape[0], n))
+        C = measurement_matrix(C, n)
     scale_c = max(1.0, float(np.linalg.norm(np.hstack([A, B]), 2)))
     scale_o = None if C is None else max(1.0, float(np.linalg.norm(np.vstack([A, C]), 2)))
     lam, V = np.linalg.eig(A)

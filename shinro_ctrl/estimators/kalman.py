@@ -38,7 +38,7 @@ from shinro_ctrl.estimators._linear import (
     process_noise_input,
 )
 from shinro_ctrl.estimators.base import Estimator
-from shinro_ctrl.validation import as_matrix, as_vector, state_space, weight_matrix
+from shinro_ctrl.validation import as_vector, measurement_matrix, state_space, weight_matrix
 
 __all__ = ["DISTURBANCE_MODELS", "ExtendedKalmanFilter", "KalmanFilter", "rk4_step"]
 
@@ -111,9 +111,8 @@ class KalmanFilter(Estimator):
     ):
         A, B = state_space(A, B)
         n, m = B.shape
-        C = np.atleast_2d(np.asarray(C, dtype=float))
+        C = measurement_matrix(C, n)
         p = C.shape[0]
-        C = as_matrix("C", C, (p, n))
         G = process_noise_input(Qn_on, B)
         Qn = noise_covariance("Qn", Qn, G.shape[1], definite=False)
         Rn = noise_covariance("Rn", Rn, p, definite=True)
@@ -321,9 +320,8 @@ class ExtendedKalmanFilter(Estimator):
 
     def __init__(self, plant: Any, C: Any, Qn: Any, Rn: Any, *, Qn_on: str = "input"):
         n, m = plant.state_dim, plant.input_dim
-        C = np.atleast_2d(np.asarray(C, dtype=float))
+        C = measurement_matrix(C, n)
         p = C.shape[0]
-        C = as_matrix("C", C, (p, n))
         if Qn_on not in ("input", "state"):
             process_noise_input(Qn_on, np.zeros((n, m)))  # raises with the valid choices
         Qn = noise_covariance("Qn", Qn, m if Qn_on == "input" else n, definite=False)

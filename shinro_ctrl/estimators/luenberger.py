@@ -24,7 +24,7 @@ import numpy as np
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.estimators._linear import check_detectable, measured_indices
 from shinro_ctrl.estimators.base import Estimator
-from shinro_ctrl.validation import as_matrix, as_vector, state_space
+from shinro_ctrl.validation import as_vector, measurement_matrix, state_space
 
 __all__ = ["Luenberger"]
 
@@ -65,9 +65,8 @@ class Luenberger(Estimator):
     ):
         A, B = state_space(A, B)
         n, m = B.shape
-        C = np.atleast_2d(np.asarray(C, dtype=float))
+        C = measurement_matrix(C, n)
         p = C.shape[0]
-        C = as_matrix("C", C, (p, n))
         try:
             want = np.asarray(poles, dtype=complex).reshape(-1)
         except (TypeError, ValueError):
