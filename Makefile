@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 STAMP_RUN := $(VENV)/.installed-runtime
 STAMP_DEV := $(VENV)/.installed-dev
 
-.PHONY: demo test docs lint format bench clean
+.PHONY: demo test sysdeps docs lint format bench clean
 
 $(STAMP_RUN): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -25,8 +25,21 @@ $(STAMP_DEV): pyproject.toml
 demo: $(STAMP_RUN)
 	$(BIN)/shinro-ctrl run
 
-test: $(STAMP_DEV)
+test: $(STAMP_DEV) sysdeps
 	$(BIN)/python -m pytest -n auto -q
+
+# Debian packages the tests need: offscreen OpenGL for the MuJoCo video tests (MUJOCO_GL=osmesa) and headless
+# Chromium for the design-report test. Installed quietly when missing (as root, or through sudo); nothing to do
+# when present.
+SYSDEPS := libosmesa6 chromium
+sysdeps:
+	@command -v dpkg >/dev/null 2>&1 || { echo "sysdeps: no dpkg here; install $(SYSDEPS) (or equivalents) yourself"; exit 0; }; \
+	missing=$$(for p in $(SYSDEPS); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+		echo "installing system packages for the tests:" $$missing; \
+		sudo=$$([ "$$(id -u)" = 0 ] || echo sudo); \
+		$$sudo apt-get update -qq && $$sudo apt-get install -y -qq $$missing >/dev/null; \
+	fi
 
 # API docs site (mkdocs-material + mkdocstrings) into site/; --strict fails on any warning.
 docs: $(STAMP_DEV)
