@@ -159,11 +159,6 @@ class RobotSim:
         """``"mujoco"`` or ``"standalone"``."""
         return "mujoco" if self.engine is not None else "standalone"
 
-    def _default_estimator(self) -> Any:
-        from shinro_ctrl.estimators import FullState
-
-        return FullState(self.plant.state_dim)
-
     def _operating_point(self) -> np.ndarray:
         x0 = self.controller.x0
         if x0 is not None and np.shape(x0) == (self.plant.state_dim,):

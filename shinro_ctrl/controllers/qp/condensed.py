@@ -90,7 +90,7 @@ __all__ = [
 
 #: DAQP's exit flags (``daqp/include/constants.h``).
 DAQP_STATUS: dict[int, str] = {
-    2: "solved (soft optimal)",
+    2: "solved (soft constraints violated)",
     1: "solved",
     -1: "primal infeasible",
     -2: "cycling",
@@ -163,10 +163,6 @@ class DenseSolveInfo:
     def solved(self) -> bool:
         """True for an optimal exit."""
         return self.exitflag in (1, 2)
-
-
-def _fmt(v: np.ndarray) -> str:
-    return np.array2string(np.asarray(v), precision=4, suppress_small=True)
 
 
 class CondensedQP(CondensedBuild, CondensedDiagnosis):

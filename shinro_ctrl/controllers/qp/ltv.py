@@ -42,21 +42,10 @@ from typing import Any
 import daqp
 import numpy as np
 
+from shinro_ctrl.controllers.qp.condensed import DAQP_STATUS
 from shinro_ctrl.controllers.qp.ltv_sparse import SPARSE_OSQP_SETTINGS, SparseLTV
 
-__all__ = ["DAQP_EXITFLAGS", "SPARSE_OSQP_SETTINGS", "CondensedLTV", "SparseLTV"]
-
-#: DAQP's exit flags (see https://darnstrom.github.io/daqp/parameters).
-DAQP_EXITFLAGS = {
-    1: "solved",
-    2: "solved (soft constraints violated)",
-    -1: "primal infeasible",
-    -2: "cycling",
-    -3: "unbounded",
-    -4: "iteration limit",
-    -5: "nonconvex",
-    -6: "overdetermined initial active set",
-}
+__all__ = ["SPARSE_OSQP_SETTINGS", "CondensedLTV", "SparseLTV"]
 
 
 class CondensedLTV:
@@ -223,7 +212,7 @@ class CondensedLTV:
         z, _, flag, info = daqp.solve(self.H, self.g, self.A, self.bu, self.bl, self.sense, **self.settings)
         self.lam = info["lam"]
         self.flag = int(flag)
-        return z, flag in (1, 2), DAQP_EXITFLAGS.get(self.flag, f"exit flag {self.flag}"), int(info["iterations"])
+        return z, flag in (1, 2), DAQP_STATUS.get(self.flag, f"exit flag {self.flag}"), int(info["iterations"])
 
     def step(self, z: np.ndarray, dx0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(ΔU (N m,), ΔX (N, n))`` of a solution, ``ΔX = Γ ΔU + Φ Δx_0 + c`` (a view of an internal buffer)."""
