@@ -49,29 +49,12 @@ from shinro_ctrl.controllers.lqr import riccati_solution
 from shinro_ctrl.controllers.qp.ltv import CondensedLTV, SparseLTV
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
-from shinro_ctrl.validation import as_vector, bound_pair, check_positive
+from shinro_ctrl.validation import as_vector, bound_pair, check_positive, weight_matrix
 
 __all__ = ["NMPCSolution", "NonlinearMPC"]
 
 SOLVERS = ("auto", "daqp", "osqp", "ipopt")
 INTEGRATORS = ("rk4", "semi_implicit")
-
-
-def _weight(name: str, value: Any, size: int) -> np.ndarray:
-    M = np.asarray(value, dtype=float)
-    if M.ndim == 0 and size == 1:
-        M = M.reshape(1, 1)
-    elif M.ndim == 1:
-        if M.shape != (size,):
-            raise InvalidArgument(f"{name}: expected ({size},) or ({size}, {size}) but found {M.shape}")
-        M = np.diag(M)
-    if M.shape != (size, size):
-        raise InvalidArgument(f"{name}: expected ({size},) or ({size}, {size}) but found {M.shape}")
-    if not np.all(np.isfinite(M)):
-        raise NonFiniteError(f"{name} holds NaN or inf")
-    if not np.allclose(M, M.T, rtol=1e-9, atol=1e-12):
-        raise InvalidArgument(f"{name} must be symmetric")
-    return 0.5 * (M + M.T)
 
 
 def rk4_step(f: cs.Function, x: Any, u: Any, h: float) -> Any:
@@ -204,8 +187,8 @@ class NonlinearMPC(NMPCRealTime, NMPCIpopt, Controller):
     def _set_weights(self, Q: Any, R: Any, x_ref: Any, u_ref: Any) -> None:
         """Validate and keep the weights and the references."""
         n, m = self.n, self.m
-        self.Q = _weight("Q", Q, n)
-        self.R = _weight("R", R, m)
+        self.Q = weight_matrix("Q", Q, n)
+        self.R = weight_matrix("R", R, m)
         if np.min(np.linalg.eigvalsh(self.R)) <= 0:
             raise InvalidArgument("R must be positive definite")
         if np.min(np.linalg.eigvalsh(self.Q)) < -1e-12:
@@ -266,7 +249,7 @@ class NonlinearMPC(NMPCRealTime, NMPCIpopt, Controller):
                 raise InvalidArgument(f"Qf must be None, 'lqr' or an (n, n) matrix, got {Qf!r}")
             self.Qf = self._dare()
         else:
-            self.Qf = _weight("Qf", Qf, n)
+            self.Qf = weight_matrix("Qf", Qf, n)
         self.W = np.stack([self.Q] * (N - 1) + [self.Qf])
 
     def _build_qp(self, osqp_settings: Mapping[str, Any] | None) -> None:
