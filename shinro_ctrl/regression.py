@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
+from shinro_ctrl.sim.metrics import RESPONSE_METRICS
 
 __all__ = [
     "DEFAULT_TOLERANCES",
@@ -184,8 +185,8 @@ def compare_metrics(
         tol = {**DEFAULT_TOLERANCES.get(metric, {"rel": 1e-3, "abs": 1e-9}), **tolerances.get(metric, {})}
         rel, ab = float(tol.get("rel", 0.0)), float(tol.get("abs", 0.0))
         base = baseline.get(metric)
-        if base is None and metric in ("overshoot", "rise_time"):
-            continue  # response metrics newer than the baseline: `regress --update` stores them
+        if base is None and metric in RESPONSE_METRICS:
+            continue  # step-response metrics newer than the baseline: `regress --update` stores them
         value = float(value)
         if base is None or math.isnan(base):
             ok = False

@@ -11,6 +11,7 @@ from shinro_ctrl.errors import NonFiniteError
 
 __all__ = [
     "NEVER_METRICS",
+    "RESPONSE_METRICS",
     "StreamingMetrics",
     "bound_excess",
     "compute_metrics",
@@ -20,6 +21,8 @@ __all__ = [
 ]
 
 NEVER_METRICS = ("settling_time", "rise_time")  # inf means the event never happened, not an overflow
+#: The step-response metrics of :func:`response_metrics` (newer than some stored baselines).
+RESPONSE_METRICS = ("overshoot", "rise_time")
 
 
 def bound_excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
