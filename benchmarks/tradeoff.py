@@ -16,7 +16,7 @@ import os
 import tempfile
 import time
 
-from shinro_ctrl.tradeoff import run_tradeoff
+from shinro_ctrl.analysis.tradeoff import run_tradeoff
 
 
 def main() -> None:

@@ -3,25 +3,97 @@
 ``configs/`` and ``assets/`` live at the repository root and are copied into
 the wheel as ``shinro_ctrl/configs`` and ``shinro_ctrl/assets``. Lookup tries
 the installed location first, then the repository root (editable install).
-The folder lookup itself is the core module :mod:`shinro_ctrl.data_paths`
-(which the engine uses for assets); this module adds the scenario files.
+This module imports nothing else from the package, so the engine (asset paths)
+and the scenario layer share it.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from shinro_ctrl.data_paths import asset_path, data_root, find_data, find_shipped, list_assets, list_data, shipped_asset
-
 __all__ = [
     "asset_path",
     "config_path",
+    "data_root",
+    "find_data",
+    "find_shipped",
     "list_assets",
     "list_configs",
+    "list_data",
     "regression_dir",
     "shipped_asset",
     "shipped_config",
 ]
+
+
+_PKG = Path(__file__).resolve().parent
+
+
+def data_root(kind: str) -> Path:
+    """The folder of ``kind`` (``"assets"`` or ``"configs"``).
+
+    Raises:
+        FileNotFoundError: the folder is missing from the installation.
+    """
+    for candidate in (_PKG / kind, _PKG.parent / kind):
+        if candidate.is_dir():
+            return candidate
+    raise FileNotFoundError(f"shinro_ctrl data folder '{kind}' is missing from the installation")
+
+
+def find_data(kind: str, name: str | Path, suffix: str) -> Path:
+    """An existing file path as given, else the shipped file of that name (see :func:`find_shipped`)."""
+    p = Path(name)
+    if p.is_file():
+        return p.resolve()
+    return find_shipped(kind, name, suffix)
+
+
+def find_shipped(kind: str, name: str | Path, suffix: str) -> Path:
+    """The shipped file ``name`` (``suffix`` optional) in the ``kind`` folder only.
+
+    Raises:
+        FileNotFoundError: no such file, listing the shipped ones.
+    """
+    p = Path(name)
+    root = data_root(kind)
+    candidates = [root / p] if p.suffix else [root / p, root / p.with_suffix(suffix)]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    shipped = ", ".join(list_data(kind, suffix)) or "none"
+    raise FileNotFoundError(f"no {kind[:-1]} named '{name}'; shipped {kind}: {shipped}")
+
+
+def list_data(kind: str, suffix: str) -> list[str]:
+    """The shipped files of ``kind`` ending in ``suffix``, relative to the folder, sorted."""
+    root = data_root(kind)
+    return sorted(str(p.relative_to(root)) for p in root.rglob(f"*{suffix}"))
+
+
+def asset_path(name: str | Path) -> Path:
+    """Path of an MJCF asset: an existing path, or a shipped name such as ``"cartpole.xml"``.
+
+    Raises:
+        FileNotFoundError: listing the shipped assets.
+    """
+    return find_data("assets", name, ".xml")
+
+
+def shipped_asset(name: str | Path) -> Path:
+    """Path of a shipped MJCF asset, looked up in the package's assets folder only.
+
+    A same-named file in the current directory never shadows it.
+
+    Raises:
+        FileNotFoundError: listing the shipped assets.
+    """
+    return find_shipped("assets", name, ".xml")
+
+
+def list_assets() -> list[str]:
+    """Names of the shipped MJCF assets."""
+    return list_data("assets", ".xml")
 
 
 def config_path(name: str | Path) -> Path:

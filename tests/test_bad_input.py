@@ -838,11 +838,11 @@ def test_ctrl_c_ends_the_command_with_exit_130(case, tmp_path):
 def _api_cases():
     import numpy as np
 
-    from shinro_ctrl.batch import lqr_batch_rollout
     from shinro_ctrl.controllers import IKQP, LQR, LinearMPC
     from shinro_ctrl.engine import MujocoEngine
     from shinro_ctrl.plants import CartPole, InvertedPendulum
     from shinro_ctrl.sim import RobotSim, compute_metrics
+    from shinro_ctrl.sweep.batch import lqr_batch_rollout
 
     huge = np.array([1e300, 1e300, 1e300, 1e300])
     return {

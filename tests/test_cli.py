@@ -338,7 +338,7 @@ def test_crosscheck_heatmap_diverging_centred_labelled():
     # item 28
     from shinro_ctrl.crosscheck import crosscheck
     from shinro_ctrl.plants import CartPole, Quadrotor
-    from shinro_ctrl.reports import crosscheck_figure
+    from shinro_ctrl.plots.linearization import crosscheck_figure
 
     fig = crosscheck_figure(crosscheck(CartPole()))
     images = [ax.images[0] for ax in fig.axes if ax.images]

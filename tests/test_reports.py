@@ -8,7 +8,7 @@ import pytest
 from shinro_ctrl.crosscheck import crosscheck
 from shinro_ctrl.linearization import complex_step_jacobians
 from shinro_ctrl.plants import PLANTS, CartPole
-from shinro_ctrl.reports import eps_sweep, plot_crosscheck, plot_eps_sweep
+from shinro_ctrl.plots.linearization import eps_sweep, plot_crosscheck, plot_eps_sweep
 
 
 @pytest.mark.parametrize("name", list(PLANTS))

@@ -12,7 +12,6 @@ import sys
 import numpy as np
 import pytest
 
-from shinro_ctrl.batch import batch_unsupported_reason, lqr_batch_rollout
 from shinro_ctrl.config import METRICS
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.sim import RobotSim
@@ -25,6 +24,7 @@ from shinro_ctrl.sweep import (
     perturbed_sim,
     run_sweep,
 )
+from shinro_ctrl.sweep.batch import batch_unsupported_reason, lqr_batch_rollout
 
 CARTPOLE = "cartpole_lqr"
 # Around the nominal (cart 0.5 kg, pole 0.1 kg at 0.5 m): heavy carts and long poles defeat the fixed LQR

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
+from shinro_ctrl.analysis.tradeoff import COLUMNS, parse_tradeoff, run_tradeoff
 from shinro_ctrl.cli import main
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.tradeoff import COLUMNS, parse_tradeoff, run_tradeoff
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ else is a bug and shows its traceback. ``--debug`` shows tracebacks always.
 
 The commands live by group in :mod:`~shinro_ctrl.cli.models` (``linearize``,
 ``crosscheck``, ``list``), :mod:`~shinro_ctrl.cli.run` (``run``, ``plan``),
-:mod:`~shinro_ctrl.cli.design` and :mod:`~shinro_ctrl.cli.batch` (``regress``,
+:mod:`~shinro_ctrl.cli.design` and :mod:`~shinro_ctrl.cli.sets` (``regress``,
 ``sweep``); :mod:`~shinro_ctrl.cli.common` holds the parser class, number
 parsing, argument and output checks and the one-line error report. This
 module wires them: the parser and :func:`main`.
@@ -19,7 +19,6 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from shinro_ctrl.cli.batch import cmd_regress, cmd_sweep
 from shinro_ctrl.cli.common import (
     _NUMERIC_ERRORS,
     _USER_ERRORS,
@@ -43,6 +42,7 @@ from shinro_ctrl.cli.run import DEFAULT_SCENARIO as DEFAULT_SCENARIO
 from shinro_ctrl.cli.run import _scenario_with_plan_file as _scenario_with_plan_file
 from shinro_ctrl.cli.run import cmd_plan, cmd_run
 from shinro_ctrl.cli.run import format_metric_comparison as format_metric_comparison
+from shinro_ctrl.cli.sets import cmd_regress, cmd_sweep
 
 __all__ = ["main"]
 

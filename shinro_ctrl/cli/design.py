@@ -32,7 +32,7 @@ def cmd_design(args: argparse.Namespace) -> int:
 def _check_design_options(args: argparse.Namespace) -> None:
     """``--tradeoff`` and its options, and ``--report``: checked (output paths too) before any work."""
     if args.tradeoff is not None:
-        from shinro_ctrl.tradeoff import parse_tradeoff
+        from shinro_ctrl.analysis.tradeoff import parse_tradeoff
 
         if args.kind != "lqr":
             raise InvalidArgument("--tradeoff sweeps LQR weights: use 'design lqr'")
@@ -41,8 +41,8 @@ def _check_design_options(args: argparse.Namespace) -> None:
         if args.points < 2 or args.workers < 1:
             raise InvalidArgument(f"--points must be >= 2 and --workers >= 1, got {args.points} and {args.workers}")
         parse_tradeoff(args.tradeoff)
+        from shinro_ctrl.analysis.tradeoff import OUTPUT_FILES
         from shinro_ctrl.files import check_output_folder
-        from shinro_ctrl.tradeoff import OUTPUT_FILES
 
         check_output_folder(args.out, OUTPUT_FILES, inputs=[args.config])
     elif args.out or args.engine or args.points != 20 or args.workers != 2:
@@ -124,7 +124,7 @@ def _design_analysis(args: argparse.Namespace, sim) -> int:
         )
         print(f"report: {path}")
     if args.tradeoff:
-        from shinro_ctrl.tradeoff import parse_tradeoff, run_tradeoff
+        from shinro_ctrl.analysis.tradeoff import parse_tradeoff, run_tradeoff
 
         key, lo, hi = parse_tradeoff(args.tradeoff)
         result = run_tradeoff(

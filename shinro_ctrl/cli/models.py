@@ -37,7 +37,7 @@ def cmd_linearize(args: argparse.Namespace) -> int:
     print()
     print(f"max |exact - fd| = {cmp.max_abs_error:.3e}   max relative = {cmp.max_rel_error:.3e}")
     if args.eps_sweep:
-        from shinro_ctrl.reports import eps_sweep, plot_eps_sweep
+        from shinro_ctrl.plots.linearization import eps_sweep, plot_eps_sweep
 
         xs, us = xe, ue
         if args.x0 is None and args.u0 is None:
@@ -73,7 +73,7 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     result = crosscheck(plant, x0, u0, eps=args.eps)
     print(format_crosscheck(result))
     if args.plot:
-        from shinro_ctrl.reports import plot_crosscheck
+        from shinro_ctrl.plots.linearization import plot_crosscheck
 
         print(f"plot: {plot_crosscheck(result, args.plot)}")
     return 0

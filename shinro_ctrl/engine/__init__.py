@@ -45,8 +45,7 @@ MJCF), :mod:`~shinro_ctrl.engine.render` (offscreen rendering),
 :mod:`~shinro_ctrl.engine.warnings` (MuJoCo's warning text) and
 :mod:`~shinro_ctrl.engine.model_tree` (the model reader of ``MjcfPlant``).
 Asset paths come from the plant's ``MjcfPatch`` or the caller, resolved by
-the core :mod:`shinro_ctrl.data_paths`; the engine does not import
-:mod:`shinro_ctrl.resources`.
+the core :mod:`shinro_ctrl.resources` (which imports nothing else from the package).
 """
 
 from shinro_ctrl.engine.core import MujocoEngine

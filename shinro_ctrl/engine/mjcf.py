@@ -11,8 +11,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from shinro_ctrl.data_paths import asset_path, list_assets, shipped_asset
 from shinro_ctrl.errors import InvalidArgument, UnknownName
+from shinro_ctrl.resources import asset_path, list_assets, shipped_asset
 from shinro_ctrl.validation import closest
 
 __all__ = ["TINY_INERTIA"]

@@ -23,9 +23,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from shinro_ctrl.data_paths import asset_path, list_assets
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.multibody import ActuatorInfo, BodyInfo, JointInfo, ModelTree
+from shinro_ctrl.resources import asset_path, list_assets
 
 __all__ = ["load_model", "read_model_tree", "resolve_model_path", "urdf_with_motors"]
 

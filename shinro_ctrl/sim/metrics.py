@@ -171,7 +171,7 @@ def format_metrics(metrics: dict[str, float]) -> str:
 class StreamingMetrics:
     """The metrics of :func:`compute_metrics` for ``N`` instances, accumulated while stepping (O(N) memory).
 
-    Used by the vectorized batch rollout (:mod:`shinro_ctrl.batch`). Same
+    Used by the vectorized batch rollout (:mod:`shinro_ctrl.sweep.batch`). Same
     definitions: ``e_k = ‖x_k[tracked] − r[tracked]‖₂``; rms over the ``T + 1``
     samples; :func:`settling_time` after the last sample outside
     ``settle_tol``; a violation counted at index ``k`` from input ``k`` and

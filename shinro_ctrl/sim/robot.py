@@ -13,9 +13,9 @@ import numpy as np
 
 from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
-from shinro_ctrl.output_feedback import estimation_metrics, loop_signals, uses_estimation
 from shinro_ctrl.progress import Progress
 from shinro_ctrl.sim.metrics import compute_metrics
+from shinro_ctrl.sim.output_feedback import estimation_metrics, loop_signals, uses_estimation
 from shinro_ctrl.sim.reference import Reference
 from shinro_ctrl.sim.result import SimResult
 
@@ -89,7 +89,7 @@ class RobotSim:
         except (TypeError, ValueError, FileNotFoundError) as exc:  # FileNotFoundError: a plan file it loads
             raise ConfigError(f"{src}: [controller] {exc}") from exc
         _install_ik(self.plant, self.controller)
-        from shinro_ctrl.output_feedback import build_estimator
+        from shinro_ctrl.sim.output_feedback import build_estimator
 
         self.estimator, self.initial_estimate, self.initial_covariance = build_estimator(
             scenario, self.plant, self.controller, src

@@ -29,7 +29,7 @@ Executors (``method``):
   rows are sent, each worker rebuilds and caches the nominal sim.
 * ``"dask"``: the same chunks on a Dask cluster (``scheduler`` = the address
   of a ``dask.distributed`` scheduler; needs the ``distributed`` extra).
-* ``"batch"``: the vectorized rollout of :mod:`shinro_ctrl.batch`: every
+* ``"batch"``: the vectorized rollout of :mod:`shinro_ctrl.sweep.batch`: every
   instance advances in one numpy evaluation of the plant's dynamics per step
   (standalone loop, LQR, constant reference, no measurement noise, a plant
   whose constructor parameters are its dynamics parameters).

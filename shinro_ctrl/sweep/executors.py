@@ -265,7 +265,7 @@ def run_dask(base: SweepJob, values: np.ndarray, scheduler: Any, bar: Progress) 
 
 def batch_reason(nominal: Any, names: Sequence[str]) -> str | None:
     """Why the batch rollout cannot run this sweep (None if it can)."""
-    from shinro_ctrl.batch import batch_unsupported_reason
+    from shinro_ctrl.sweep.batch import batch_unsupported_reason
 
     reason = batch_unsupported_reason(nominal.plant, nominal.controller)
     if reason is not None:
@@ -288,8 +288,8 @@ def batch_reason(nominal: Any, names: Sequence[str]) -> str | None:
 def run_batch(
     nominal: Any, names: Sequence[str], values: np.ndarray, stable_tol: float, bar: Progress, timings: dict[str, float]
 ) -> list[Outcome]:
-    from shinro_ctrl.batch import lqr_batch_rollout
     from shinro_ctrl.plants import plant_class
+    from shinro_ctrl.sweep.batch import lqr_batch_rollout
 
     scenario: Scenario = nominal.scenario
     cls = plant_class(scenario.plant.type)

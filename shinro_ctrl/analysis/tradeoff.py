@@ -331,7 +331,13 @@ def _pareto(x: np.ndarray, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return np.array(sorted(idx, key=lambda i: x[i]), dtype=int)
 
 
-_POOL_PRELOAD = ["shinro_ctrl.tradeoff", "shinro_ctrl.sim", "shinro_ctrl.plants", "shinro_ctrl.controllers", "control"]
+_POOL_PRELOAD = [
+    "shinro_ctrl.analysis.tradeoff",
+    "shinro_ctrl.sim",
+    "shinro_ctrl.plants",
+    "shinro_ctrl.controllers",
+    "control",
+]
 
 
 def run_tradeoff(
