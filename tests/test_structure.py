@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import ast
 import re
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import shinro_ctrl
-from shinro_ctrl.controllers import CONTROLLERS, Controller, controller_class
-from shinro_ctrl.estimators import Estimator
-from shinro_ctrl.plants import PLANTS, ArmRobot, Plant, plant_class
+from shinro_ctrl.controllers import CONTROLLER_REGISTRY, CONTROLLERS, LQR, Controller, controller_class
+from shinro_ctrl.errors import ConfigError, InvalidArgument
+from shinro_ctrl.estimators import ESTIMATOR_REGISTRY, Estimator, KalmanFilter, estimator_class
+from shinro_ctrl.plants import PLANT_REGISTRY, PLANTS, ArmRobot, CartPole, Plant, plant_class
 from shinro_ctrl.plants.armrobot import ARM6
 from shinro_ctrl.resources import shipped_config
 from shinro_ctrl.sim import RobotSim
@@ -116,6 +120,99 @@ def test_the_controller_is_fed_the_estimate_not_the_plant_state():
     np.testing.assert_array_equal(sim.estimator.reset_to, [1.0, 0.0])  # reset to the initial state
     np.testing.assert_allclose(result.x, sled_reference([1.0, 0.0], 100, 0.01, 2.0, bias), rtol=0, atol=1e-12)
     np.testing.assert_allclose(sim.controller.calls[0], [1.05, -0.02])
+
+
+# ----------------------------------------------------------- the registries
+REGISTRIES = [(PLANT_REGISTRY, Plant, "plants"), (CONTROLLER_REGISTRY, Controller, "controllers")]
+REGISTRIES.append((ESTIMATOR_REGISTRY, Estimator, "estimators"))
+
+
+def test_one_registry_convention_for_plants_controllers_and_estimators():
+    assert plant_class("cartpole") is CartPole is PLANT_REGISTRY.lookup("CartPole")
+    assert controller_class("LQR") is LQR and estimator_class("KalmanFilter") is KalmanFilter
+    for registry, _, package in REGISTRIES:  # defined here: registered, not shipped
+        assert registry.package == f"shinro_ctrl.{package}"
+        mine = {"plants": "StructureTestSled", "controllers": "StructureTestPD", "estimators": "StructureTestBiased"}
+        assert mine[package] in registry.names() and mine[package] not in registry.names(shipped=True)
+        assert all(cls.__module__.startswith(registry.package + ".") for cls in registry.shipped().values())
+    assert set(PLANTS) == set(PLANT_REGISTRY.names(shipped=True)) and set(CONTROLLERS) == set(
+        CONTROLLER_REGISTRY.names(shipped=True)
+    )
+    assert {"LQR", "LinearMPC", "NonlinearMPC", "TVLQR", "IKQP"} <= set(CONTROLLERS)
+
+
+@pytest.mark.parametrize(
+    ("lookup", "typo", "message"),
+    [
+        (plant_class, "CartPol", "unknown plant 'CartPol'; did you mean 'CartPole'?"),
+        (plant_class, "cartpol", "unknown plant 'cartpol'; did you mean 'cartpole'?"),
+        (controller_class, "LinearMCP", "unknown controller 'LinearMCP'; did you mean 'LinearMPC'?"),
+        (estimator_class, "KalmanFiltr", "unknown estimator 'KalmanFiltr'; did you mean 'KalmanFilter'?"),
+        (estimator_class, "zzzz", "unknown estimator 'zzzz'; valid: "),
+    ],
+)
+def test_an_unknown_name_says_which_was_meant(lookup, typo, message):
+    with pytest.raises(ConfigError) as info:
+        lookup(typo)
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+def test_a_taken_name_from_another_module_is_refused_and_the_shipped_class_stays():
+    def body(module: str) -> dict:
+        return {"__module__": module, "from_plant": classmethod(lambda cls, plant: cls()), "__call__": lambda s, x: x}
+
+    with pytest.raises(InvalidArgument, match=r"controller name 'LQR' of elsewhere.LQR is taken by shinro_ctrl"):
+        type("LQR", (Controller,), body("elsewhere"))
+    assert controller_class("LQR") is LQR
+    with pytest.raises(InvalidArgument, match="plant name 'cartpole'"):
+        type("OtherCart", (Plant,), {"__module__": "elsewhere", "aliases": ("cartpole",)})
+    assert plant_class("cartpole") is CartPole and "OtherCart" not in PLANT_REGISTRY
+    first = type("RedefinedHere", (Controller,), body(__name__))
+    second = type("RedefinedHere", (Controller,), body(__name__))  # the same module: a redefinition replaces
+    assert first is not second and controller_class("RedefinedHere") is second
+
+
+def test_abstract_and_private_classes_are_not_registered():
+    class AbstractHere(Controller):  # from_plant and __call__ left abstract
+        pass
+
+    class _PrivateFilter(Estimator):
+        def reset(self, x0_hat, P0=None) -> None: ...
+
+        def update(self, y, u):
+            return y
+
+    assert "AbstractHere" not in CONTROLLER_REGISTRY and "_PrivateFilter" not in ESTIMATOR_REGISTRY
+    assert "Controller" not in CONTROLLER_REGISTRY and "Estimator" not in ESTIMATOR_REGISTRY
+
+
+def test_importing_a_package_registers_every_class_its_modules_define():
+    """A module the package ``__init__`` forgets to import would register its classes only on a later import."""
+    script = (
+        "import importlib, pkgutil, shinro_ctrl.{p} as pkg\n"
+        "from shinro_ctrl.{p}.base import {r} as reg\n"
+        "before = reg.names()\n"
+        "for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.'):\n"
+        "    importlib.import_module(m.name)\n"
+        "print(before == reg.names(), before, reg.names())\n"
+    )
+    names = {"plants": "PLANT_REGISTRY", "controllers": "CONTROLLER_REGISTRY", "estimators": "ESTIMATOR_REGISTRY"}
+    for package, registry in names.items():
+        out = subprocess.run(
+            [sys.executable, "-c", script.format(p=package, r=registry)], capture_output=True, text=True, check=True
+        ).stdout
+        assert out.startswith("True"), f"{package}: {out}"
+
+
+def test_no_package_hides_its_names_behind_a_module_getattr():
+    """Eager imports: static tools (and ``from shinro_ctrl.controllers import LinearMPC``) see every name."""
+    bad = [
+        path.relative_to(PACKAGE).as_posix()
+        for path in PACKAGE.rglob("__init__.py")
+        for node in ast.parse(path.read_text()).body
+        if isinstance(node, ast.FunctionDef) and node.name in ("__getattr__", "__dir__")
+    ]
+    assert not bad, bad
 
 
 # ----------------------------------------------------------- the shipped arm

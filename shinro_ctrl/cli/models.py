@@ -81,17 +81,21 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------- list
 def cmd_list(args: argparse.Namespace) -> int:
-    from shinro_ctrl.controllers import CONTROLLERS
-    from shinro_ctrl.plants import PLANT_ALIASES, PLANTS
+    from shinro_ctrl.controllers import CONTROLLER_REGISTRY
+    from shinro_ctrl.estimators import ESTIMATOR_REGISTRY
+    from shinro_ctrl.plants import PLANT_REGISTRY
     from shinro_ctrl.resources import list_configs
 
-    alias = {v: k for k, v in PLANT_ALIASES.items()}
+    alias = {v: k for k, v in PLANT_REGISTRY.aliases.items()}
     print("plants:")
-    for name, cls in PLANTS.items():
+    for name, cls in PLANT_REGISTRY.shipped().items():
         doc = (cls.__doc__ or "").strip().splitlines()[0]
         print(f"  {name:22s} {alias.get(name, ''):16s} {doc}")
     print("controllers:")
-    for name in CONTROLLERS:
+    for name in CONTROLLER_REGISTRY.names(shipped=True):
+        print(f"  {name}")
+    print("estimators:")
+    for name in ESTIMATOR_REGISTRY.names(shipped=True):
         print(f"  {name}")
     print("scenarios:")
     for name in list_configs():

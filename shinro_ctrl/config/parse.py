@@ -154,13 +154,13 @@ def _parse_controller(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> Controll
     if "controller" not in doc:
         raise ctx.error("", "missing required table [controller]")
     ct = dict(doc["controller"])
-    if "type" not in ct:
-        raise ctx.error("controller", "missing key 'type' (LQR, LinearMPC or IKQP)")
-    ctx.check_types("controller", {"type": ct["type"]}, {})
-    from shinro_ctrl.controllers import controller_class, controller_keys
+    from shinro_ctrl.controllers import CONTROLLER_REGISTRY, controller_keys
 
+    if "type" not in ct:
+        raise ctx.error("controller", f"missing key 'type' (one of {', '.join(CONTROLLER_REGISTRY.names())})")
+    ctx.check_types("controller", {"type": ct["type"]}, {})
     try:
-        ccls = controller_class(str(ct["type"]))
+        ccls = CONTROLLER_REGISTRY.lookup(str(ct["type"]))
     except ConfigError as exc:
         raise ctx.error("controller", str(exc)) from None
     ctx.check_keys("controller", ct, ("type", *controller_keys(ccls)))
@@ -188,11 +188,11 @@ def _parse_regression(ctx: _Ctx, doc: Mapping[str, Any]) -> dict[str, dict[str, 
 
 def _parse_plan(ctx: _Ctx, doc: Mapping[str, Any], controller: ControllerConfig, probe: Any) -> dict[str, Any] | None:
     """``[plan]`` (or ``plan`` inside ``[controller]``): validated, and handed to the controller as ``plan``."""
-    from shinro_ctrl.controllers import controller_class, controller_keys
+    from shinro_ctrl.controllers import CONTROLLER_REGISTRY, controller_keys
     from shinro_ctrl.errors import InvalidArgument
     from shinro_ctrl.planning.spec import check_plan
 
-    takes_plan = "plan" in controller_keys(controller_class(controller.type))
+    takes_plan = "plan" in controller_keys(CONTROLLER_REGISTRY.lookup(controller.type))
     table = "plan" if "plan" in doc else "controller"
     if "plan" in doc and "plan" in controller.options:
         raise ctx.error("controller", "'plan' is given twice: keep the [plan] table and remove 'plan' here")

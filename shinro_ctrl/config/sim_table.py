@@ -153,13 +153,13 @@ def _parse_estimator(ctx: _Ctx, doc: Mapping[str, Any], sim: SimConfig, probe: A
                 '(type = "KalmanFilter", "ExtendedKalmanFilter" or "Luenberger")',
             )
         return None
-    from shinro_ctrl.estimators import estimator_class
+    from shinro_ctrl.estimators import ESTIMATOR_REGISTRY
 
     et = dict(doc["estimator"])
     if "type" not in et:
-        raise ctx.error("estimator", "missing key 'type' (KalmanFilter, ExtendedKalmanFilter, Luenberger or FullState)")
+        raise ctx.error("estimator", f"missing key 'type' (one of {', '.join(ESTIMATOR_REGISTRY.names())})")
     try:
-        ecls = estimator_class(str(et["type"]))
+        ecls = ESTIMATOR_REGISTRY.lookup(str(et["type"]))
     except ConfigError as exc:
         raise ctx.error("estimator", str(exc)) from None
     params = list(inspect.signature(ecls.from_plant).parameters.values())[1:]

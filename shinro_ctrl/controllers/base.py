@@ -37,19 +37,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from shinro_ctrl.registry import Registry
+
 __all__ = ["CONTROLLER_REGISTRY", "Controller"]
 
-#: Class name -> every concrete :class:`Controller` subclass defined so far.
-CONTROLLER_REGISTRY: dict[str, type[Controller]] = {}
-
-
-def _is_abstract(cls: type) -> bool:
-    """True while ``cls`` still has an abstract method (checked before ``ABCMeta`` sets ``__abstractmethods__``)."""
-    for name in dir(cls):
-        attr = getattr(cls, name, None)
-        if getattr(attr, "__isabstractmethod__", False):
-            return True
-    return False
+#: Every concrete :class:`Controller` subclass defined so far, by class name (``Controller.__init_subclass__``).
+CONTROLLER_REGISTRY: Registry[Controller] = Registry("controller", "shinro_ctrl.controllers")
 
 
 class Controller(abc.ABC):
@@ -82,8 +75,7 @@ class Controller(abc.ABC):
         if "stateful" not in cls.__dict__:
             # default: a controller with its own reset() carries memory between calls
             cls.stateful = any("reset" in c.__dict__ for c in cls.__mro__ if c is not Controller and c is not object)
-        if not _is_abstract(cls):
-            CONTROLLER_REGISTRY[cls.__name__] = cls
+        CONTROLLER_REGISTRY.register(cls)  # skips abstract and private classes
 
     @classmethod
     @abc.abstractmethod

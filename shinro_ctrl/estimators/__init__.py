@@ -1,24 +1,22 @@
 """State estimators: what the closed loop feeds the controller instead of the true state.
 
 :class:`Estimator` is the interface; :class:`FullState` (the identity) is the
-default. Each estimator class registers itself under its class name when it is
-defined; :func:`estimator_class` looks one up for an ``[estimator]`` table.
+default. Each concrete estimator class registers itself in
+:data:`ESTIMATOR_REGISTRY` (a :class:`~shinro_ctrl.registry.Registry`) under
+its class name when it is defined; this package imports each estimator module
+below, and :func:`estimator_class` looks one up for an ``[estimator]`` table.
 """
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
-from shinro_ctrl.errors import ConfigError
-from shinro_ctrl.estimators.base import ESTIMATORS, Estimator
+from shinro_ctrl.estimators.base import ESTIMATOR_REGISTRY, Estimator
 from shinro_ctrl.estimators.full_state import FullState
 from shinro_ctrl.estimators.kalman import ExtendedKalmanFilter, KalmanFilter
 from shinro_ctrl.estimators.luenberger import Luenberger
-from shinro_ctrl.validation import did_you_mean
 
 __all__ = [
     "ESTIMATORS",
+    "ESTIMATOR_REGISTRY",
     "Estimator",
     "ExtendedKalmanFilter",
     "FullState",
@@ -27,22 +25,14 @@ __all__ = [
     "estimator_class",
 ]
 
-
-def _import_all() -> None:
-    """Import every module of this package, so every estimator has registered itself."""
-    for info in pkgutil.iter_modules(__path__):
-        if not info.name.startswith("_"):
-            importlib.import_module(f"{__name__}.{info.name}")
+#: Class name -> class of every estimator this package ships.
+ESTIMATORS: dict[str, type[Estimator]] = ESTIMATOR_REGISTRY.shipped()
 
 
 def estimator_class(name: str) -> type[Estimator]:
-    """The estimator class named ``name`` (``"FullState"``, ``"KalmanFilter"``, ...).
+    """The estimator class named ``name`` (``"FullState"``, ``"KalmanFilter"``, or one defined elsewhere).
 
     Raises:
         ConfigError: unknown name, with the closest known one.
     """
-    if name not in ESTIMATORS:
-        _import_all()
-    if name not in ESTIMATORS:
-        raise ConfigError(f"unknown estimator '{name}'{did_you_mean(name, ESTIMATORS)}")
-    return ESTIMATORS[name]
+    return ESTIMATOR_REGISTRY.lookup(name)

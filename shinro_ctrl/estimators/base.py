@@ -19,10 +19,12 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ESTIMATORS", "Estimator"]
+from shinro_ctrl.registry import Registry
 
-#: Every concrete estimator class by name, filled where each is defined (see ``Estimator.__init_subclass__``).
-ESTIMATORS: dict[str, type[Estimator]] = {}
+__all__ = ["ESTIMATOR_REGISTRY", "Estimator"]
+
+#: Every concrete :class:`Estimator` subclass defined so far, by class name (``Estimator.__init_subclass__``).
+ESTIMATOR_REGISTRY: Registry[Estimator] = Registry("estimator", "shinro_ctrl.estimators")
 
 
 class Estimator(ABC):
@@ -41,8 +43,7 @@ class Estimator(ABC):
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        if not cls.__name__.startswith("_"):
-            ESTIMATORS[cls.__name__] = cls
+        ESTIMATOR_REGISTRY.register(cls)  # skips abstract and private classes
 
     @classmethod
     def from_plant(cls, plant: Any, **options: Any) -> Estimator:

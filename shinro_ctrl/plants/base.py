@@ -34,14 +34,13 @@ from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd
 from shinro_ctrl.plants._config_mixin import ConfigMixin
 from shinro_ctrl.plants._engine_mode import EngineModeMixin
 from shinro_ctrl.plants._state_io import StateIOMixin
+from shinro_ctrl.registry import Registry
 from shinro_ctrl.validation import all_finite, as_vector, check_positive, did_you_mean, unknown_keys
 
-__all__ = ["PLANT_ALIASES_REGISTRY", "PLANT_REGISTRY", "MjcfPatch", "Plant"]
+__all__ = ["PLANT_REGISTRY", "MjcfPatch", "Plant"]
 
-#: Class name -> every :class:`Plant` subclass defined so far (filled by ``Plant.__init_subclass__``).
-PLANT_REGISTRY: dict[str, type[Plant]] = {}
-#: Alias -> class name, from the subclasses' ``aliases``.
-PLANT_ALIASES_REGISTRY: dict[str, str] = {}
+#: Every :class:`Plant` subclass defined so far, by class name and ``aliases`` (``Plant.__init_subclass__``).
+PLANT_REGISTRY: Registry[Plant] = Registry("plant", "shinro_ctrl.plants")
 
 #: Public hook -> underscore alias (see the :class:`Plant` docstring).
 _HOOK_ALIASES = (
@@ -168,9 +167,7 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
                     break
             setattr(cls, public, fn)
             setattr(cls, private, fn)
-        PLANT_REGISTRY[cls.__name__] = cls
-        for alias in cls.__dict__.get("aliases", ()):
-            PLANT_ALIASES_REGISTRY[alias] = cls.__name__
+        PLANT_REGISTRY.register(cls, aliases=cls.__dict__.get("aliases", ()))
 
     # ------------------------------------------------------------------ set-up
     def _init(self, *, dt: float, params: Mapping[str, float], backend: Any = None) -> None:

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.optimize
 
 from shinro_ctrl.controllers.qp.condensed_build import DenseRowGroup
 from shinro_ctrl.controllers.qp.diagnose import explain_certificate
@@ -111,6 +110,8 @@ class CondensedDiagnosis:
         b_ub = np.concatenate([his[up], -los[dn]])
         cost = np.concatenate([np.zeros(nz), np.ones(nu_ + nd)])
         bounds = [(0, None)] * ns + [(None, None)] * (nz - ns) + [(0, None)] * (nu_ + nd)
+        import scipy.optimize  # only when an infeasible QP is explained (it costs ~40 % of the package import)
+
         res = scipy.optimize.linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
         if res.status != 0 or res.fun <= 1e-9:
             return None
