@@ -215,6 +215,23 @@ def test_no_package_hides_its_names_behind_a_module_getattr():
     assert not bad, bad
 
 
+def test_each_cli_command_is_registered_beside_its_handler():
+    import argparse
+
+    from shinro_ctrl.cli import COMMANDS, build_parser
+
+    seen = []
+    for register in COMMANDS:
+        sub = argparse.ArgumentParser().add_subparsers()
+        register(sub)
+        for name, parser in sub.choices.items():
+            handler = parser.get_default("func")
+            assert handler.__module__ == register.__module__ and handler.__name__ == f"cmd_{name}", name
+            seen.append(name)
+    commands = build_parser()._subparsers._group_actions[0].choices
+    assert seen == list(commands) and {"run", "list", "sweep"} <= set(seen)
+
+
 # ----------------------------------------------------------- the shipped arm
 def test_arm6_ignores_an_arm6_toml_in_the_working_directory(tmp_path, monkeypatch):
     (tmp_path / "arm6.toml").write_text(

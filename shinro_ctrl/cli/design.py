@@ -9,7 +9,21 @@ import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
 
-__all__ = ["cmd_design"]
+__all__ = ["cmd_design", "register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``design`` to the ``shinro-ctrl`` parser (``sub``: its subparsers)."""
+    p = sub.add_parser("design", help="design a controller from a scenario and print it")
+    p.add_argument("kind", choices=("lqr", "mpc"))
+    p.add_argument("config", metavar="CONFIG")
+    p.add_argument("--report", metavar="FILE.html", help="write a self-contained HTML design report (plots embedded)")
+    p.add_argument("--tradeoff", metavar="KEY=LO:HI", help="LQR weight trade-off, e.g. R=1e-3:1e2 or Q[2]=1:1000")
+    p.add_argument("--points", type=int, default=20, metavar="N", help="trade-off points, log-spaced (default 20)")
+    p.add_argument("--engine", choices=("standalone", "mujoco"), help="trade-off: loop of the nonlinear runs")
+    p.add_argument("--out", metavar="DIR", help="trade-off: write tradeoff.csv, tradeoff.json, tradeoff.png here")
+    p.add_argument("--workers", type=int, default=2, metavar="W", help="trade-off: worker processes (default 2)")
+    p.set_defaults(func=cmd_design)
 
 
 def cmd_design(args: argparse.Namespace) -> int:

@@ -9,7 +9,36 @@ import numpy as np
 from shinro_ctrl.cli.common import CROSSCHECK_PLANTS, _check_output, _check_step, parse_vector, side_by_side
 from shinro_ctrl.errors import InvalidArgument
 
-__all__ = ["cmd_crosscheck", "cmd_linearize", "cmd_list"]
+__all__ = ["cmd_crosscheck", "cmd_linearize", "cmd_list", "register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``linearize``, ``crosscheck`` and ``list`` to the ``shinro-ctrl`` parser (``sub``: its subparsers)."""
+    from shinro_ctrl.plants import PLANT_ALIASES
+
+    p = sub.add_parser("linearize", help="exact (CasADi) and finite-difference Jacobians side by side")
+    p.add_argument("plant", metavar="PLANT", help=f"one of: {', '.join(PLANT_ALIASES)}; or an MJCF/URDF model file")
+    p.add_argument("--x0", help="operating state, e.g. '0,0,0.1,0' (pi allowed: 'pi,pi,0,0')")
+    p.add_argument("--u0", help="operating input, e.g. '0'")
+    p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
+    p.add_argument("--eps-sweep", action="store_true", help="FD error against the step size (complex-step reference)")
+    p.add_argument("--plot", metavar="PNG", help="with --eps-sweep: plot the V-shaped error curve")
+    p.set_defaults(func=cmd_linearize)
+
+    p = sub.add_parser("crosscheck", help="exact vs finite differences vs MuJoCo's mjd_transitionFD")
+    p.add_argument(
+        "plant",
+        metavar="PLANT",
+        help=f"one of: {', '.join(CROSSCHECK_PLANTS)}; an MJCF/URDF model file; or a scenario file (its plant)",
+    )
+    p.add_argument("--x0", help="operating state (pi allowed)")
+    p.add_argument("--u0", help="operating input")
+    p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
+    p.add_argument("--plot", metavar="PNG", help="draw the exact / FD / MuJoCo comparison")
+    p.set_defaults(func=cmd_crosscheck)
+
+    p = sub.add_parser("list", help="plants, controllers and shipped scenarios")
+    p.set_defaults(func=cmd_list)
 
 
 # ------------------------------------------------------------------ linearize

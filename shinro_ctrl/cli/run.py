@@ -11,9 +11,32 @@ from typing import Any
 from shinro_ctrl.cli.common import RUN_FILES, RUN_FILES_BOTH
 from shinro_ctrl.errors import InvalidArgument
 
-__all__ = ["DEFAULT_SCENARIO", "cmd_plan", "cmd_run", "format_metric_comparison"]
+__all__ = ["DEFAULT_SCENARIO", "cmd_plan", "cmd_run", "format_metric_comparison", "register"]
 
 DEFAULT_SCENARIO = "cartpole_lqr.toml"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``run`` and ``plan`` to the ``shinro-ctrl`` parser (``sub``: its subparsers)."""
+    p = sub.add_parser("run", help="run a scenario (default: the embedded cart-pole LQR demo)")
+    p.add_argument("config", nargs="?", metavar="CONFIG", help="scenario file or shipped name")
+    p.add_argument(
+        "--engine",
+        choices=("standalone", "mujoco", "both"),
+        help="override the scenario's loop; 'both' runs the two loops and overlays them with their differences",
+    )
+    p.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the scenario's)")
+    p.add_argument("--plot", metavar="PNG", help="where to write the plot")
+    p.add_argument("--out", metavar="DIR", help="save result.npz, metrics.json, scenario.toml and run.png")
+    p.add_argument("--video", metavar="PATH", help="render the run offscreen with MuJoCo: .gif, or .mp4 with ffmpeg")
+    p.add_argument("--plan", metavar="FILE", help="track this saved plan (.npz from 'plan') instead of planning")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("plan", help="solve a scenario's [plan] (trajectory optimization) and save it")
+    p.add_argument("config", metavar="CONFIG", help="scenario file or shipped name")
+    p.add_argument("--plot", metavar="PNG", help="plot the planned states and inputs")
+    p.add_argument("--out", metavar="DIR", help="where to write <scenario>_plan.npz (default out/)")
+    p.set_defaults(func=cmd_plan)
 
 
 # ------------------------------------------------------------------------ run

@@ -9,7 +9,34 @@ import sys
 from shinro_ctrl.cli.common import MAX_SAMPLES, MAX_WORKERS, SWEEP_FILES, _check_count, _check_scheduler
 from shinro_ctrl.errors import InvalidArgument
 
-__all__ = ["cmd_regress", "cmd_sweep"]
+__all__ = ["cmd_regress", "cmd_sweep", "register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``regress`` and ``sweep`` to the ``shinro-ctrl`` parser (``sub``: its subparsers)."""
+    p = sub.add_parser("regress", help="run regression scenarios and compare with their baselines")
+    p.add_argument(
+        "dir", nargs="?", metavar="DIR", help="folder of scenarios or one scenario file (default: the shipped set)"
+    )
+    p.add_argument(
+        "--update", action="store_true", help="rewrite the baselines as one set (the shipped ones only if DIR is named)"
+    )
+    p.set_defaults(func=cmd_regress)
+
+    p = sub.add_parser("sweep", help="robustness sweep: the nominal controller on perturbed plants")
+    p.add_argument("config", metavar="CONFIG", help="scenario file or shipped name")
+    p.add_argument("--param", action="append", required=True, metavar="KEY=LO:HI", help="e.g. plant.pole_mass=0.05:0.5")
+    p.add_argument("--samples", type=int, default=16, metavar="N", help="Monte-Carlo samples, or points per parameter")
+    p.add_argument("--grid", action="store_true", help="full grid of N points per parameter instead of random samples")
+    p.add_argument("--workers", type=int, default=1, metavar="W", help="local worker processes (default 1)")
+    p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the parameter draws (default 0)")
+    p.add_argument("--out", required=True, metavar="DIR", help="write sweep.csv, sweep.json and sweep.png here")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask cluster (dask.distributed scheduler address)")
+    p.add_argument("--engine", choices=("standalone", "mujoco"), help="override the scenario's loop")
+    p.add_argument("--method", choices=("auto", "pool", "dask", "batch", "serial"), default="auto")
+    p.add_argument("--stable-tol", type=float, metavar="E", help="final-error bound (default 10 x settle_tol)")
+    p.add_argument("--metric", default="rms_error", help="metric to plot (default rms_error)")
+    p.set_defaults(func=cmd_sweep)
 
 
 # -------------------------------------------------------------------- regress
