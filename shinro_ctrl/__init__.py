@@ -1,9 +1,12 @@
 """shinro_ctrl: a model-based control design workbench.
 
 Plants write their dynamics once (numpy and CasADi from one definition);
-exact linearizations feed LQR, linear MPC (OSQP) and IK-QP controllers, which
-are validated in closed loop against the plant's own integration and against
-a matched MuJoCo model.
+exact linearizations feed LQR, linear MPC (DAQP or OSQP), nonlinear MPC,
+TVLQR and IK-QP controllers, which are validated in closed loop against the
+plant's own integration and against a matched MuJoCo model.
+
+The package root holds the error vocabulary (:mod:`shinro_ctrl.errors`):
+every error a user can cause derives from :class:`ShinroError`.
 """
 
 from shinro_ctrl.errors import (
@@ -12,6 +15,7 @@ from shinro_ctrl.errors import (
     MPCInfeasible,
     NonFiniteError,
     NotStabilizable,
+    PlanningFailed,
     ShinroError,
     SimulationDiverged,
     UnknownName,
@@ -25,6 +29,7 @@ __all__ = [
     "MPCInfeasible",
     "NonFiniteError",
     "NotStabilizable",
+    "PlanningFailed",
     "ShinroError",
     "SimulationDiverged",
     "UnknownName",

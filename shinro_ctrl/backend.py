@@ -1,7 +1,7 @@
 """Array backends: the small vocabulary each plant writes its dynamics in.
 
 A plant writes its continuous dynamics ``f(x, u)`` once, as a function of a
-backend ``bk``. Three backends evaluate that one definition:
+backend ``bk``. Four backends evaluate that one definition:
 
 * :class:`NumpyBackend` computes numbers and broadcasts over a leading batch
   axis: ``x`` of shape ``(N, n)``, ``u`` of ``(N, m)`` and parameters of shape
@@ -11,6 +11,8 @@ backend ``bk``. Three backends evaluate that one definition:
   per-call overhead on scalars costs more than the arithmetic.
 * :class:`CasadiBackend` builds a ``casadi.SX`` expression, from which exact
   Jacobians are taken.
+* :class:`ListBackend` is :class:`ScalarBackend` returning plain lists, for
+  the integrators that work on Python floats.
 
 The operations are deliberately few: elementwise ``sin``/``cos``/``tan``/
 ``sqrt``, ``unpack`` (a vector into its components), ``stack`` (components

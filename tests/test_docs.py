@@ -148,6 +148,27 @@ def test_scenarios_page_documents_every_table_key_and_reference_kind():
             assert f"`{key}`" in text, f"[controller] {name}: {key}"
 
 
+def test_every_error_is_exported_from_the_package_and_named_in_the_readme():
+    import shinro_ctrl
+    import shinro_ctrl.errors
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    table = readme.split("## Errors", 1)[1].split("\n## ", 1)[0]
+    for name in shinro_ctrl.errors.__all__:
+        assert getattr(shinro_ctrl, name) is getattr(shinro_ctrl.errors, name) and name in shinro_ctrl.__all__, name
+        assert f"`{name}`" in table, f"README's Errors section does not name {name}"
+
+
+def test_no_source_file_points_at_a_file_that_is_not_in_the_repository():
+    """Docstrings and comments once cited a project note (API-NOTES) that ships elsewhere."""
+    bad = [
+        str(path.relative_to(ROOT))
+        for path in [*(ROOT / "shinro_ctrl").rglob("*.py"), *DOCS.glob("*.md"), ROOT / "README.md"]
+        if re.search(r"API[-_ ]NOTES", path.read_text(encoding="utf-8"))
+    ]
+    assert not bad, bad
+
+
 # ------------------------------------------------------- the griffe extension
 @pytest.fixture(scope="module")
 def ext():

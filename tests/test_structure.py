@@ -336,6 +336,27 @@ def test_resources_imports_nothing_else_from_the_package():
     assert not bad, bad
 
 
+def test_no_private_name_in_any_all():
+    bad = []
+    for path in _modules(""):
+        for node in ast.parse(path.read_text(), str(path)).body:
+            targets = (
+                node.targets
+                if isinstance(node, ast.Assign)
+                else [node.target]
+                if isinstance(node, ast.AnnAssign)
+                else []
+            )
+            if any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets) and node.value is not None:
+                names = ast.literal_eval(node.value)
+                bad += [
+                    f"{path.relative_to(PACKAGE).as_posix()}: {n}"
+                    for n in names
+                    if n.startswith("_") and n != "__version__"
+                ]
+    assert not bad, bad
+
+
 def test_only_the_osqp_adapter_mentions_the_private_solver():
     word = re.compile(r"\b" + "_" + "solver" + r"\b")  # split so this file does not mention it
     files = [*PACKAGE.rglob("*.py"), *TESTS.rglob("*.py"), *(PACKAGE.parent / "benchmarks").rglob("*.py")]

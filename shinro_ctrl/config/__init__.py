@@ -22,7 +22,7 @@ dataclasses), :mod:`~shinro_ctrl.config.parse` (loading; ``[plant]``,
 from ``shinro_ctrl.config``.
 """
 
-from shinro_ctrl.config.context import _Ctx
+from shinro_ctrl.config.context import _Ctx as _Ctx  # private (not in __all__); tests/test_config.py imports it
 from shinro_ctrl.config.parse import load_scenario, parse_scenario
 from shinro_ctrl.config.schema import (
     ENGINE_KEYS,
@@ -66,7 +66,6 @@ __all__ = [
     "PlantConfig",
     "Scenario",
     "SimConfig",
-    "_Ctx",
     "check_value",
     "load_scenario",
     "parse_scenario",

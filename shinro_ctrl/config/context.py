@@ -10,7 +10,7 @@ from shinro_ctrl.config.strict import check_value
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.validation import did_you_mean, unknown_keys
 
-__all__ = ["_Ctx"]
+__all__: list[str] = []  # _Ctx is the config layer's own
 
 
 class _Ctx:

@@ -25,7 +25,7 @@ from shinro_ctrl.validation import as_vector, bound_pair, bound_vector, check_po
 __all__ = ["DEFAULT_OSQP_SETTINGS", "PLANT_GIVEN", "SOLVERS", "MPCOptions"]
 
 #: Defaults tuned for closed-loop control of the cart-pole benchmark (see
-#: API-NOTES and benchmarks/mpc.py). eps <= 1e-4 keeps the first move within
+#: benchmarks/mpc.py and docs/mpc.md). eps <= 1e-4 keeps the first move within
 #: ~1 % of the exact optimum; check_termination 5 avoids paying for 25
 #: iterations when 5-10 suffice warm; under-relaxation alpha = 1.3 (OSQP's
 #: default 1.6) halved the warm-started iteration count (median 20 -> 10 at
