@@ -357,6 +357,136 @@ def test_no_private_name_in_any_all():
     assert not bad, bad
 
 
+# ----------------------------------------------------------- composition, not mixins
+def _self_attributes(cls: ast.ClassDef) -> tuple[set[str], dict[str, int]]:
+    """Names ``cls`` defines (its body, and ``self.x = ...`` in its methods) and the ``self.x`` it reads (-> line)."""
+    defined: set[str] = set()
+    reads: dict[str, int] = {}
+    for node in cls.body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            defined.add(node.name)
+        elif isinstance(node, ast.Assign):
+            defined |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            defined.add(node.target.id)
+    for fn in cls.body:
+        if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef) or not fn.args.args:
+            continue
+        if any(isinstance(d, ast.Name) and d.id == "staticmethod" for d in fn.decorator_list):
+            continue
+        me = fn.args.args[0].arg  # self (or cls)
+        for node in ast.walk(fn):
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == me:
+                if isinstance(node.ctx, ast.Load):
+                    reads.setdefault(node.attr, node.lineno)
+                else:
+                    defined.add(node.attr)
+    return defined, reads
+
+
+def _package_classes() -> dict[str, list[tuple[str, ast.ClassDef]]]:
+    out: dict[str, list[tuple[str, ast.ClassDef]]] = {}
+    for path in _modules(""):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ClassDef):
+                out.setdefault(node.name, []).append((path.relative_to(PACKAGE).as_posix(), node))
+    return out
+
+
+def test_no_mixin_reads_attributes_it_does_not_define():
+    """A class named ``*Mixin`` uses only what it defines itself (issue 24 Keep: composition, not mixins)."""
+    bad = []
+    for name, entries in _package_classes().items():
+        for rel, node in entries:
+            if name.endswith("Mixin"):
+                defined, reads = _self_attributes(node)
+                missing = sorted(a for a in reads if a not in defined and not (a.startswith("__") and a.endswith("__")))
+                bad += [f"{rel}:{reads[a]} {name} reads self.{a}" for a in missing]
+    assert not bad, bad
+
+
+def test_no_class_reads_a_private_attribute_that_only_another_class_defines():
+    """``self._x`` read in a class must be defined by it or by one of its bases in the package (issue 24.1: no
+    mixin reads another class's private attributes)."""
+    classes = _package_classes()
+
+    def bases(node: ast.ClassDef) -> list[str]:
+        names = []
+        for b in node.bases:
+            b = b.value if isinstance(b, ast.Subscript) else b
+            names.append(b.id if isinstance(b, ast.Name) else b.attr if isinstance(b, ast.Attribute) else "")
+        return names
+
+    def defined_with_bases(node: ast.ClassDef, seen: set[int]) -> set[str]:
+        defined = _self_attributes(node)[0]
+        for base in bases(node):
+            for _, base_node in classes.get(base, []):
+                if id(base_node) not in seen:
+                    seen.add(id(base_node))
+                    defined |= defined_with_bases(base_node, seen)
+        return defined
+
+    bad = []
+    for name, entries in classes.items():
+        for rel, node in entries:
+            reads = _self_attributes(node)[1]
+            defined = defined_with_bases(node, set())
+            missing = sorted(a for a in reads if a.startswith("_") and not a.startswith("__") and a not in defined)
+            bad += [f"{rel}:{reads[a]} {name} reads self.{a}" for a in missing]
+    assert not bad, bad
+
+
+# ----------------------------------------------------------- solver objects stay inside their backends
+#: The modules that may create or call a solver object (package-relative). Every other module reaches a
+#: solver through one of these objects' methods. Adjust when a backend moves.
+SOLVER_BACKENDS = {
+    "controllers/_osqp.py": "OsqpQP, the adapter owning OSQP's solver object (and its compiled solver)",
+    "controllers/qp/backend_osqp.py": "LinearMPC's OSQP backend (holds an OsqpQP)",
+    "controllers/qp/backend_daqp.py": "LinearMPC's DAQP backend (holds the condensed QP)",
+    "controllers/qp/condensed.py": "the condensed QP and its daqp.Model",
+    "controllers/qp/ltv.py": "NonlinearMPC's condensed LTV QP (daqp.solve)",
+    "controllers/qp/ltv_sparse.py": "NonlinearMPC's sparse LTV QP (holds an OsqpQP)",
+    "controllers/_nmpc_rti.py": "NonlinearMPC's real-time-iteration strategy",
+    "controllers/_nmpc_ipopt.py": "NonlinearMPC's IPOPT strategy (casadi.nlpsol)",
+    "controllers/_ik_parts.py": "IKQP's box QP (holds an OsqpQP)",
+    "planning/collocation.py": "trajectory optimization (casadi.nlpsol with IPOPT)",
+}
+#: Solver package -> the names that create or call a solver object; casadi's solver factories; our adapter.
+SOLVER_ENTRIES = {"osqp": {"OSQP"}, "daqp": {"Model", "solve"}}
+CASADI_SOLVERS = {"nlpsol", "qpsol", "conic"}
+SOLVER_WRAPPERS = {"OsqpQP"}
+
+
+def _solver_uses(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(), str(path))
+    alias: dict[str, str] = {}
+    uses: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            alias.update({a.asname or a.name: a.name for a in node.names if a.name in SOLVER_ENTRIES})
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module in SOLVER_ENTRIES:
+            uses |= {f"{node.module}.{a.name}" for a in node.names if a.name in SOLVER_ENTRIES[node.module]}
+        if isinstance(node, ast.ImportFrom):
+            uses |= {a.name for a in node.names if a.name in SOLVER_WRAPPERS}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute):
+            owner = node.value.id if isinstance(node.value, ast.Name) else None
+            if owner in alias and node.attr in SOLVER_ENTRIES[alias[owner]]:
+                uses.add(f"{alias[owner]}.{node.attr}")
+            if node.attr in CASADI_SOLVERS or node.attr in SOLVER_WRAPPERS:
+                uses.add(node.attr)
+        elif isinstance(node, ast.Name) and node.id in SOLVER_WRAPPERS:
+            uses.add(node.id)
+    return uses
+
+
+def test_nothing_outside_a_solver_backend_touches_a_solver_object():
+    found = {path.relative_to(PACKAGE).as_posix(): _solver_uses(path) for path in _modules("")}
+    bad = [f"{rel}: {sorted(uses)}" for rel, uses in sorted(found.items()) if uses and rel not in SOLVER_BACKENDS]
+    assert not bad, bad
+    assert found["controllers/_osqp.py"] and found["planning/collocation.py"]  # the check sees real uses
+
+
 def test_only_the_osqp_adapter_mentions_the_private_solver():
     word = re.compile(r"\b" + "_" + "solver" + r"\b")  # split so this file does not mention it
     files = [*PACKAGE.rglob("*.py"), *TESTS.rglob("*.py"), *(PACKAGE.parent / "benchmarks").rglob("*.py")]
