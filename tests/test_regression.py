@@ -193,3 +193,83 @@ def test_report_hints_name_the_folder(tmp_path):
     shutil.copy(regression_dir() / "cartpole_lqr.toml", tmp_path)
     report = run_regression(tmp_path)
     assert report.missing and f"shinro-ctrl regress {tmp_path} --update" in format_report(report)
+
+
+# ------------------------------------------------------------ undefined metrics
+def _saturated_cartpole(tmp_path):
+    """The regression cart-pole with |u| <= 1: the pole falls, the error never settles nor reaches 10 %."""
+    text = (regression_dir() / "cartpole_lqr.toml").read_text()
+    (tmp_path / "sat.toml").write_text(text.replace("R = [0.1]", "R = [0.1]\nu_min = [-1.0]\nu_max = [1.0]"))
+    return tmp_path / "sat.toml"
+
+
+def _finite_or_none(metrics):
+    import math
+
+    return all(v is None or isinstance(v, bool) or math.isfinite(v) for v in metrics.values())
+
+
+def test_undefined_metrics_are_none_in_the_run_the_baseline_and_the_comparison(tmp_path):
+    from shinro_ctrl.sim import RobotSim, format_metrics
+
+    path = _saturated_cartpole(tmp_path)
+    result = RobotSim.from_config(path).run(progress=False)
+    assert result.metrics["settling_time"] is None and result.metrics["rise_time"] is None
+    assert _finite_or_none(result.metrics), result.metrics
+    text = format_metrics(result.metrics)
+    assert "never" in next(line for line in text.splitlines() if "settling_time" in line)
+    assert "nan" not in text.lower()
+    # the baseline stores null, and the run passes against its own baseline (it failed forever with NaN)
+    report = run_regression(path, update=True)
+    assert report.updated and not report.errors
+    stored = json.loads((tmp_path / "sat.baseline.json").read_text())["metrics"]
+    assert stored["settling_time"] is None and stored["rise_time"] is None
+    assert "NaN" not in (tmp_path / "sat.baseline.json").read_text()
+    assert "Infinity" not in (tmp_path / "sat.baseline.json").read_text()
+    report = run_regression(path)
+    assert report.passed, [c.describe() for c in report.failures]
+
+
+@pytest.mark.parametrize(
+    "now,base,ok,needle",
+    [
+        (None, None, True, ""),
+        (None, 1.5, False, "never happens in this run but is 1.5 in the baseline"),
+        (1.5, None, False, "never happened in the baseline but is 1.5 in this run"),
+        (1.5, 1.5, True, ""),
+    ],
+)
+def test_none_matches_only_none(now, base, ok, needle):
+    (check,) = compare_metrics("s", {"settling_time": now}, {"settling_time": base})
+    assert check.passed is ok
+    assert needle in check.describe()
+
+
+def test_baselines_refuse_nan_and_infinity_but_read_the_old_never(tmp_path):
+    from shinro_ctrl.errors import ConfigError
+
+    p = tmp_path / "b.baseline.json"
+    p.write_text(json.dumps({"format": 1, "metrics": {"settling_time": "inf", "rms_error": 1.0}}))
+    assert read_baseline(p) == {"settling_time": None, "rms_error": 1.0}
+    for bad in ('"inf"', "NaN", "Infinity", '"-inf"'):
+        p.write_text('{"format": 1, "metrics": {"rms_error": ' + bad + "}}")
+        with pytest.raises(ConfigError, match="finite number or null"):
+            read_baseline(p)
+
+
+def test_empty_and_event_free_responses_give_none_not_nan():
+    import numpy as np
+
+    from shinro_ctrl.analysis import step_metrics
+    from shinro_ctrl.sim import compute_metrics
+
+    # a single sample: no input, no controller call
+    m = compute_metrics(np.zeros(1), np.ones((1, 2)), np.zeros((0, 1)), np.zeros((1, 2)), tracked=[0, 1])
+    assert m["max_abs_input"] is None and m["solve_time_median_s"] is None and _finite_or_none(m)
+    # a response that moves away from its target: neither 10 % nor 90 % is reached, nor the band
+    t = np.linspace(0.0, 1.0, 11)
+    s = step_metrics(t, 1.0 + t, initial=1.0, final=0.0, target=0.0)
+    assert s.rise_time is None and s.settling_time is None
+    # 10 % reached but not 90 %: rise time undefined (was inf - finite = inf, or inf - inf = NaN)
+    s = step_metrics(t, 1.0 - 0.5 * t, initial=1.0, final=0.0, target=0.0)
+    assert s.rise_time is None and s.overshoot == 0.0

@@ -23,7 +23,9 @@ pre{background:#f6f6f6;padding:.6em;overflow-x:auto}
 """
 
 
-def _num(v: float, fmt: str = ".4g") -> str:
+def _num(v: float | None, fmt: str = ".4g") -> str:
+    if v is None:
+        return "n/a"
     if isinstance(v, float) and math.isnan(v):
         return "–"
     if isinstance(v, float) and math.isinf(v):
@@ -170,7 +172,7 @@ def _response_table(a: DesignAnalysis) -> list[str]:
     parts = []
     parts.append("<h2>Linear closed-loop response metrics</h2>")
     rrows = [
-        [e(k), _num(v.rise_time), f"{v.overshoot:.2f}", _num(v.settling_time), f"{v.steady_state_error:.3g}"]
+        [e(k), _num(v.rise_time), f"{v.overshoot:.2f}", _num(v.settling_time), _num(v.steady_state_error, ".3g")]
         for k, v in a.responses.items()
     ]
     parts.append(

@@ -135,13 +135,13 @@ class DesignAnalysis:
         for label, s in self.responses.items():
             out.append(
                 f"  {label[:24]:24s} {_g(s.rise_time):>9s} {s.overshoot:9.2f}% {_g(s.settling_time):>10s} "
-                f"{s.steady_state_error:10.3g}"
+                f"{_g(s.steady_state_error, '.3g'):>10s}"
             )
         return "\n".join(out)
 
 
-def _g(v: float) -> str:
-    return "inf" if math.isinf(v) else f"{v:.4g}"
+def _g(v: float | None, fmt: str = ".4g") -> str:
+    return "n/a" if v is None or not math.isfinite(v) else format(v, fmt)
 
 
 def _horizon(poles: PoleTable, dt: float, cap: int = 20000) -> int:

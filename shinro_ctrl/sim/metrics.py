@@ -15,12 +15,13 @@ __all__ = [
     "StreamingMetrics",
     "bound_excess",
     "compute_metrics",
+    "format_metric",
     "format_metrics",
     "response_metrics",
     "settling_time",
 ]
 
-NEVER_METRICS = ("settling_time", "rise_time")  # inf means the event never happened, not an overflow
+NEVER_METRICS = ("settling_time", "rise_time")  # None means the event never happened (printed "never")
 #: The step-response metrics of :func:`response_metrics` (newer than some stored baselines).
 RESPONSE_METRICS = ("overshoot", "rise_time")
 
@@ -48,19 +49,25 @@ def settling_time(t: np.ndarray, last_outside: Any) -> np.ndarray:
 
     The run has settled at ``t[k + 1]`` when sample ``k`` is the last whose
     tracking error exceeds the tolerance: ``0`` when no sample does (``k = -1``),
-    ``inf`` when the final sample does.
+    NaN (undefined: it never settled) when the final sample does.
 
     Args:
         t: Sample times ``(T + 1,)`` [s].
         last_outside: ``k`` (a scalar, or ``(N,)`` for N instances).
 
     Returns:
-        The settling time(s) [s], shaped like ``last_outside``.
+        The settling time(s) [s], shaped like ``last_outside`` (NaN where undefined;
+        :func:`compute_metrics` reports it as None).
     """
     last = np.asarray(last_outside)
     steps = t.shape[0] - 1
     settled = np.where(last < 0, 0.0, t[np.minimum(last + 1, steps)])
-    return np.where(last == steps, math.inf, settled)
+    return np.where(last == steps, math.nan, settled)
+
+
+def _defined(v: float) -> float | None:
+    """``v``, or None when it is undefined (NaN or infinite: an event that never happened)."""
+    return float(v) if math.isfinite(v) else None
 
 
 def compute_metrics(
@@ -77,19 +84,20 @@ def compute_metrics(
     x_max: np.ndarray | None = None,
     plant_violation: np.ndarray | None = None,
     solve_times: np.ndarray | None = None,
-) -> dict[str, float]:
-    """Metrics of a closed-loop run.
+) -> dict[str, float | int | bool | None]:
+    """Metrics of a closed-loop run (an undefined one is None, never NaN or inf).
 
     The tracking error is ``e_k = ‖x_k[tracked] − r_k[tracked]‖₂``.
 
     Returns:
         ``rms_error`` (``sqrt(mean e_k²)``), ``max_error``, ``final_error``,
         ``settling_time`` (first time after which ``e`` stays within
-        ``settle_tol``; ``inf`` if it never does), ``max_abs_input``,
+        ``settle_tol``; None if it never does), ``max_abs_input`` (None
+        without a step),
         ``constraint_violations`` (steps at which an input or state bound, or
         a plant limit, is exceeded by more than 1e-9 relative),
         ``max_violation`` (the largest such excess),
-        ``solve_time_median_s`` (median controller call), and for a step or
+        ``solve_time_median_s`` (median controller call; None without one), and for a step or
         initial-condition response ``overshoot`` and ``rise_time`` (see
         :func:`response_metrics`).
     """
@@ -108,7 +116,7 @@ def compute_metrics(
             "where its metrics can be computed"
         )
     outside = np.nonzero(e > settle_tol)[0]
-    settling = float(settling_time(t, outside[-1] if outside.size else -1))
+    settling = _defined(float(settling_time(t, outside[-1] if outside.size else -1)))
 
     viol = np.zeros(len(t))
     viol[:-1] = np.maximum(viol[:-1], bound_excess(u, u_min, u_max))
@@ -120,15 +128,17 @@ def compute_metrics(
         "max_error": float(e.max()),
         "final_error": float(e[-1]),
         "settling_time": settling,
-        "max_abs_input": float(np.abs(u).max()) if u.size else 0.0,
+        "max_abs_input": float(np.abs(u).max()) if u.size else None,
         "constraint_violations": int(np.count_nonzero(viol > 0)),
         "max_violation": float(viol.max()),
-        "solve_time_median_s": float(np.median(solve_times)) if solve_times is not None and solve_times.size else 0.0,
+        "solve_time_median_s": float(np.median(solve_times)) if solve_times is not None and solve_times.size else None,
         **response_metrics(t, x[:, tracked], ref[:, tracked], settle_tol),
     }
 
 
-def response_metrics(t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: float = 0.01) -> dict[str, float]:
+def response_metrics(
+    t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: float = 0.01
+) -> dict[str, float | None]:
     """``overshoot`` [%] and ``rise_time`` [s] of a step or initial-condition response (else ``{}``).
 
     Meaningful when the reference ``ref (T+1, k)`` is constant (the run recovers
@@ -136,7 +146,7 @@ def response_metrics(t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: 
     step). The response is that of the tracked state with the largest
     deviation from the new reference at the start, and it must exceed
     ``settle_tol``; see :func:`shinro_ctrl.analysis.step_metrics` (overshoot
-    past the reference, 10–90 % rise time, ``inf`` if 90 % is never reached).
+    past the reference, 10–90 % rise time, None if 10 % or 90 % is never reached).
     """
     from shinro_ctrl.analysis.response import step_metrics
 
@@ -153,18 +163,24 @@ def response_metrics(t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: 
     return {"overshoot": m.overshoot, "rise_time": m.rise_time}
 
 
-def format_metrics(metrics: dict[str, float]) -> str:
+def format_metric(name: str, value: float | int | bool | None) -> str:
+    """One metric value as text: None as ``never`` (an event metric) or ``n/a``, a flag as yes/no."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "never" if name in NEVER_METRICS else "n/a"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    return f"{value:.6g}"
+
+
+def format_metrics(metrics: dict[str, float | int | bool | None]) -> str:
     """A two-column table of metrics."""
     units = {"settling_time": "s", "solve_time_median_s": "s", "rise_time": "s", "overshoot": "%"}
     rows = []
     for k, v in metrics.items():
-        if isinstance(v, float) and math.isinf(v):
-            val = "never" if k in NEVER_METRICS else ("inf" if v > 0 else "-inf")
-        elif isinstance(v, int):
-            val = str(v)
-        else:
-            val = f"{v:.6g}"
-        rows.append(f"  {k:22s} {val:>14s} {units.get(k, '')}".rstrip())
+        unit = units.get(k, "") if v is not None else ""
+        rows.append(f"  {k:22s} {format_metric(k, v):>14s} {unit}".rstrip())
     return "\n".join(rows)
 
 
