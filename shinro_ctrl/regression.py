@@ -215,9 +215,10 @@ def compare_metrics(
 ) -> list[MetricCheck]:
     """Check every metric of ``now`` against ``baseline``.
 
-    An undefined value (None) matches only an undefined one; a metric the
-    baseline does not hold fails, except the step-response metrics
-    (``RESPONSE_METRICS``) that older baselines predate.
+    An undefined value (None) matches only an undefined one; ``stable``
+    must be equal (a baseline with ``stable = true`` fails a run that is not,
+    with one line). A metric the baseline does not hold fails, except those
+    older baselines predate (the step-response metrics and ``stable``).
 
     Args:
         scenario: Name used in the checks.
@@ -233,8 +234,8 @@ def compare_metrics(
         tol = {**DEFAULT_TOLERANCES.get(metric, {"rel": 1e-3, "abs": 1e-9}), **tolerances.get(metric, {})}
         rel, ab = float(tol.get("rel", 0.0)), float(tol.get("abs", 0.0))
         if metric not in baseline:
-            if metric in RESPONSE_METRICS:
-                continue  # step-response metrics newer than the baseline: `regress --update` stores them
+            if metric in RESPONSE_METRICS or metric in FLAG_METRICS:
+                continue  # metrics newer than the baseline: `regress --update` stores them
             why = "not in the baseline: record it with --update"
             checks.append(MetricCheck(scenario, metric, None, value, rel, ab, False, why))
             continue

@@ -273,3 +273,63 @@ def test_empty_and_event_free_responses_give_none_not_nan():
     # 10 % reached but not 90 %: rise time undefined (was inf - finite = inf, or inf - inf = NaN)
     s = step_metrics(t, 1.0 - 0.5 * t, initial=1.0, final=0.0, target=0.0)
     assert s.rise_time is None and s.overshoot == 0.0
+
+
+# ------------------------------------------------------------ the stable flag
+def test_every_run_is_flagged_stable_or_not_and_regress_fails_a_run_that_lost_it(tmp_path):
+    from shinro_ctrl.regression import format_report
+    from shinro_ctrl.sim import RobotSim, format_metrics
+
+    good = RobotSim.from_config(regression_dir() / "cartpole_lqr.toml").run(progress=False)
+    assert good.metrics["stable"] is True
+    path = _saturated_cartpole(tmp_path)  # the pole falls: final error 13
+    bad = RobotSim.from_config(path).run(progress=False)
+    assert bad.metrics["stable"] is False and bad.metrics["final_error"] > 1.0
+    assert any(line.split() == ["stable", "no"] for line in format_metrics(bad.metrics).splitlines())
+    # a baseline recorded from the stable run fails the falling one, with one line naming the flag
+    (tmp_path / "sat.baseline.json").write_text(baseline_text_of(good, "sat"))
+    report = run_regression(path)
+    flag = [c for c in report.failures if c.metric == "stable"]
+    assert len(flag) == 1 and flag[0].baseline is True and flag[0].now is False
+    lines = [line for line in format_report(report).splitlines() if line.startswith("FAIL") and "stable" in line]
+    assert len(lines) == 1 and "the baseline run was stable, this run is not" in lines[0]
+
+
+def baseline_text_of(result, name):
+    from shinro_ctrl.regression import baseline_text
+
+    result.scenario = name
+    return baseline_text(result)
+
+
+def test_a_diverging_acrobot_is_not_stable():
+    # the reported case: an acrobot LQR that ends hundreds of radians away without a flag
+    from shinro_ctrl.sim import RobotSim
+
+    up = [3.141592653589793, 3.141592653589793, 0.0, 0.0]
+    doc = {
+        "plant": {"type": "DoublePendulum", "dt": 0.01},
+        "controller": {
+            "type": "LQR",
+            "Q": [100, 100, 1, 1],
+            "R": [1, 1],
+            "x0": up,
+            "u_min": [-0.05, -0.05],
+            "u_max": [0.05, 0.05],
+        },
+        "sim": {"duration": 3.0, "initial_state": [up[0] + 0.3, up[1], 0.0, 0.0]},
+    }
+    result = RobotSim.from_config(doc).run(progress=False)
+    assert result.metrics["final_error"] > 0.5 and result.metrics["stable"] is False
+
+
+def test_the_sweep_summary_counts_the_unstable_samples():
+    from shinro_ctrl.sweep import SweepResult, SweepRow
+
+    rows = [
+        SweepRow(0, {"plant.m": 1.0}, {"final_error": 0.0}, True),
+        SweepRow(1, {"plant.m": 2.0}, {"final_error": 5.0}, False),
+        SweepRow(2, {"plant.m": 3.0}, {}, False, error="SimulationDiverged: x"),
+    ]
+    res = SweepResult("s", "standalone", {"plant.m": (1.0, 3.0)}, rows, "serial", 1, 0, 3, True, 0.1)
+    assert "stable: 1/3" in res.summary() and "unstable: 2 (1 raised)" in res.summary()

@@ -92,7 +92,10 @@ def compute_metrics(
     Returns:
         ``rms_error`` (``sqrt(mean e_k²)``), ``max_error``, ``final_error``,
         ``settling_time`` (first time after which ``e`` stays within
-        ``settle_tol``; None if it never does), ``max_abs_input`` (None
+        ``settle_tol``; None if it never does), ``stable`` (True when the run
+        settled within the band, i.e. the final error is within
+        ``settle_tol``, and every state stayed finite: False flags a run that
+        diverged, fell or never settled), ``max_abs_input`` (None
         without a step),
         ``constraint_violations`` (steps at which an input or state bound, or
         a plant limit, is exceeded by more than 1e-9 relative),
@@ -128,6 +131,7 @@ def compute_metrics(
         "max_error": float(e.max()),
         "final_error": float(e[-1]),
         "settling_time": settling,
+        "stable": bool(settling is not None and np.all(np.isfinite(x))),
         "max_abs_input": float(np.abs(u).max()) if u.size else None,
         "constraint_violations": int(np.count_nonzero(viol > 0)),
         "max_violation": float(viol.max()),
@@ -223,7 +227,7 @@ class StreamingMetrics:
         np.maximum(self.viol_max, viol, out=self.viol_max)
 
     def finish(self, t: np.ndarray, call_times: np.ndarray, alive: np.ndarray) -> dict[str, np.ndarray]:
-        """Metric name -> ``(N,)`` (NaN for diverged instances)."""
+        """Metric name -> ``(N,)`` (NaN for diverged instances; ``stable`` as 0/1)."""
         steps = t.shape[0] - 1
         N = alive.shape[0]
         metrics = {
@@ -231,11 +235,13 @@ class StreamingMetrics:
             "max_error": self.e_max,
             "final_error": self.e,
             "settling_time": settling_time(t, self.last_out),
+            "stable": ((self.last_out < steps) & alive).astype(float),
             "max_abs_input": self.u_abs_max,
             "constraint_violations": self.viol_count.astype(float),
             "max_violation": self.viol_max,
             "solve_time_median_s": np.full(N, float(np.median(call_times)) / max(N, 1)),
         }
-        for v in metrics.values():
-            v[~alive] = math.nan
+        for k, v in metrics.items():
+            if k != "stable":
+                v[~alive] = math.nan
         return metrics

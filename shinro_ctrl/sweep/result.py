@@ -214,7 +214,7 @@ class SweepResult:
         lines = [
             f"sweep {self.scenario} ({self.loop}; {how}; {kind}): {n} samples in {self.elapsed_s:.2f} s",
             f"  stable: {int(stable.sum())}/{n} ({100 * stable.mean() if n else 0:.1f}%), "
-            f"{errors} raised; rule: final_error < {self.stable_tol:g}",
+            f"unstable: {n - int(stable.sum())} ({errors} raised); rule: final_error < {self.stable_tol:g}",
         ]
         values = self.values
         for j, key in enumerate(self.ranges):
