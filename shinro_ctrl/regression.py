@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
-from shinro_ctrl.sim.metrics import NEVER_METRICS, RESPONSE_METRICS, format_metric
+from shinro_ctrl.sim.metrics import FLAG_METRICS, NEVER_METRICS, RESPONSE_METRICS, WALL_CLOCK_METRICS, format_metric
 
 __all__ = [
     "DEFAULT_TOLERANCES",
@@ -52,9 +52,6 @@ DEFAULT_TOLERANCES: dict[str, dict[str, float]] = {
     "constraint_violations": {"rel": 0.0, "abs": 0.0},
     "max_violation": {"rel": 1e-2, "abs": 1e-6},
 }
-TIMING_METRICS = ("solve_time_median_s",)
-WALL_CLOCK_METRICS = TIMING_METRICS
-FLAG_METRICS = ("stable",)
 BASELINE_FORMAT = 1
 
 

@@ -333,3 +333,37 @@ def test_the_sweep_summary_counts_the_unstable_samples():
     ]
     res = SweepResult("s", "standalone", {"plant.m": (1.0, 3.0)}, rows, "serial", 1, 0, 3, True, 0.1)
     assert "stable: 1/3" in res.summary() and "unstable: 2 (1 raised)" in res.summary()
+
+
+# ------------------------------------------------------------ the metric registry
+def test_every_metric_of_a_run_is_in_the_one_registry_and_every_list_reads_it():
+    import math
+
+    from shinro_ctrl import config, regression, sweep
+    from shinro_ctrl.sim import RobotSim
+    from shinro_ctrl.sim import metrics as reg
+
+    result = RobotSim.from_config(regression_dir() / "cartpole_lqg.toml").run(progress=False)
+    for name, value in result.metrics.items():
+        base = (
+            name if name in reg.METRIC_REGISTRY else next(m for m in reg.OUTPUT_FEEDBACK_METRICS if name.startswith(m))
+        )
+        kind = reg.METRIC_REGISTRY[base].kind
+        if kind == "flag":
+            assert isinstance(value, bool), name
+        elif kind == "count":
+            assert isinstance(value, int) and not isinstance(value, bool), name
+        else:
+            assert value is None or (isinstance(value, float) and math.isfinite(value)), (name, value)
+    assert set(reg.METRICS) | set(reg.RESPONSE_METRICS) | set(reg.FLAG_METRICS) | set(
+        reg.OUTPUT_FEEDBACK_METRICS
+    ) == set(reg.METRIC_REGISTRY)
+    assert config.METRICS is reg.METRICS and config.OUTPUT_FEEDBACK_METRICS is reg.OUTPUT_FEEDBACK_METRICS
+    assert sweep.WALL_CLOCK_METRICS is reg.WALL_CLOCK_METRICS
+    assert set(sweep.TABLE_METRICS) == set(reg.METRICS) - set(reg.WALL_CLOCK_METRICS)
+    assert regression.WALL_CLOCK_METRICS is reg.WALL_CLOCK_METRICS
+    assert reg.NEVER_METRICS == ("settling_time", "rise_time") and reg.FLAG_METRICS == ("stable",)
+    # the printed units come from the registry
+    text = reg.format_metrics({"settling_time": 1.0, "overshoot": 2.0, "constraint_violations": 3})
+    assert text.splitlines()[0].endswith(" s") and text.splitlines()[1].endswith(" %")
+    assert text.splitlines()[2].endswith("3")

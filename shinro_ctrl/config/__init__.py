@@ -26,8 +26,6 @@ from shinro_ctrl.config.context import _Ctx
 from shinro_ctrl.config.parse import load_scenario, parse_scenario
 from shinro_ctrl.config.schema import (
     ENGINE_KEYS,
-    METRICS,
-    OUTPUT_FEEDBACK_METRICS,
     REFERENCE_KINDS,
     SIM_KEYS,
     TABLES,
@@ -74,3 +72,10 @@ __all__ = [
     "table_annotations",
     "toml_type",
 ]
+
+
+def __getattr__(name: str) -> tuple[str, ...]:
+    """``METRICS`` and ``OUTPUT_FEEDBACK_METRICS`` from the metric registry (see :mod:`.schema`)."""
+    from shinro_ctrl.config import schema
+
+    return getattr(schema, name)

@@ -8,8 +8,6 @@ from typing import Any
 
 __all__ = [
     "ENGINE_KEYS",
-    "METRICS",
-    "OUTPUT_FEEDBACK_METRICS",
     "REFERENCE_KINDS",
     "SIM_KEYS",
     "TABLES",
@@ -44,19 +42,21 @@ REFERENCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "square": (("side", "speed"), ("center", "axes")),
     "waypoints": (("points", "times"), ("interpolation",)),
 }
-METRICS = (
-    "rms_error",
-    "max_error",
-    "final_error",
-    "settling_time",
-    "max_abs_input",
-    "constraint_violations",
-    "max_violation",
-    "solve_time_median_s",
-)
-#: Metrics only output-feedback runs report (``estimation_rms`` and ``estimation_rms_<state>``); a
-#: ``[regression]`` table may hold tolerances for them, sweep tables do not list them.
-OUTPUT_FEEDBACK_METRICS = ("estimation_rms",)
+
+
+def __getattr__(name: str) -> tuple[str, ...]:
+    """``METRICS`` and ``OUTPUT_FEEDBACK_METRICS``, read from the one registry, :mod:`shinro_ctrl.sim.metrics`.
+
+    ``METRICS``: the metrics every run reports that take a tolerance (``[regression]`` keys);
+    ``OUTPUT_FEEDBACK_METRICS``: those only output-feedback runs report (a ``[regression]`` table may
+    hold tolerances for them, sweep tables do not list them). Read lazily: the simulation package
+    imports this one.
+    """
+    if name in ("METRICS", "OUTPUT_FEEDBACK_METRICS"):
+        from shinro_ctrl.sim import metrics
+
+        return getattr(metrics, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 #: ``[sim] disturbance``: a table or a list of tables (parsed into DisturbanceSpec; checked structurally here).

@@ -1,8 +1,15 @@
-"""Metrics of a closed-loop run: tracking error, settling, inputs, bound excess, response shape."""
+"""Metrics of a closed-loop run: tracking error, settling, inputs, bound excess, response shape.
+
+:data:`METRIC_REGISTRY` is the one list of the metrics a run reports (name,
+unit, kind, description); every other list of metric names in the package
+(the scenario layer's ``METRICS``, the sweep's table and wall-clock metrics,
+the regression checker's) is derived from it here.
+"""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -10,20 +17,107 @@ import numpy as np
 from shinro_ctrl.errors import NonFiniteError
 
 __all__ = [
+    "FLAG_METRICS",
+    "METRICS",
+    "METRIC_KINDS",
+    "METRIC_REGISTRY",
     "NEVER_METRICS",
+    "OUTPUT_FEEDBACK_METRICS",
     "RESPONSE_METRICS",
+    "WALL_CLOCK_METRICS",
+    "MetricInfo",
     "StreamingMetrics",
     "bound_excess",
     "compute_metrics",
     "format_metric",
     "format_metrics",
+    "metric_unit",
     "response_metrics",
     "settling_time",
 ]
 
-NEVER_METRICS = ("settling_time", "rise_time")  # None means the event never happened (printed "never")
+#: What a metric is: a value of the response, the time of an event in it (None: it never happened),
+#: a clock reading (varies from run to run), a count, or a yes/no flag.
+METRIC_KINDS = ("response", "timing", "wall-clock", "count", "flag")
+#: Which runs report a metric.
+REPORTED_BY = ("every run", "step response", "output feedback")
+
+
+@dataclass(frozen=True)
+class MetricInfo:
+    """One metric of a run.
+
+    Attributes:
+        name: Key in :attr:`SimResult.metrics <shinro_ctrl.sim.SimResult.metrics>`.
+        unit: Unit as printed (``""``: the units of the tracked states or inputs, or none).
+        kind: One of :data:`METRIC_KINDS`.
+        description: One line.
+        reported: One of :data:`REPORTED_BY` (``output feedback``: also ``NAME_<state>`` per state).
+    """
+
+    name: str
+    unit: str
+    kind: str
+    description: str
+    reported: str = "every run"
+
+    def __post_init__(self) -> None:
+        if self.kind not in METRIC_KINDS or self.reported not in REPORTED_BY:
+            raise ValueError(f"metric {self.name}: kind {self.kind!r} or reported {self.reported!r} is not known")
+
+
+#: Name -> :class:`MetricInfo` of every metric a run reports, in the order they are printed.
+METRIC_REGISTRY: dict[str, MetricInfo] = {
+    m.name: m
+    for m in (
+        MetricInfo("rms_error", "", "response", "root mean square of the tracking-error norm over the run"),
+        MetricInfo("max_error", "", "response", "largest tracking-error norm"),
+        MetricInfo("final_error", "", "response", "tracking-error norm at the last sample"),
+        MetricInfo("settling_time", "s", "timing", "time after which the error stays within settle_tol (None: never)"),
+        MetricInfo("stable", "", "flag", "the run settled within the band and every state stayed finite"),
+        MetricInfo("max_abs_input", "", "response", "largest |u| over every input and step (None: no step)"),
+        MetricInfo("constraint_violations", "steps", "count", "steps at which a bound or plant limit is exceeded"),
+        MetricInfo("max_violation", "", "response", "largest excess over a bound or plant limit"),
+        MetricInfo("solve_time_median_s", "s", "wall-clock", "median controller call (None: no call)"),
+        MetricInfo("overshoot", "%", "response", "swing past the reference of the step response", "step response"),
+        MetricInfo("rise_time", "s", "timing", "10-90 % rise time of the step response (None: never)", "step response"),
+        MetricInfo(
+            "estimation_rms", "", "response", "root mean square of the estimation error ‖x̂ − x‖", "output feedback"
+        ),
+    )
+}
+
+
+def _names(kind: str | None = None, reported: str | None = None, *, flags: bool = True) -> tuple[str, ...]:
+    return tuple(
+        m.name
+        for m in METRIC_REGISTRY.values()
+        if (kind is None or m.kind == kind)
+        and (reported is None or m.reported == reported)
+        and (flags or m.kind != "flag")
+    )
+
+
+#: The metrics every run reports that take a tolerance (a ``[regression]`` key, a sweep column): all but the flags.
+METRICS = _names(reported="every run", flags=False)
+#: Measured with a clock: they vary from run to run (compared only with a tolerance, kept out of sweep tables).
+WALL_CLOCK_METRICS = _names("wall-clock")
+#: Times of events: None means the event never happened (printed ``never``).
+NEVER_METRICS = _names("timing")
+#: Yes/no metrics (compared exactly).
+FLAG_METRICS = _names("flag")
 #: The step-response metrics of :func:`response_metrics` (newer than some stored baselines).
-RESPONSE_METRICS = ("overshoot", "rise_time")
+RESPONSE_METRICS = _names(reported="step response")
+#: Metrics only output-feedback runs report (``estimation_rms`` and ``estimation_rms_<state>``).
+OUTPUT_FEEDBACK_METRICS = _names(reported="output feedback")
+
+
+def metric_unit(name: str) -> str:
+    """The unit of a metric (``estimation_rms_<state>`` as ``estimation_rms``), ``""`` when unknown or none."""
+    info = METRIC_REGISTRY.get(name)
+    if info is None and name.startswith(OUTPUT_FEEDBACK_METRICS):
+        info = METRIC_REGISTRY[next(m for m in OUTPUT_FEEDBACK_METRICS if name.startswith(m))]
+    return info.unit if info is not None and info.unit != "steps" else ""
 
 
 def bound_excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
@@ -180,10 +274,9 @@ def format_metric(name: str, value: float | int | bool | None) -> str:
 
 def format_metrics(metrics: dict[str, float | int | bool | None]) -> str:
     """A two-column table of metrics."""
-    units = {"settling_time": "s", "solve_time_median_s": "s", "rise_time": "s", "overshoot": "%"}
     rows = []
     for k, v in metrics.items():
-        unit = units.get(k, "") if v is not None else ""
+        unit = metric_unit(k) if v is not None else ""
         rows.append(f"  {k:22s} {format_metric(k, v):>14s} {unit}".rstrip())
     return "\n".join(rows)
 
