@@ -118,3 +118,101 @@ def test_nan_state_is_refused_not_propagated():
     for bad in ([np.nan, 0, 0, 0], np.array([0, np.inf, 0, 0])):
         with pytest.raises(NonFiniteError):
             ctrl(bad)
+
+
+# --------------------------------------------------------------- scale-invariant PBH (issue 23.3 "Scale", 24.6)
+def _scipy_stabilizes(A, B, Q, R) -> bool:
+    """The independent reference: scipy's DARE returns a solution whose gain makes every pole |p| < 1."""
+    try:
+        S = scipy.linalg.solve_discrete_are(A, B, Q, R)
+    except (np.linalg.LinAlgError, ValueError):
+        return False
+    if not np.all(np.isfinite(S)):
+        return False
+    K = np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
+    return bool(np.max(np.abs(np.linalg.eigvals(A - B @ K))) < 1.0)
+
+
+def _joint(k: float, dt: float, method: str):
+    from shinro_ctrl.linearization import discretize
+
+    return discretize(np.array([[0.0, 1.0], [-k, -1.0]]), np.array([[0.0], [1.0]]), dt, method)
+
+
+def _stabilizable_cases():
+    """The two reported cases (a stiff joint at dt 0.01, a cart-pole at dt 1e-9) and their neighbours."""
+    cases = []
+    for k, dt, method in ((1e6, 0.01, "euler"), (1e6, 0.01, "zoh"), (1e8, 0.001, "euler"), (1.0, 0.01, "euler")):
+        A, B = _joint(k, dt, method)
+        cases.append((f"joint k={k:g} dt={dt:g} {method}", A, B, np.eye(2), np.eye(1)))
+    for dt in (1e-9, 1e-7, 1e-4, 0.01):
+        lm = CartPole(dt=dt).linear_model(discretization="euler")
+        cases.append((f"cartpole dt={dt:g}", lm.A, lm.B, np.diag([10.0, 1, 100, 1]), np.array([[0.1]])))
+    return cases
+
+
+@pytest.mark.parametrize("case", _stabilizable_cases(), ids=lambda c: c[0])
+def test_stabilizable_systems_at_any_scale_are_accepted_as_scipy_says(case):
+    from shinro_ctrl.analysis.structure import check_detectable, check_stabilizable
+
+    _, A, B, Q, R = case
+    assert _scipy_stabilizes(A, B, Q, R)
+    check_stabilizable(A, B)  # the PBH test alone agrees with scipy (it refused both reported cases)
+    check_detectable(A, np.sqrt(Q))
+    ctrl = LQR(A, B, Q, R)
+    assert np.all(np.abs(ctrl.poles) < 1.0)
+    S = scipy.linalg.solve_discrete_are(A, B, Q, R)
+    np.testing.assert_allclose(ctrl.S, S, rtol=1e-6, atol=1e-12 * np.abs(S).max())
+
+
+def _hidden_unstable(dt: float, unit: float, seed: int):
+    """``A = I + dt·A_c`` with an unstable mode the input cannot reach, in states scaled by ``unit`` and mixed."""
+    rng = np.random.default_rng(seed)
+    Ac = np.array([[0.0, 1.0, 0.0], [-4.0, -1.0, 0.0], [0.0, 0.0, 0.5]])  # the third mode: unstable, unreachable
+    Bc = np.array([[0.0], [1.0], [0.0]])
+    T = np.diag([1.0, unit, 1.0 / unit]) @ (np.eye(3) + 0.3 * rng.standard_normal((3, 3)))
+    Ti = np.linalg.inv(T)
+    return np.eye(3) + dt * (T @ Ac @ Ti), dt * (T @ Bc)
+
+
+@pytest.mark.parametrize("dt", [1e-9, 1e-5, 1e-2, 0.2])
+@pytest.mark.parametrize("unit", [1e-4, 1.0, 1e4])
+def test_unstabilizable_systems_at_any_scale_are_refused_as_scipy_says(dt, unit):
+    from shinro_ctrl.analysis.structure import check_stabilizable
+
+    A, B = _hidden_unstable(dt, unit, seed=3)
+    Q, R = np.eye(3), np.eye(1)
+    assert not _scipy_stabilizes(A, B, Q, R)
+    with pytest.raises(
+        NotStabilizable, match=r"not stabilizable: the mode λ = 1(\.\d+)? \(mostly state \d\).*input cannot reach it"
+    ):
+        check_stabilizable(A, B)
+    with pytest.raises(NotStabilizable, match="not stabilizable"):
+        LQR(A, B, Q, R)
+
+
+@pytest.mark.parametrize("dt", [1e-9, 1e-4, 0.01])
+def test_detectability_is_scale_invariant_too(dt):
+    from shinro_ctrl.analysis.structure import check_detectable
+
+    lm = CartPole(dt=dt).linear_model(discretization="euler")
+    check_detectable(lm.A, np.diag([1.0, 0.0, 1.0, 0.0]))  # positions seen: detectable at every dt
+    with pytest.raises(NotStabilizable, match=r"not detectable: the mode λ = 1 \(mostly state 'x'\)"):
+        check_detectable(lm.A, np.diag([0.0, 1.0, 1.0, 1.0]), names=CartPole().state_names)  # the cart's x unseen
+    with pytest.raises(NotStabilizable, match="not detectable"):
+        LQR(lm.A, lm.B, [0.0, 1.0, 1.0, 1.0], [1.0], state_names=CartPole().state_names)
+
+
+def test_one_pbh_function_lists_repeated_eigenvalues_once_with_their_multiplicity():
+    from shinro_ctrl.analysis import structure_report
+    from shinro_ctrl.analysis.structure import pbh_modes
+
+    lm = CartPole(dt=1e-9).linear_model(discretization="euler")
+    modes = pbh_modes(lm.A, lm.B)
+    assert sorted(m.multiplicity for m in modes) == [1, 1, 2]  # the cart's double integrator at z = 1
+    assert all(m.full_rank for m in modes)
+    A = np.diag([0.5, 0.5, 0.5, 0.9])  # a triple eigenvalue one input cannot reach along every direction
+    rep = structure_report(A, np.array([[1.0], [1.0], [1.0], [1.0]]))
+    triple = next(m for m in rep.modes if abs(m.eigenvalue - 0.5) < 1e-12)
+    assert triple.multiplicity == 3 and not triple.controllable and len(rep.modes) == 2
+    assert "(×3, repeated)" in rep.format()

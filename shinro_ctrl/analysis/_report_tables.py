@@ -95,7 +95,7 @@ def _structure_tables(a: DesignAnalysis) -> list[str]:
         lam = md.eigenvalue
         mrows.append(
             [
-                f"{lam.real:+.6g} {lam.imag:+.4g}j",
+                f"{lam.real:+.6g} {lam.imag:+.4g}j" + (f" (×{md.multiplicity})" if md.multiplicity > 1 else ""),
                 e(md.state),
                 "stable" if md.stable else '<span class="flag">unstable</span>',
                 f"{md.sigma_c:.2e}",
@@ -104,7 +104,10 @@ def _structure_tables(a: DesignAnalysis) -> list[str]:
                 "–" if md.observable is None else ("yes" if md.observable else '<span class="flag">NO</span>'),
             ]
         )
-    parts.append("<p>PBH test per open-loop mode (σ_min relative to ‖[A, B]‖ and ‖[A; C]‖):</p>")
+    parts.append(
+        "<p>PBH test per distinct open-loop eigenvalue (×k: repeated k times; σ_min of the balanced "
+        "[A − λI, B] and [A − λI; C] relative to their norms):</p>"
+    )
     parts.append(
         _table(
             ["λ (open loop)", "dominant state", "", "σ_min [A−λI, B]", "controllable", "σ_min [A−λI; C]", "observable"],

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
+from shinro_ctrl.analysis.structure import check_detectable, check_stabilizable
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqi import integral_action
 from shinro_ctrl.errors import InvalidArgument, NotStabilizable
@@ -79,83 +80,58 @@ def riccati(
     return K, S
 
 
-def check_stabilizable(A: np.ndarray, B: np.ndarray, *, discrete: bool, names: Any = None) -> None:
-    """Raise :class:`NotStabilizable` if an unstable mode of ``A`` is unreachable from ``B``.
-
-    PBH test: ``(A, B)`` is stabilizable iff ``rank [A − λI, B] = n`` for every
-    eigenvalue ``λ`` with ``|λ| ≥ 1`` (discrete) or ``Re λ ≥ 0`` (continuous).
-    The rank is judged by the smallest singular value relative to ``‖[A, B]‖``.
-
-    Args:
-        A: ``(n, n)``.
-        B: ``(n, m)``.
-        discrete: Stability region of the unit circle (True) or left half-plane.
-        names: Optional state names, used to describe the offending mode.
-    """
-    n = A.shape[0]
-    scale = max(1.0, float(np.linalg.norm(np.hstack([A, B]), 2)))
-    eigvals, eigvecs = np.linalg.eig(A)
-    for k, lam in enumerate(eigvals):
-        unstable = abs(lam) >= 1.0 - 1e-12 if discrete else lam.real >= -1e-12
-        if not unstable:
-            continue
-        pbh = np.hstack([A - lam * np.eye(n), B.astype(complex)])
-        smin = np.linalg.svd(pbh, compute_uv=False)[-1]
-        if smin <= 1e-9 * scale:
-            v = eigvecs[:, k]
-            i = int(np.argmax(np.abs(v)))
-            where = f" (mostly state '{names[i]}')" if names is not None else f" (mostly state {i})"
-            region = "|λ| ≥ 1" if discrete else "Re λ ≥ 0"
-            raise NotStabilizable(
-                f"(A, B) is not stabilizable: the mode λ = {lam:.6g}{where} has {region} "
-                f"and the input cannot reach it (PBH rank test, σ_min = {smin:.2e})"
-            )
-
-
-def check_detectable(A: np.ndarray, Q: np.ndarray, *, discrete: bool, names: Any = None) -> None:
-    """Raise :class:`NotStabilizable` if an unstable or marginal mode of ``A`` is invisible to ``Q``.
-
-    PBH test on ``(A, Q^½)``: detectable iff ``rank [A − λI; Q^½] = n`` for
-    every eigenvalue with ``|λ| ≥ 1`` (discrete) or ``Re λ ≥ 0`` (continuous).
-    A mode ``Q`` does not weight costs nothing, so the Riccati solution leaves
-    it where it is (on the unit circle for an integrator): the loop would
-    never settle.
-
-    Args:
-        A: ``(n, n)``.
-        Q: Symmetric PSD ``(n, n)``.
-        discrete: Stability region of the unit circle (True) or left half-plane.
-        names: Optional state names, used to describe the offending mode.
-    """
-    n = A.shape[0]
-    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
-    C = (V * np.sqrt(np.clip(w, 0.0, None))) @ V.T  # Q^½
-    scale = max(1.0, float(np.linalg.norm(np.vstack([A, C]), 2)))
-    eigvals, eigvecs = np.linalg.eig(A)
-    for k, lam in enumerate(eigvals):
-        unstable = abs(lam) >= 1.0 - 1e-12 if discrete else lam.real >= -1e-12
-        if not unstable:
-            continue
-        smin = np.linalg.svd(np.vstack([A - lam * np.eye(n), C.astype(complex)]), compute_uv=False)[-1]
-        if smin <= 1e-9 * scale:
-            raise NotStabilizable(
-                f"(A, Q^½) is not detectable: the mode λ = {lam:.6g}{_mode_where(eigvecs[:, k], names)} has "
-                f"{'|λ| ≥ 1' if discrete else 'Re λ ≥ 0'} and Q does not weight it, so the design would leave it "
-                f"unstable or on the stability boundary (PBH rank test, σ_min = {smin:.2e}); weight that state in Q"
-            )
-
-
 def check_closed_loop(poles: np.ndarray, A_cl: np.ndarray, *, discrete: bool, names: Any = None) -> None:
-    """Raise :class:`NotStabilizable` unless every closed-loop pole is strictly stable (margin 1e-9)."""
+    """Raise :class:`NotStabilizable` unless every closed-loop pole is strictly stable beyond rounding.
+
+    The margin is relative, ``10³ eps max(1, ‖A_cl‖)``: a mode the design leaves on the stability
+    boundary (an unweighted integrator stays at ``z = 1`` to rounding) is refused, while a fast
+    sampled loop whose poles sit at ``1 − dt·σ`` (``dt = 1e-9``) is not.
+    """
     eigvals, eigvecs = np.linalg.eig(A_cl)
+    margin = 1e3 * float(np.finfo(float).eps) * max(1.0, float(np.linalg.norm(A_cl, 2)))
     for k, lam in enumerate(eigvals):
-        bad = abs(lam) >= 1.0 - 1e-9 if discrete else lam.real >= -1e-9
+        bad = abs(lam) >= 1.0 - margin if discrete else lam.real >= -margin
         if bad:
             size = f"|p| = {abs(lam):.9g}" if discrete else f"Re p = {lam.real:.3g}"
             raise NotStabilizable(
                 f"the closed loop is not strictly stable: pole p = {lam:.6g} ({size})"
                 f"{_mode_where(eigvecs[:, k], names)}; increase the weights of Q on that mode"
             )
+
+
+def _design(
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, discrete: bool, names: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(K, S)`` of a design whose closed loop is strictly stable, judged by the Riccati solution itself.
+
+    When the Riccati solve fails or leaves a pole on or outside the stability boundary, the PBH tests
+    (:func:`~shinro_ctrl.analysis.structure.check_stabilizable` and ``check_detectable`` on
+    ``(A, Q^½)``) name the mode at fault; a rank test never refuses a design that the Riccati solution
+    stabilizes.
+    """
+    try:
+        K, S = riccati(A, B, Q, R, discrete=discrete)
+        check_closed_loop(np.linalg.eigvals(A - B @ K), A - B @ K, discrete=discrete, names=names)
+    except NotStabilizable:
+        check_stabilizable(A, B, discrete=discrete, names=names)
+        check_detectable(
+            A,
+            _sqrt_psd(Q),
+            discrete=discrete,
+            names=names,
+            seen_by="the weights Q",
+            pair="(A, Q^½)",
+            fix="Q does not weight it, so the design would leave it unstable or on the stability boundary; "
+            "weight that state in Q",
+        )
+        raise
+    return K, S
+
+
+def _sqrt_psd(Q: np.ndarray) -> np.ndarray:
+    """``Q^½`` of a symmetric PSD matrix."""
+    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    return (V * np.sqrt(np.clip(w, 0.0, None))) @ V.T
 
 
 def _mode_where(v: np.ndarray, names: Any) -> str:
@@ -235,11 +211,8 @@ class LQR(Controller):
         self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
         self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
-        check_stabilizable(A_d, B_d, discrete=self.discrete, names=design_names)
-        check_detectable(A_d, self.Q, discrete=self.discrete, names=design_names)
-        K, S = riccati(A_d, B_d, self.Q, self.R, discrete=self.discrete)
+        K, S = _design(A_d, B_d, self.Q, self.R, discrete=self.discrete, names=design_names)
         self.poles = np.linalg.eigvals(A_d - B_d @ K)
-        check_closed_loop(self.poles, A_d - B_d @ K, discrete=self.discrete, names=design_names)
         if self._lqi is not None:
             self.K_i = K[:, n:]  # integrator gain (m, q)
             self._lqi.set_gain(self.K_i)

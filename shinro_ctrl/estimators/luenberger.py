@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.analysis.structure import check_detectable
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.estimators._linear import check_detectable, measured_indices
+from shinro_ctrl.estimators._linear import measured_indices, seen_from
 from shinro_ctrl.estimators.base import Estimator
 from shinro_ctrl.validation import as_vector, measurement_matrix, state_space
 
@@ -78,7 +79,7 @@ class Luenberger(Estimator):
         names = tuple(state_names) if state_names is not None else None
         self.measured = measured_indices(C)
         measured_names = [names[i] for i in self.measured] if names and self.measured else None
-        check_detectable(A, C, names=names, measured=measured_names, strict=True)
+        check_detectable(A, C, names=names, seen_by=seen_from(measured_names), strict=True)
         import control  # deferred: importing python-control costs about a second
 
         try:
