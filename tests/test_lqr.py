@@ -216,3 +216,68 @@ def test_one_pbh_function_lists_repeated_eigenvalues_once_with_their_multiplicit
     triple = next(m for m in rep.modes if abs(m.eigenvalue - 0.5) < 1e-12)
     assert triple.multiplicity == 3 and not triple.controllable and len(rep.modes) == 2
     assert "(×3, repeated)" in rep.format()
+
+
+# --------------------------------------------------------------- operating points (issue 23.3)
+@pytest.mark.parametrize(
+    "kwargs,needle",
+    [
+        ({"x0": [0.0, 1.0, 0.0, 0.0]}, r"dx/dt = 1 .*no input holds x0 at rest"),  # moving: no input stops it
+        ({"x0": [0.0, 0.0, 0.3, 0.0]}, r"dx_dot/dt = -0\.5444, dtheta_dot/dt = 6\.838.*no input holds x0 at rest"),
+        ({"u0": [1.0]}, r"dx_dot/dt = 2, dtheta_dot/dt = -4 .*nearest equilibrium input is u0 = \[0\]"),
+        ({"u0": [1.0], "integral": ["x"]}, r"dx_dot.*nearest equilibrium input is u0 = \[0\]"),  # LQI too
+    ],
+)
+def test_an_operating_point_that_is_not_an_equilibrium_is_refused(kwargs, needle):
+    from shinro_ctrl.errors import InvalidArgument
+
+    Q = [10, 1, 100, 1, 1] if "integral" in kwargs else [10, 1, 100, 1]
+    with pytest.raises(
+        InvalidArgument, match="LQR: the operating point is not an equilibrium: f\\(x0, u0\\) has " + needle
+    ):
+        LQR.from_plant(CartPole(), Q, [0.1], **kwargs)
+
+
+def test_the_nearest_equilibrium_input_is_the_one_that_holds_the_point():
+    from shinro_ctrl.errors import InvalidArgument
+    from shinro_ctrl.plants import Quadrotor
+
+    # hover: the plant's own equilibrium input, m g on the thrust (the closed form)
+    q = Quadrotor()
+    with pytest.raises(InvalidArgument, match=r"dvz/dt = -9\.81 .*nearest equilibrium input is u0 = \[") as info:
+        LQR.from_plant(q, np.ones(12), np.ones(4), u0=np.zeros(4))
+    hover = q.equilibrium()[1]
+    assert f"{hover[0]:.6g}" in str(info.value)
+    # a fully actuated double pendulum held tilted: the named input is the gravity torque, and it holds the pose
+    p = DoublePendulum(dt=0.005)
+    x0 = np.array([0.4, -0.2, 0.0, 0.0])
+    with pytest.raises(InvalidArgument, match=r"nearest equilibrium input is u0 = \[[-\d.e, ]+\]") as info:
+        LQR.from_plant(p, [100, 100, 1, 1], [1, 1], x0=x0)
+    u_star = np.array([float(v) for v in str(info.value).split("u0 = [")[-1].split("]")[0].split(",")])
+    np.testing.assert_allclose(p.dynamics(x0, u_star), 0.0, atol=1e-8)
+    ctrl = LQR.from_plant(p, [100, 100, 1, 1], [1, 1], x0=x0, u0=u_star)
+    p.set_state(x0 + np.array([0.05, 0.0, 0.0, 0.0]))
+    for _ in range(1000):
+        p.step(ctrl(p.get_state()))
+    np.testing.assert_allclose(p.get_state(), x0, atol=1e-3)
+
+
+def test_equilibria_away_from_the_origin_are_accepted_and_linear_mpc_carries_the_offset():
+    from shinro_ctrl.controllers import LinearMPC
+
+    LQR.from_plant(CartPole(), [10, 1, 100, 1], [0.1], x0=[5.0, 0.0, 0.0, 0.0])  # the cart anywhere on the track
+    mpc = LinearMPC.from_plant(CartPole(), [10, 1, 100, 1], [0.1], horizon=10, u0=[1.0])
+    assert mpc.offset is not None and np.abs(mpc.offset).max() > 0  # the drift f(x0, u0) is in its model
+
+
+@pytest.mark.parametrize("bad", [None, CartPole, "CartPole", 3.0])
+def test_from_plant_of_every_controller_and_estimator_names_a_non_plant(bad):
+    from shinro_ctrl.controllers import CONTROLLERS, controller_class
+    from shinro_ctrl.estimators import ESTIMATORS
+
+    classes = [controller_class(name) for name in CONTROLLERS] + list(ESTIMATORS.values())
+    for cls in classes:
+        with pytest.raises(TypeError, match=rf"{cls.__name__}\.from_plant\(\) expects a plant instance") as info:
+            cls.from_plant(bad)
+        if bad is CartPole:
+            assert "got the class CartPole; pass CartPole()" in str(info.value)

@@ -9,7 +9,7 @@ import numpy as np
 import scipy.linalg
 
 from shinro_ctrl.analysis.structure import check_detectable, check_stabilizable
-from shinro_ctrl.controllers.base import Controller
+from shinro_ctrl.controllers.base import Controller, check_operating_point
 from shinro_ctrl.controllers.lqi import integral_action
 from shinro_ctrl.errors import InvalidArgument, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
@@ -245,6 +245,10 @@ class LQR(Controller):
     ) -> LQR:
         """Design on ``plant`` linearized at ``(x0, u0)`` (default its equilibrium).
 
+        The operating point must be an equilibrium, ``f(x0, u0) = 0`` (the LQR
+        does not carry the affine term; see
+        :func:`~shinro_ctrl.controllers.base.check_operating_point`).
+
         Args:
             plant: Any plant.
             Q, R: Weights (full matrices or diagonals).
@@ -258,8 +262,14 @@ class LQR(Controller):
             feedforward: Use reference feed-forward (see the class docstring).
             integral: State names whose tracking error is integrated (LQI;
                 ``Q`` then has ``n + q`` entries; see ``controllers/lqi.py``).
+
+        Raises:
+            TypeError: ``plant`` is not a plant instance (None, a class).
+            InvalidArgument: ``(x0, u0)`` is not an equilibrium (naming the residual and the nearest
+                equilibrium input when there is one).
         """
         lm = plant.linear_model(x0, u0, method=method, discretization=discretization)
+        check_operating_point(plant, lm.x0, lm.u0, cls.__name__)
         A, B = (lm.A, lm.B) if discrete else (lm.A_c, lm.B_c)
         ctrl = cls(
             A,

@@ -43,6 +43,10 @@ class Estimator(ABC):
         super().__init_subclass__(**kwargs)
         if not cls.__name__.startswith("_"):
             ESTIMATORS[cls.__name__] = cls
+        if isinstance(cls.__dict__.get("from_plant"), classmethod):  # None or a plant class: a clear TypeError
+            from shinro_ctrl.controllers.base import _checks_plant
+
+            cls.from_plant = classmethod(_checks_plant(cls.__dict__["from_plant"].__func__))
 
     @classmethod
     def from_plant(cls, plant: Any, **options: Any) -> Estimator:
