@@ -281,3 +281,48 @@ def test_from_plant_of_every_controller_and_estimator_names_a_non_plant(bad):
             cls.from_plant(bad)
         if bad is CartPole:
             assert "got the class CartPole; pass CartPole()" in str(info.value)
+
+
+# --------------------------------------------------------------- papercuts (issue 23.5)
+def test_the_lqi_weight_shape_error_says_the_integral_states_are_appended():
+    from shinro_ctrl.errors import InvalidArgument
+
+    with pytest.raises(
+        InvalidArgument, match=r"expected shape \(6,\).*Q weights the 4 states and then the 2 integral "
+    ):
+        LQR.from_plant(CartPole(), [10, 1, 100, 1], [0.1], integral=["x", "theta"])
+    with pytest.raises(InvalidArgument, match=r"expected shape \(4,\) but found \(3,\)$"):  # plain LQR: no mention
+        LQR.from_plant(CartPole(), [10, 1, 100], [0.1])
+
+
+@pytest.mark.parametrize("x", [[1e308] * 4, [1e308, 0, 0, 0], [0, 0, -1e308, 0]])
+def test_a_state_whose_input_overflows_raises_instead_of_returning_inf(x):
+    ctrl = LQR.from_plant(CartPole(), [10, 1, 100, 1], [0.1], u_min=[-5], u_max=[5])
+    with np.errstate(over="ignore"), pytest.raises(NonFiniteError, match="overflows float64"):
+        ctrl(x)
+
+
+def test_gains_and_matrices_cannot_be_changed_through_the_attributes():
+    from shinro_ctrl.controllers import LinearMPC
+
+    Q = np.diag([10.0, 1, 100, 1])
+    lqr = LQR.from_plant(CartPole(), Q, [0.1])
+    mpc = LinearMPC.from_plant(CartPole(), [10, 1, 100, 1], [0.1], horizon=10)
+    lqi = LQR.from_plant(CartPole(), [10, 1, 100, 1, 1], [0.1], integral=["x"])
+    for ctrl in (lqr, mpc, lqi):
+        public = {k: v for k, v in vars(ctrl).items() if not k.startswith("_") and isinstance(v, np.ndarray)}
+        assert {"K", "S", "A", "B", "Q", "R"} & set(public)
+        for name, value in public.items():
+            assert not value.flags.writeable, (type(ctrl).__name__, name)
+    x = np.array([0.1, 0.0, 0.1, 0.0])
+    u = lqr(x)
+    with pytest.raises(ValueError, match="read-only"):
+        lqr.K[0, 0] = 1e6
+    Q[2, 2] = 0.0  # the caller's own array stays theirs: writable, and the controller kept a copy
+    assert lqr.Q[2, 2] == 100.0 and np.array_equal(lqr(x), u)
+
+
+def test_the_linear_model_keeps_the_plant_names():
+    lm = CartPole().linear_model()
+    ss = lm.to_statespace()
+    assert list(ss.state_labels) == ["x", "x_dot", "theta", "theta_dot"] and list(ss.input_labels) == ["force"]

@@ -132,10 +132,11 @@ class DesignAnalysis:
         out += [f"structure{obs}:", self.structure.format()]
         out += ["loop margins (loop broken at the plant input):", self.margins.format()]
         out.append("linear closed-loop response metrics:")
-        out.append(f"  {'response':24s} {'rise [s]':>9s} {'overshoot':>10s} {'settle 2%':>10s} {'ss error':>10s}")
+        w = max([24, *(len(label) for label in self.responses)])
+        out.append(f"  {'response':{w}s} {'rise [s]':>9s} {'overshoot':>10s} {'settle 2%':>10s} {'ss error':>10s}")
         for label, s in self.responses.items():
             out.append(
-                f"  {label[:24]:24s} {_g(s.rise_time):>9s} {s.overshoot:9.2f}% {_g(s.settling_time):>10s} "
+                f"  {label:{w}s} {_g(s.rise_time):>9s} {s.overshoot:9.2f}% {_g(s.settling_time):>10s} "
                 f"{_g(s.steady_state_error, '.3g'):>10s}"
             )
         return "\n".join(out)
@@ -190,7 +191,8 @@ def analyze_controller(
             response; default none (only reference steps).
         measured: Names of measured states for the observability test (default: skip it).
         tracked: Names of states whose unit reference step is analysed (default none).
-        state_names, input_names: Labels (default the controller's model's plant names, else ``x[i]``/``u[i]``).
+        state_names, input_names: Labels (default the controller's, else its model's: the plant's names; else
+            ``x[i]``/``u[i]``).
         duration: Least length of the linear responses [s] (e.g. the scenario's duration). Default and
             at least: 8 × the slowest time constant; extended (doubling, up to
             :data:`MAX_RESPONSE_STEPS`) until every response settles.
@@ -206,7 +208,13 @@ def analyze_controller(
     n, m = B.shape
     x0 = np.asarray(getattr(controller, "x0", np.zeros(n)), dtype=float)
     n_p = x0.shape[0]  # plant states; n > n_p when the loop carries integrators (LQI)
-    snames = tuple(state_names or getattr(controller, "state_names", None) or (f"x[{i}]" for i in range(n_p)))
+    model = getattr(controller, "model", None)  # the plant's names travel with the model it was designed on
+    snames = tuple(
+        state_names
+        or getattr(controller, "state_names", None)
+        or getattr(model, "state_names", None)
+        or (f"x[{i}]" for i in range(n_p))
+    )
     # a reference step δr (n_p,) enters the loop as E δr: u = −K_x (x − r) − K_i z, z⁺ = z + dt (x − r)[idx]
     E = B @ K[:, :n_p]
     lqi = getattr(controller, "_lqi", None)
@@ -216,7 +224,12 @@ def analyze_controller(
         x0 = np.concatenate([x0, np.zeros(n - n_p)])
         if x_init is not None:
             x_init = np.concatenate([np.asarray(x_init, dtype=float), np.zeros(n - n_p)])
-    inames = tuple(input_names or getattr(controller, "input_names", None) or (f"u[{i}]" for i in range(m)))
+    inames = tuple(
+        input_names
+        or getattr(controller, "input_names", None)
+        or getattr(model, "input_names", None)
+        or (f"u[{i}]" for i in range(m))
+    )
     lam = np.linalg.eigvals(A - B @ K)
     poles = pole_table(lam, dt)
     C = None

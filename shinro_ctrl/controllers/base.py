@@ -100,6 +100,19 @@ class Controller(abc.ABC):
     u0: np.ndarray | None = None
     model: Any = None
 
+    def __setattr__(self, name: str, value: Any) -> None:
+        """A public array attribute (a gain, a model matrix, a bound) is stored as a read-only copy.
+
+        The caller can read ``ctrl.K`` but not change the controller through it (``ctrl.K[0, 0] = 5``
+        raises ``ValueError: assignment destination is read-only``), nor does the controller keep a
+        view of the caller's own array. Rebinding the attribute is still possible; private
+        (``_name``) arrays are the controller's working buffers and stay writable.
+        """
+        if type(value) is np.ndarray and value.flags.writeable and not name.startswith("_"):
+            value = value.copy()
+            value.flags.writeable = False
+        object.__setattr__(self, name, value)
+
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         if "stateful" not in cls.__dict__:

@@ -11,7 +11,7 @@ import scipy.linalg
 from shinro_ctrl.analysis.structure import check_detectable, check_stabilizable
 from shinro_ctrl.controllers.base import Controller, check_operating_point
 from shinro_ctrl.controllers.lqi import integral_action
-from shinro_ctrl.errors import InvalidArgument, NotStabilizable
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
 
 __all__ = ["LQR", "check_closed_loop", "check_detectable", "check_stabilizable", "riccati", "riccati_solution"]
@@ -128,6 +128,22 @@ def _design(
     return K, S
 
 
+def _design_weight(Q: Any, size: int, lqi: Any, names: Any) -> np.ndarray:
+    """``Q`` on the design state; with integral action its shape error says the integral states are appended."""
+    try:
+        return weight_matrix("Q", Q, size)
+    except InvalidArgument as exc:
+        if lqi is None:
+            raise
+        q = len(lqi.indices)
+        n = size - q
+        listed = f": {', '.join(names)}" if names is not None else ""
+        raise InvalidArgument(
+            f"{exc}; with integral action Q weights the {n} states and then the {q} integral state"
+            f"{'s' if q != 1 else ''} appended after them ({size} entries{listed})"
+        ) from None
+
+
 def _sqrt_psd(Q: np.ndarray) -> np.ndarray:
     """``Q^½`` of a symmetric PSD matrix."""
     w, V = np.linalg.eigh(0.5 * (Q + Q.T))
@@ -204,7 +220,7 @@ class LQR(Controller):
         # LQI (controllers/lqi.py): the design runs on the model augmented with the error integrators.
         self._lqi, design_names = integral_action(A, B, integral, integral_dt, state_names, discrete=bool(discrete))
         A_d, B_d = (A, B) if self._lqi is None else (self._lqi.A_aug, self._lqi.B_aug)
-        self.Q = weight_matrix("Q", Q, A_d.shape[0])
+        self.Q = _design_weight(Q, A_d.shape[0], self._lqi, design_names)
         self.R = weight_matrix("R", R, m, definite=True)
         self.discrete = bool(discrete)
         self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
@@ -316,6 +332,11 @@ class LQR(Controller):
             else:
                 r = as_vector("ref", ref, self.state_dim)
                 u = self.u0 - self.K @ (x - r)
+        if not np.isfinite(u).all():  # the state (or the reference) is finite but K x overflows float64
+            raise NonFiniteError(
+                f"LQR: the input for the state {np.array2string(x, precision=3)} overflows float64 "
+                f"(u = {np.array2string(u, precision=3)}): the state is far outside the linear model's range"
+            )
         if self._lqi is not None:  # LQI: − K_i z, saturation, clamped integration
             return self._lqi.finish(u, x, r, self.u_min if self._saturate else None, self.u_max)
         if self._saturate:
