@@ -9,7 +9,7 @@ import numpy as np
 import scipy.linalg
 
 from shinro_ctrl.analysis.structure import check_detectable, check_stabilizable
-from shinro_ctrl.controllers.base import Controller, check_operating_point
+from shinro_ctrl.controllers.base import CallGuard, Controller, check_operating_point
 from shinro_ctrl.controllers.lqi import integral_action
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
@@ -193,6 +193,11 @@ class LQR(Controller):
     Raises:
         ValueError: wrong shapes, asymmetric or indefinite weights.
         NotStabilizable: an unstable mode the input cannot reach (PBH test).
+
+    Threads: a plain LQR is a pure state feedback (no buffer is shared between calls): one object
+    may be called from any number of threads at once. With integral action (LQI) it keeps the
+    integrators between calls: a call that enters while another thread is inside raises
+    :class:`~shinro_ctrl.errors.ConcurrentUse` (use one controller per thread).
     """
 
     stateful = False  # a pure state feedback
@@ -238,6 +243,7 @@ class LQR(Controller):
         self.S = S
         self.state_dim, self.input_dim = n, m
         self._x0_u = self.u0 + self.K @ self.x0  # u = (u0 + K x0) - K x
+        self._guard = CallGuard("LQR with integral action")
         self.feedforward = bool(feedforward)
         self.preview = 1 if self.feedforward else 0  # future reference samples the controller wants
         self._B_pinv = np.linalg.pinv(B) if self.feedforward else None
@@ -315,6 +321,17 @@ class LQR(Controller):
                 ``feedforward`` row 1 gives the feed-forward input).
                 Default: the operating point.
         """
+        if self._lqi is None:
+            return self._law(x, ref)
+        guard = self._guard  # the integrators: one thread at a time
+        if not guard.acquire(False):
+            raise guard.refused()
+        try:
+            return self._law(x, ref)
+        finally:
+            guard.release()
+
+    def _law(self, x: Any, ref: Any) -> np.ndarray:
         x = as_vector("x", x, self.state_dim)  # fast path for a finite (n,) array
         if ref is None:
             u = self._x0_u - self.K @ x
@@ -353,4 +370,5 @@ class LQR(Controller):
     def reset(self) -> None:
         """Empty the integrators (LQI); a plain LQR has no memory."""
         if self._lqi is not None:
-            self._lqi.reset()
+            with self._guard:
+                self._lqi.reset()

@@ -214,6 +214,10 @@ class KalmanFilter(Estimator):
 
     def reset(self, x0_hat: Any, P0: Any = None) -> None:
         """Start from ``x0_hat (n,)`` (or ``(n + m,)`` with the disturbance) and, time-varying, ``P0`` (default I)."""
+        with self._busy:
+            self._reset(x0_hat, P0)
+
+    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
         N = self.n_aug
         if self.disturbance_model is not None and np.shape(x0_hat) == (self.n,):
             x0_hat = np.concatenate([np.asarray(x0_hat, dtype=float), np.zeros(self.m)])
@@ -233,6 +237,15 @@ class KalmanFilter(Estimator):
         Returns:
             ``x̂ (n,)``, or ``[x̂; d̂] (n + m,)`` with the input disturbance.
         """
+        guard = self._busy
+        if not guard.acquire(False):
+            raise guard.refused()
+        try:
+            return self._update(y, u)
+        finally:
+            guard.release()
+
+    def _update(self, y: Any, u: Any) -> np.ndarray:
         y = as_vector("y", y, self.p)
         if self.steady_state and not self._first:  # fused fast path
             z = self._z
@@ -413,12 +426,25 @@ class ExtendedKalmanFilter(Estimator):
 
     def reset(self, x0_hat: Any, P0: Any = None) -> None:
         """Start from ``x0_hat (n,)`` with covariance ``P0 (n, n)`` (default the identity)."""
+        with self._busy:
+            self._reset(x0_hat, P0)
+
+    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
         self._x[:] = as_vector("x0_hat", x0_hat, self.n)
         self._P[:] = np.eye(self.n) if P0 is None else weight_matrix("P0", P0, self.n)
         self._first = True
 
     def update(self, y: Any, u: Any) -> np.ndarray:
         """Predict one RK4 step with ``u (m,)`` (skipped right after :meth:`reset`), correct with ``y (p,)``."""
+        guard = self._busy
+        if not guard.acquire(False):
+            raise guard.refused()
+        try:
+            return self._update(y, u)
+        finally:
+            guard.release()
+
+    def _update(self, y: Any, u: Any) -> np.ndarray:
         self._y[:] = as_vector("y", y, self.p)
         if self._first:
             self._first = False

@@ -134,6 +134,10 @@ class Luenberger(Estimator):
 
     def reset(self, x0_hat: Any, P0: Any = None) -> None:
         """Start from ``x0_hat (n,)``; an observer has no covariance, so ``P0`` must be None."""
+        with self._busy:
+            self._reset(x0_hat, P0)
+
+    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
         if P0 is not None:
             raise InvalidArgument("P0: a Luenberger observer has no covariance")
         self._z[:] = as_vector("x0_hat", x0_hat, self.n) - self.x0
@@ -141,6 +145,15 @@ class Luenberger(Estimator):
 
     def update(self, y: Any, u: Any) -> np.ndarray:
         """Predict with ``u (m,)`` (skipped right after :meth:`reset`) and correct with ``y (p,)``; ``x̂ (n,)``."""
+        guard = self._busy
+        if not guard.acquire(False):
+            raise guard.refused()
+        try:
+            return self._update(y, u)
+        finally:
+            guard.release()
+
+    def _update(self, y: Any, u: Any) -> np.ndarray:
         y = as_vector("y", y, self.p)
         z = self._z
         if self._first:
