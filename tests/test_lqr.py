@@ -412,3 +412,20 @@ def test_an_lqi_shared_between_threads_refuses_the_second_caller_and_one_per_thr
     inside.join()
     np.testing.assert_array_equal(result["u"], twin(X[0, 0], ref))
     np.testing.assert_array_equal(shared(X[0, 1], ref), twin(X[0, 1], ref))  # the refused call changed nothing
+
+
+def test_a_tvlqr_whose_plan_ends_off_equilibrium_is_refused_at_its_goal():
+    from shinro_ctrl.controllers import TVLQR
+    from shinro_ctrl.errors import InvalidArgument
+    from shinro_ctrl.planning import Trajectory
+
+    plant = CartPole(dt=0.01)
+    x = np.zeros((2, 4))
+    for u_goal, ok in (([0.0], True), ([1.0], False)):
+        u = np.array([[0.0], u_goal])
+        traj = Trajectory(np.array([0.0, 0.5]), x, u, np.array([plant.dynamics(x[k], u[k]) for k in range(2)]))
+        if ok:
+            TVLQR.from_trajectory(plant, traj, [10, 1, 100, 1], [0.1])
+            continue
+        with pytest.raises(InvalidArgument, match=r"not an equilibrium.*nearest equilibrium input is u0 = \[0\]"):
+            TVLQR.from_trajectory(plant, traj, [10, 1, 100, 1], [0.1])
