@@ -10,6 +10,7 @@ every error a user can cause derives from :class:`ShinroError`.
 """
 
 from shinro_ctrl.errors import (
+    ConcurrentUse,
     ConfigError,
     InvalidArgument,
     MPCInfeasible,
@@ -24,6 +25,7 @@ from shinro_ctrl.errors import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "ConcurrentUse",
     "ConfigError",
     "InvalidArgument",
     "MPCInfeasible",

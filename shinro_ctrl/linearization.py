@@ -63,6 +63,7 @@ class LinearModel:
         B_c: Continuous input matrix ``(n, m)``.
         method: ``"exact"`` or ``"fd"``.
         discretization: ``"euler"``, ``"zoh"`` or ``"rk4"``.
+        state_names, input_names: The plant's names (None when unknown).
     """
 
     A: np.ndarray
@@ -74,6 +75,8 @@ class LinearModel:
     B_c: np.ndarray
     method: str
     discretization: str
+    state_names: tuple[str, ...] | None = None
+    input_names: tuple[str, ...] | None = None
 
     def to_statespace(
         self,
@@ -89,8 +92,8 @@ class LinearModel:
         Args:
             discrete: ``(A, B)`` with ``dt`` (True) or the continuous ``(A_c, B_c)``.
             C: Output matrix ``(p, n)``; default the identity (every state measured).
-            state_names: ``(n,)`` names (default ``x[i]``); input_names ``(m,)``
-                (default ``u[i]``); output_names ``(p,)`` (default: the state
+            state_names: ``(n,)`` names (default the model's, else ``x[i]``); input_names ``(m,)``
+                (default the model's, else ``u[i]``); output_names ``(p,)`` (default: the state
                 names when ``C`` is the identity, else ``y[i]``).
 
         Returns:
@@ -102,6 +105,8 @@ class LinearModel:
         Cm = np.eye(n) if C is None else np.atleast_2d(np.asarray(C, dtype=float))
         if Cm.ndim != 2 or Cm.shape[1] != n:
             raise InvalidArgument(f"C: expected (p, {n}) but found {Cm.shape}")
+        state_names = self.state_names if state_names is None else state_names
+        input_names = self.input_names if input_names is None else input_names
         states = [f"x[{i}]" for i in range(n)] if state_names is None else [str(s) for s in state_names]
         inputs = [f"u[{i}]" for i in range(m)] if input_names is None else [str(s) for s in input_names]
         if output_names is None:

@@ -9,6 +9,11 @@ with ``rel``/``abs`` from the scenario's ``[regression]`` table, or the
 defaults in :data:`DEFAULT_TOLERANCES` (tight: the runs are deterministic).
 Wall-clock metrics (``solve_time_median_s``) are compared only when the
 scenario gives a tolerance for them.
+
+An undefined metric (a settling or rise time that never happened, a metric
+of an empty run) is None in the run and ``null`` in the baseline: None
+against None passes, None against a number fails with a line saying which
+side is undefined. Baselines hold no NaN or infinity.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
-from shinro_ctrl.sim.metrics import RESPONSE_METRICS
+from shinro_ctrl.sim.metrics import FLAG_METRICS, NEVER_METRICS, RESPONSE_METRICS, WALL_CLOCK_METRICS, format_metric
 
 __all__ = [
     "DEFAULT_TOLERANCES",
@@ -47,7 +52,6 @@ DEFAULT_TOLERANCES: dict[str, dict[str, float]] = {
     "constraint_violations": {"rel": 0.0, "abs": 0.0},
     "max_violation": {"rel": 1e-2, "abs": 1e-6},
 }
-TIMING_METRICS = ("solve_time_median_s",)
 BASELINE_FORMAT = 1
 
 
@@ -58,10 +62,11 @@ class MetricCheck:
     scenario: str
     metric: str
     baseline: float | None
-    now: float
+    now: float | None
     rel: float
     abs: float
     passed: bool
+    note: str = ""
 
     @property
     def tolerance(self) -> str:
@@ -72,6 +77,14 @@ class MetricCheck:
         if self.rel:
             parts.append(f"{self.rel:g}·|b|")
         return " + ".join(parts) or "exact"
+
+    def describe(self) -> str:
+        """One line: the metric, both values, the tolerance and, for a failure, why."""
+        why = f" ({self.note})" if self.note else ""
+        return (
+            f"{self.scenario}: {self.metric}: baseline {_fmt(self.baseline, self.metric)}, "
+            f"now {_fmt(self.now, self.metric)}, tolerance {self.tolerance}{why}"
+        )
 
 
 @dataclass
@@ -102,20 +115,16 @@ def baseline_path(scenario_path: str | Path) -> Path:
     return p.with_name(p.stem + ".baseline.json")
 
 
-def _to_float(v: Any) -> float:
-    if v == "inf":
-        return math.inf
-    if v == "-inf":
-        return -math.inf
-    return math.nan if v is None else float(v)
+def read_baseline(path: str | Path) -> dict[str, float | bool | None]:
+    """The metrics stored in a baseline file (``null``: undefined, None).
 
-
-def read_baseline(path: str | Path) -> dict[str, float]:
-    """The metrics stored in a baseline file.
+    A baseline written before undefined metrics were ``null`` may hold
+    ``"inf"`` for a settling or rise time that never happened: it is read as None.
 
     Raises:
         FileNotFoundError: no baseline.
-        ConfigError: the file is not a baseline (corrupt, another ``format``, a metric that is not a number).
+        ConfigError: the file is not a baseline (corrupt, another ``format``, a metric that is not a number,
+            true/false or null, a NaN or an infinity).
     """
     p = Path(path)
     hint = f"rewrite it with 'shinro-ctrl regress {p.parent} --update'"
@@ -132,11 +141,18 @@ def read_baseline(path: str | Path) -> dict[str, float]:
     fmt = data.get("format")
     if isinstance(fmt, bool) or fmt != BASELINE_FORMAT:
         raise ConfigError(f"{p}: baseline 'format' must be {BASELINE_FORMAT}, found {fmt!r}; {hint}")
-    out = {}
+    out: dict[str, float | bool | None] = {}
     for k, v in data["metrics"].items():
-        if isinstance(v, bool) or not (isinstance(v, int | float) or v in ("inf", "-inf") or v is None):
-            raise ConfigError(f"{p}: metric '{k}' must be a number, found {v!r}; {hint}")
-        out[k] = _to_float(v)
+        if v == "inf" and k in NEVER_METRICS:  # the older spelling of "never"
+            v = None
+        if isinstance(v, bool) or v is None:
+            if isinstance(v, bool) and k not in FLAG_METRICS:
+                raise ConfigError(f"{p}: metric '{k}' must be a number or null, found {v!r}; {hint}")
+            out[k] = v
+            continue
+        if not isinstance(v, int | float) or not math.isfinite(v):
+            raise ConfigError(f"{p}: metric '{k}' must be a finite number or null, found {v!r}; {hint}")
+        out[k] = v if isinstance(v, int) else float(v)
     return out
 
 
@@ -163,13 +179,43 @@ def write_baseline(path: str | Path, result: Any) -> Path:
     return atomic_write(path, lambda f: f.write(text))
 
 
+def _undefined(v: Any) -> bool:
+    return v is None or (isinstance(v, float) and not math.isfinite(v))
+
+
+def _check(metric: str, value: Any, base: Any, rel: float, ab: float) -> tuple[bool, str]:
+    """``(passed, why it failed)`` of one metric against its baseline value."""
+    if metric in FLAG_METRICS or isinstance(value, bool) or isinstance(base, bool):
+        if bool(value) == bool(base) and not _undefined(value) and not _undefined(base):
+            return True, ""
+        if metric == "stable" and base and not value:
+            return False, "the baseline run was stable, this run is not (it diverged or never settled)"
+        return False, f"{metric} changed from {base!r} to {value!r}"
+    if _undefined(value) and _undefined(base):
+        return True, ""
+    if _undefined(value):
+        what = "never happens" if metric in NEVER_METRICS else "is undefined"
+        return False, f"{metric} {what} in this run but is {_fmt(base, metric)} in the baseline"
+    if _undefined(base):
+        what = "never happened" if metric in NEVER_METRICS else "was undefined"
+        return False, f"{metric} {what} in the baseline but is {_fmt(value, metric)} in this run"
+    if abs(float(value) - float(base)) <= ab + rel * abs(float(base)):
+        return True, ""
+    return False, ""
+
+
 def compare_metrics(
     scenario: str,
-    now: Mapping[str, float],
-    baseline: Mapping[str, float],
+    now: Mapping[str, float | bool | None],
+    baseline: Mapping[str, float | bool | None],
     tolerances: Mapping[str, Mapping[str, float]] | None = None,
 ) -> list[MetricCheck]:
     """Check every metric of ``now`` against ``baseline``.
+
+    An undefined value (None) matches only an undefined one; ``stable``
+    must be equal (a baseline with ``stable = true`` fails a run that is not,
+    with one line). A metric the baseline does not hold fails, except those
+    older baselines predate (the step-response metrics and ``stable``).
 
     Args:
         scenario: Name used in the checks.
@@ -180,21 +226,19 @@ def compare_metrics(
     tolerances = dict(tolerances or {})
     checks = []
     for metric, value in now.items():
-        if metric in TIMING_METRICS and metric not in tolerances:
+        if metric in WALL_CLOCK_METRICS and metric not in tolerances:
             continue
         tol = {**DEFAULT_TOLERANCES.get(metric, {"rel": 1e-3, "abs": 1e-9}), **tolerances.get(metric, {})}
         rel, ab = float(tol.get("rel", 0.0)), float(tol.get("abs", 0.0))
-        base = baseline.get(metric)
-        if base is None and metric in RESPONSE_METRICS:
-            continue  # step-response metrics newer than the baseline: `regress --update` stores them
-        value = float(value)
-        if base is None or math.isnan(base):
-            ok = False
-        elif math.isinf(base) or math.isinf(value):
-            ok = base == value
-        else:
-            ok = abs(value - base) <= ab + rel * abs(base)
-        checks.append(MetricCheck(scenario, metric, base, value, rel, ab, ok))
+        if metric not in baseline:
+            if metric in RESPONSE_METRICS or metric in FLAG_METRICS:
+                continue  # metrics newer than the baseline: `regress --update` stores them
+            why = "not in the baseline: record it with --update"
+            checks.append(MetricCheck(scenario, metric, None, value, rel, ab, False, why))
+            continue
+        base = baseline[metric]
+        ok, why = _check(metric, value, base, rel, ab)
+        checks.append(MetricCheck(scenario, metric, base, value, rel, ab, ok, why))
     return checks
 
 
@@ -294,24 +338,22 @@ def run_regression(
     return report
 
 
-def _fmt(v: float | None) -> str:
-    if v is None:
-        return "—"
-    if math.isinf(v):
-        return "inf" if v > 0 else "-inf"
-    return f"{v:.6g}"
+def _fmt(v: float | bool | None, metric: str = "") -> str:
+    return format_metric(metric, v)
 
 
 def format_report(report: RegressionReport) -> str:
     """The table (scenario, metric, baseline, now, tolerance, verdict) and a summary line."""
     rows = [("scenario", "metric", "baseline", "now", "tolerance", "verdict")]
     for c in report.checks:
-        rows.append((c.scenario, c.metric, _fmt(c.baseline), _fmt(c.now), c.tolerance, "ok" if c.passed else "FAIL"))
+        verdict = "ok" if c.passed else "FAIL"
+        rows.append((c.scenario, c.metric, _fmt(c.baseline, c.metric), _fmt(c.now, c.metric), c.tolerance, verdict))
     widths = [max(len(r[i]) for r in rows) for i in range(6)]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip() for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
     if not report.checks:
         lines = []
+    lines.extend(f"FAIL {c.describe()}" for c in report.failures if c.note)
     where = f" {report.folder}" if report.folder is not None else " DIR"
     for label in report.missing:
         lines.append(f"{label}: no baseline (record one with 'shinro-ctrl regress{where} --update')")

@@ -61,7 +61,7 @@ def assert_matches_baseline(
     failed = [c for c in checks if not c.passed]
     if failed:
         lines = [f"{len(failed)} metric(s) of {result.scenario} moved away from {path}:"]
-        lines += [f"  {c.metric}: baseline {c.baseline:.6g}, now {c.now:.6g}, tolerance {c.tolerance}" for c in failed]
+        lines += [f"  {c.describe()}" for c in failed]
         raise AssertionError("\n".join(lines))
 
 

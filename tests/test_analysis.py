@@ -436,3 +436,44 @@ def test_lqi_loop_includes_the_integrators():
     c = a.margins.channels[0]
     assert c.gain_margin_low == pytest.approx(lo, rel=1e-6) and c.gain_margin_high == pytest.approx(hi, rel=1e-6)
     assert a.responses["step: x"].steady_state_error == pytest.approx(0.0, abs=1e-9)  # integral action
+
+
+# ------------------------------------------------------------ design metrics (issue 23.3)
+def test_a_slow_response_is_followed_until_it_settles_as_python_control_measures_it():
+    # the cart's mode is slow (Q_x = 1e-4): it settles after ~390 s, far past 8 τ capped at 20,000 steps
+    plant = CartPole(dt=0.01)
+    ctrl = LQR.from_plant(plant, [1e-4, 1, 100, 1], [1.0])
+    s = analyze_controller(ctrl, tracked=["x"], state_names=plant.state_names).responses["step: x"]
+    A, B = ctrl.model.A, ctrl.model.B
+    loop = control.ss(A - B @ ctrl.K, B @ ctrl.K[:, [0]], np.eye(4)[[0]], 0, 0.01)
+    ref = control.step_info(loop, T=np.arange(0, 2000, 0.01), SettlingTimeThreshold=0.02, RiseTimeLimits=(0.1, 0.9))
+    assert s.settling_time == pytest.approx(ref["SettlingTime"], abs=0.05)
+    assert s.rise_time == pytest.approx(ref["RiseTime"], abs=0.05)
+    # at least the scenario's duration: the plotted response spans it
+    a = analyze_controller(ctrl, x_init=[0, 0, 0.1, 0], duration=30.0, state_names=plant.state_names)
+    assert a.t[-1] >= 30.0
+
+
+def test_a_step_an_underactuated_plant_cannot_hold_has_no_steady_state_error():
+    from shinro_ctrl.plants import DoublePendulum
+
+    # an acrobot (elbow torque only) balanced upright: a shoulder held at an offset is no equilibrium
+    dp = DoublePendulum(dt=0.01)
+    up = np.array([np.pi, np.pi, 0.0, 0.0])
+    A_c, B_c = dp.linearize(up, [0.0, 0.0])
+    acrobot = LQR(A_c, B_c[:, [1]], [100, 100, 1, 1], [1.0], discrete=False, x0=up)
+    a = analyze_controller(acrobot, tracked=["theta_1", "theta_2"], state_names=dp.state_names)
+    # the independent reference: no elbow torque holds the nonlinear plant at the shoulder offset
+    x_off = up + np.array([0.01, 0.0, 0.0, 0.0])
+    taus = np.linspace(-5.0, 5.0, 2001)
+    assert min(np.abs(dp.dynamics(x_off, [0.0, tau])).max() for tau in taus) > 0.1
+    for name in ("theta_1", "theta_2"):
+        r = a.responses[f"step: {name}"]
+        assert r.steady_state_error is None and r.settling_time is not None
+    line = next(row for row in a.format().splitlines() if "step: theta_1" in row)
+    assert line.split()[-1] == "n/a"
+    # a holdable step keeps its number: the cart-pole's x
+    plant = CartPole(dt=0.01)
+    ctrl = LQR.from_plant(plant, [10, 1, 100, 1], [0.1])
+    b = analyze_controller(ctrl, tracked=["x"], state_names=plant.state_names)
+    assert b.responses["step: x"].steady_state_error == pytest.approx(0.0, abs=1e-9)

@@ -140,3 +140,28 @@ def test_report_and_option_errors_are_one_line(extra, message, tmp_path, monkeyp
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert (tmp_path / "notes.html").read_text(encoding="utf-8") == "my notes"
+
+
+def test_the_response_plots_carry_units_and_the_tables_whole_names():
+    import numpy as np
+
+    from shinro_ctrl.analysis import analyze_controller, loop_margins
+    from shinro_ctrl.analysis.report import report_figures
+    from shinro_ctrl.controllers import LQR
+    from shinro_ctrl.plants import CartPole
+
+    plant = CartPole(dt=0.01)
+    ctrl = LQR.from_plant(plant, [10, 1, 100, 1, 1], [0.1], integral=["x"])
+    a = analyze_controller(ctrl, x_init=[0, 0, 0.2, 0], tracked=["x"])  # names from the plant, not passed
+    assert a.state_names == (*plant.state_names, "∫x") and a.input_names == plant.input_names
+    figures = report_figures(a)
+    response = next(fig for caption, fig in figures.items() if "response" in caption.lower())
+    labels = [ax.get_ylabel() for ax in response.axes if ax.get_visible()]
+    for want in ("x [m]", "x_dot [m/s]", "theta [rad]", "theta_dot [rad/s]", "∫x [m s]", "force [N] (input)"):
+        assert want in labels, (want, labels)
+    # a long input name is printed whole (it was cut to 'elbow_moto')
+    A, B = np.diag([0.9, 0.8]), np.eye(2)
+    text = loop_margins((A, B), 0.5 * np.eye(2), dt=0.01, input_names=["shoulder_motor", "elbow_motor"]).format()
+    rows = [line for line in text.splitlines() if "motor" in line]
+    assert rows[0].split()[0] == "shoulder_motor" and rows[1].split()[0] == "elbow_motor"
+    assert len({line.index(" ", 4 + len("shoulder_motor")) for line in rows}) == 1  # the columns still align

@@ -122,9 +122,10 @@ def test_cli_page_documents_every_subcommand_and_option():
 
 
 def test_scenarios_page_documents_every_table_key_and_reference_kind():
-    from shinro_ctrl.config import ENGINE_KEYS, METRICS, REFERENCE_KINDS, SIM_KEYS, TABLES
+    from shinro_ctrl.config import ENGINE_KEYS, REFERENCE_KINDS, SIM_KEYS, TABLES
     from shinro_ctrl.controllers import CONTROLLERS, controller_class, controller_keys
     from shinro_ctrl.plants import PLANT_ALIASES, PLANTS
+    from shinro_ctrl.sim.metrics import METRICS
 
     text = (DOCS / "scenarios.md").read_text(encoding="utf-8")
     for table in TABLES:

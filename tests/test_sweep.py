@@ -12,9 +12,9 @@ import sys
 import numpy as np
 import pytest
 
-from shinro_ctrl.config import METRICS
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.sim import RobotSim
+from shinro_ctrl.sim.metrics import METRICS
 from shinro_ctrl.sweep import (
     TABLE_METRICS,
     WALL_CLOCK_METRICS,

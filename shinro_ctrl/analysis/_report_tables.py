@@ -23,7 +23,9 @@ pre{background:#f6f6f6;padding:.6em;overflow-x:auto}
 """
 
 
-def _num(v: float, fmt: str = ".4g") -> str:
+def _num(v: float | None, fmt: str = ".4g") -> str:
+    if v is None:
+        return "n/a"
     if isinstance(v, float) and math.isnan(v):
         return "–"
     if isinstance(v, float) and math.isinf(v):
@@ -93,7 +95,7 @@ def _structure_tables(a: DesignAnalysis) -> list[str]:
         lam = md.eigenvalue
         mrows.append(
             [
-                f"{lam.real:+.6g} {lam.imag:+.4g}j",
+                f"{lam.real:+.6g} {lam.imag:+.4g}j" + (f" (×{md.multiplicity})" if md.multiplicity > 1 else ""),
                 e(md.state),
                 "stable" if md.stable else '<span class="flag">unstable</span>',
                 f"{md.sigma_c:.2e}",
@@ -102,7 +104,10 @@ def _structure_tables(a: DesignAnalysis) -> list[str]:
                 "–" if md.observable is None else ("yes" if md.observable else '<span class="flag">NO</span>'),
             ]
         )
-    parts.append("<p>PBH test per open-loop mode (σ_min relative to ‖[A, B]‖ and ‖[A; C]‖):</p>")
+    parts.append(
+        "<p>PBH test per distinct open-loop eigenvalue (×k: repeated k times; σ_min of the balanced "
+        "[A − λI, B] and [A − λI; C] relative to their norms):</p>"
+    )
     parts.append(
         _table(
             ["λ (open loop)", "dominant state", "", "σ_min [A−λI, B]", "controllable", "σ_min [A−λI; C]", "observable"],
@@ -170,7 +175,7 @@ def _response_table(a: DesignAnalysis) -> list[str]:
     parts = []
     parts.append("<h2>Linear closed-loop response metrics</h2>")
     rrows = [
-        [e(k), _num(v.rise_time), f"{v.overshoot:.2f}", _num(v.settling_time), f"{v.steady_state_error:.3g}"]
+        [e(k), _num(v.rise_time), f"{v.overshoot:.2f}", _num(v.settling_time), _num(v.steady_state_error, ".3g")]
         for k, v in a.responses.items()
     ]
     parts.append(

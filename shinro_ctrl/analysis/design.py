@@ -16,6 +16,7 @@ over the horizon ``N`` from the terminal cost ``P_f``,
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -131,23 +132,45 @@ class DesignAnalysis:
         out += [f"structure{obs}:", self.structure.format()]
         out += ["loop margins (loop broken at the plant input):", self.margins.format()]
         out.append("linear closed-loop response metrics:")
-        out.append(f"  {'response':24s} {'rise [s]':>9s} {'overshoot':>10s} {'settle 2%':>10s} {'ss error':>10s}")
+        w = max([24, *(len(label) for label in self.responses)])
+        out.append(f"  {'response':{w}s} {'rise [s]':>9s} {'overshoot':>10s} {'settle 2%':>10s} {'ss error':>10s}")
         for label, s in self.responses.items():
             out.append(
-                f"  {label[:24]:24s} {_g(s.rise_time):>9s} {s.overshoot:9.2f}% {_g(s.settling_time):>10s} "
-                f"{s.steady_state_error:10.3g}"
+                f"  {label:{w}s} {_g(s.rise_time):>9s} {s.overshoot:9.2f}% {_g(s.settling_time):>10s} "
+                f"{_g(s.steady_state_error, '.3g'):>10s}"
             )
         return "\n".join(out)
 
 
-def _g(v: float) -> str:
-    return "inf" if math.isinf(v) else f"{v:.4g}"
+def _g(v: float | None, fmt: str = ".4g") -> str:
+    return "n/a" if v is None or not math.isfinite(v) else format(v, fmt)
+
+
+#: Longest linear response [steps of dt] :func:`analyze_controller` extends to while a response has not settled.
+MAX_RESPONSE_STEPS = 10_000_000
 
 
 def _horizon(poles: PoleTable, dt: float, cap: int = 20000) -> int:
     taus = [r.tau for r in poles.rows if math.isfinite(r.tau)]
     T = 8.0 * max(taus, default=1.0)
     return int(min(cap, max(50, math.ceil(T / dt))))
+
+
+def _holdable(A: np.ndarray, B: np.ndarray, j: int, n_p: int, discrete: bool) -> bool:
+    """True when a unit step in state ``j`` (the other references at the operating point) is an equilibrium.
+
+    The reference ``δx = e_j`` can be held iff some ``δu`` solves ``(A − I) e_j + B δu = 0``
+    (discrete) or ``A e_j + B δu = 0`` (continuous) on the plant's own states. An
+    underactuated plant cannot hold most states at an offset (a pendulum tilted at rest):
+    its steady-state error for that step is then not applicable.
+    """
+    Ap, Bp = A[:n_p, :n_p], B[:n_p]
+    col = Ap[:, j] - (1.0 if discrete else 0.0) * np.eye(n_p)[:, j]
+    size = float(np.linalg.norm(col))
+    if size == 0.0:
+        return True
+    du = np.linalg.lstsq(Bp, -col, rcond=None)[0]
+    return bool(np.linalg.norm(col + Bp @ du) <= 1e-8 * (size + float(np.linalg.norm(Bp)) * float(np.linalg.norm(du))))
 
 
 def analyze_controller(
@@ -168,18 +191,30 @@ def analyze_controller(
             response; default none (only reference steps).
         measured: Names of measured states for the observability test (default: skip it).
         tracked: Names of states whose unit reference step is analysed (default none).
-        state_names, input_names: Labels (default the controller's model's plant names, else ``x[i]``/``u[i]``).
-        duration: Length of the linear responses [s] (default 8 × the slowest time constant).
+        state_names, input_names: Labels (default the controller's, else its model's: the plant's names; else
+            ``x[i]``/``u[i]``).
+        duration: Least length of the linear responses [s] (e.g. the scenario's duration). Default and
+            at least: 8 × the slowest time constant; extended (doubling, up to
+            :data:`MAX_RESPONSE_STEPS`) until every response settles.
 
     Returns:
         A :class:`DesignAnalysis`. A continuous LQR is analysed on its
         continuous model (margins at ``s = jω``, responses by ``c2d`` at 1 ms).
+        A reference step in a state the plant cannot hold at an offset (no
+        input makes it an equilibrium) has ``steady_state_error`` None
+        (printed ``n/a``).
     """
     A, B, K, dt = feedback_gain(controller)
     n, m = B.shape
     x0 = np.asarray(getattr(controller, "x0", np.zeros(n)), dtype=float)
     n_p = x0.shape[0]  # plant states; n > n_p when the loop carries integrators (LQI)
-    snames = tuple(state_names or getattr(controller, "state_names", None) or (f"x[{i}]" for i in range(n_p)))
+    model = getattr(controller, "model", None)  # the plant's names travel with the model it was designed on
+    snames = tuple(
+        state_names
+        or getattr(controller, "state_names", None)
+        or getattr(model, "state_names", None)
+        or (f"x[{i}]" for i in range(n_p))
+    )
     # a reference step δr (n_p,) enters the loop as E δr: u = −K_x (x − r) − K_i z, z⁺ = z + dt (x − r)[idx]
     E = B @ K[:, :n_p]
     lqi = getattr(controller, "_lqi", None)
@@ -189,7 +224,12 @@ def analyze_controller(
         x0 = np.concatenate([x0, np.zeros(n - n_p)])
         if x_init is not None:
             x_init = np.concatenate([np.asarray(x_init, dtype=float), np.zeros(n - n_p)])
-    inames = tuple(input_names or getattr(controller, "input_names", None) or (f"u[{i}]" for i in range(m)))
+    inames = tuple(
+        input_names
+        or getattr(controller, "input_names", None)
+        or getattr(model, "input_names", None)
+        or (f"u[{i}]" for i in range(m))
+    )
     lam = np.linalg.eigvals(A - B @ K)
     poles = pole_table(lam, dt)
     C = None
@@ -238,30 +278,61 @@ def _linear_responses(
         step_dt, Ad, Bd, Kd = dt, A, B, K
         Bc_step = E
     ptab = poles if dt is not None else pole_table(np.linalg.eigvals(Ad - Bd @ Kd), step_dt)
-    steps = _horizon(ptab, step_dt) if duration is None else max(2, round(duration / step_dt))
+    steps = _horizon(ptab, step_dt)
+    if duration is not None:
+        steps = max(steps, round(duration / step_dt))
+    steps = min(steps, MAX_RESPONSE_STEPS)
     t = np.arange(steps + 1) * step_dt
-    responses: dict[str, StepMetrics] = {}
+    Acl = Ad - Bd @ Kd
     x_lin = np.zeros((steps + 1, n))
+    starts: dict[str, tuple[np.ndarray, int, float, float]] = {}  # label -> (start, index, final, target)
     if x_init is not None:
         d0 = np.asarray(x_init, dtype=float) - x0
-        X = closed_loop_response(Ad, Bd, Kd, d0, steps)
-        x_lin = X + x0
+        x_lin = closed_loop_response(Ad, Bd, Kd, d0, steps) + x0
         scale = max(np.abs(d0).max(), 1e-300)
         for i in np.flatnonzero(np.abs(d0) > 1e-9 * scale):
-            responses[f"initial: {snames[i]}"] = step_metrics(t, X[:, i], initial=d0[i], final=0.0, target=0.0)
-    Acl = Ad - Bd @ Kd
+            starts[f"initial: {snames[i]}"] = (d0, int(i), 0.0, 0.0)
+    steps_of: dict[str, int] = {}
     for name in tracked or ():
         if name not in snames[:n_p]:
             raise InvalidArgument(f"tracked: unknown state '{name}'; states: {', '.join(snames)}")
         j = snames.index(name)
-        X = np.zeros((steps + 1, n))
-        for k in range(steps):
-            X[k + 1] = Acl @ X[k] + Bc_step[:, j]
         try:
             x_ss = np.linalg.solve(np.eye(n) - Acl, Bc_step[:, j])  # exact steady state of the unit step
-            if abs(x_ss[j]) < 1e-6:  # the loop does not hold this state off its equilibrium: no step response
-                continue
-            responses[f"step: {name}"] = step_metrics(t, X[:, j], initial=0.0, final=float(x_ss[j]), target=1.0)
-        except InvalidArgument:  # the state does not move at all: nothing to measure
+        except np.linalg.LinAlgError:
             continue
+        if abs(x_ss[j]) < 1e-6:  # the loop does not hold this state off its equilibrium: no step response
+            continue
+        starts[f"step: {name}"] = (-x_ss, j, float(x_ss[j]), 1.0)  # the step: x − x_ss from −x_ss to 0
+        steps_of[f"step: {name}"] = j
+    responses: dict[str, StepMetrics] = {}
+    for label, (start, i, final, target) in starts.items():
+        metrics = _settled_response(Acl, start, i, final, target, steps, step_dt)
+        if metrics is None:
+            continue  # the state does not move at all: nothing to measure
+        if label in steps_of and not _holdable(A, B, i, n_p, dt is not None):
+            metrics = dataclasses.replace(metrics, steady_state_error=None)  # cannot be held at an offset
+        responses[label] = metrics
     return t, x_lin, responses
+
+
+def _settled_response(
+    Acl: np.ndarray, start: np.ndarray, i: int, final: float, target: float, steps: int, dt: float
+) -> StepMetrics | None:
+    """The metrics of state ``i`` of ``δx_{k+1} = Acl δx_k`` from ``start``, shifted so it ends at ``final``.
+
+    A step response ``x_{k+1} = Acl x_k + b`` from 0 is ``x_ss + δx`` with ``δx`` from ``−x_ss``.
+    Sampled every ``stride`` steps (``Acl^stride``), the stride doubling, ``steps`` samples each
+    time, until the response settles or spans :data:`MAX_RESPONSE_STEPS`.
+    """
+    stride, P = 1, Acl
+    while True:
+        X = closed_loop_response(P, np.zeros((Acl.shape[0], 1)), np.zeros((1, Acl.shape[0])), start, steps)
+        t = np.arange(steps + 1) * dt * stride
+        try:
+            m = step_metrics(t, X[:, i] + final, initial=float(start[i]) + final, final=final, target=target)
+        except InvalidArgument:
+            return None
+        if m.settling_time is not None or 2 * stride * steps > MAX_RESPONSE_STEPS:
+            return m
+        stride, P = 2 * stride, P @ P

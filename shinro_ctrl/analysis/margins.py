@@ -103,14 +103,15 @@ class LoopMargins:
 
     def format(self) -> str:
         """A text table, one row per channel plus the MIMO figures."""
+        w = max([10, *(len(c.name) for c in self.channels)])  # names whole (elbow_motor), columns aligned
         head = (
-            f"  {'input':10s} {'GM low':>9s} {'GM high':>9s} {'ω_pc':>8s} {'PM [°]':>8s} {'ω_gc':>8s} "
+            f"  {'input':{w}s} {'GM low':>9s} {'GM high':>9s} {'ω_pc':>8s} {'PM [°]':>8s} {'ω_gc':>8s} "
             f"{'disk α':>7s} {'disk GM':>15s} {'disk PM':>8s}"
         )
         lines = [head]
         for c in self.channels:
             lines.append(
-                f"  {c.name[:10]:10s} {_f(c.gain_margin_low):>9s} {_f(c.gain_margin_high):>9s} "
+                f"  {c.name:{w}s} {_f(c.gain_margin_low):>9s} {_f(c.gain_margin_high):>9s} "
                 f"{_f(c.w_phase_crossover):>8s} {_f(c.phase_margin):>8s} {_f(c.w_gain_crossover):>8s} "
                 f"{c.disk_margin:7.3f} {_pair(c.disk_gain_margin):>15s} {c.disk_phase_margin:7.1f}°"
             )

@@ -27,6 +27,7 @@ from shinro_ctrl.analysis._report_tables import _CSS, _num, _tables
 from shinro_ctrl.analysis.design import DesignAnalysis
 from shinro_ctrl.analysis.margins import _crossings, _siso_response, frequency_grid, loop_statespace, sensitivity_peaks
 from shinro_ctrl.analysis.response import closed_loop_response
+from shinro_ctrl.plots.units import axis_label, unit_of
 
 __all__ = ["render_report", "report_figures", "write_report"]
 
@@ -34,6 +35,14 @@ _LIN = "#1f77b4"
 _NL = "#d62728"
 _GRID = {"color": "0.85", "linewidth": 0.6}
 _BOX = {"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.85}
+
+
+def _state_label(name: str) -> str:
+    """``name [unit]``; an LQI integrator ``∫x`` in the unit of ``x`` times seconds."""
+    if name.startswith("∫"):
+        unit = unit_of(name[1:])
+        return axis_label(name, f"{unit} s" if unit else "s")
+    return axis_label(name)
 
 
 def _figure(w: float, h: float) -> Any:
@@ -292,7 +301,7 @@ def _responses(a: DesignAnalysis, nonlinear: Any, x_ref: Any, u_min: Any, u_max:
             ax.plot(
                 t_nl if t_nl is not None else t, np.asarray(x_ref)[:, i], color="0.5", lw=0.8, ls=":", label="reference"
             )
-        ax.set_ylabel(a.state_names[i])
+        ax.set_ylabel(_state_label(a.state_names[i]))
         ax.grid(True, **_GRID)
     for j in range(m):
         ax = axes[n + j]
@@ -302,7 +311,7 @@ def _responses(a: DesignAnalysis, nonlinear: Any, x_ref: Any, u_min: Any, u_max:
         for b in (u_min, u_max):
             if b is not None and np.isfinite(np.asarray(b, dtype=float)[j]):
                 ax.axhline(float(np.asarray(b)[j]), color="k", lw=0.8, ls="-.")
-        ax.set_ylabel(f"{a.input_names[j]} (input)")
+        ax.set_ylabel(axis_label(a.input_names[j], is_input=True) + " (input)")
         ax.grid(True, **_GRID)
     for k in range(panels, len(axes)):
         axes[k].set_visible(False)

@@ -4,10 +4,10 @@ For a response ``y(t)`` from ``y_0 = y(t_0)`` to ``y_f`` (by default the last
 sample), with the normalized progress ``s(t) = (y(t) − y_0) / (y_f − y_0)``:
 
 * rise time: first time ``s ≥ 0.9`` minus first time ``s ≥ 0.1`` (crossings
-  interpolated linearly between samples);
+  interpolated linearly between samples; None when either level is never reached);
 * overshoot: ``100 · max(0, max s − 1)`` [%];
 * settling time: the time after which ``|y − y_f| ≤ 0.02 |y_f − y_0|`` holds
-  (the first sample after the last one outside the band);
+  (the first sample after the last one outside the band; None when the last sample is outside);
 * steady-state error: ``target − y_f`` (0 when no target is given).
 
 For a unit step from 0 these are the definitions of ``control.step_info``
@@ -35,28 +35,29 @@ class StepMetrics:
     """Result of :func:`step_metrics` (times in the units of ``t``).
 
     Attributes:
-        rise_time: 10–90 % rise time (``inf`` if 90 % is never reached).
+        rise_time: 10–90 % rise time (None if 10 % or 90 % is never reached).
         overshoot: Overshoot [%] past the final value.
-        settling_time: 2 % settling time (``inf`` if the last sample is outside the band).
-        steady_state_error: ``target − y_final``.
+        settling_time: 2 % settling time (None if the last sample is outside the band).
+        steady_state_error: ``target − y_final`` (None when not applicable: see
+            :func:`~shinro_ctrl.analysis.analyze_controller`).
         peak: Largest ``|y − y_0|`` relative excursion value, i.e. ``y`` at the peak of ``s``.
         peak_time: Time of that peak.
         final_value: ``y_final``.
     """
 
-    rise_time: float
+    rise_time: float | None
     overshoot: float
-    settling_time: float
-    steady_state_error: float
+    settling_time: float | None
+    steady_state_error: float | None
     peak: float
     peak_time: float
     final_value: float
 
 
-def _crossing(t: np.ndarray, s: np.ndarray, level: float) -> float:
+def _crossing(t: np.ndarray, s: np.ndarray, level: float) -> float | None:
     idx = np.flatnonzero(s >= level)
     if idx.size == 0:
-        return math.inf
+        return None
     k = int(idx[0])
     if k == 0:
         return float(t[0])
@@ -106,18 +107,19 @@ def step_metrics(
     if span == 0.0 or not math.isfinite(span):
         raise InvalidArgument(f"step_metrics: the response has no step (initial {y0:g}, final {yf:g})")
     s = (y - y0) / span
-    rise_time = _crossing(t, s, rise[1]) - _crossing(t, s, rise[0])
+    t_lo, t_hi = _crossing(t, s, rise[0]), _crossing(t, s, rise[1])
+    rise_time = None if t_lo is None or t_hi is None else t_hi - t_lo
     k_peak = int(np.argmax(s))
     overshoot = 100.0 * max(0.0, float(s[k_peak]) - 1.0)
     outside = np.flatnonzero(np.abs(y - yf) > settle * abs(span))
     if outside.size == 0:
         settling = float(t[0])
     elif outside[-1] == t.size - 1:
-        settling = math.inf
+        settling = None
     else:
         settling = float(t[outside[-1] + 1])
     return StepMetrics(
-        float(rise_time),
+        rise_time,
         overshoot,
         settling,
         0.0 if target is None else float(target) - yf,

@@ -157,9 +157,9 @@ def _evaluate(doc: dict[str, Any], source: str | None, engine: str | None) -> di
         "wn_max": poles.wn_range[1],
         "rms_error": metrics["rms_error"],
         "max_abs_input": metrics["max_abs_input"],
-        "settling_time": metrics["settling_time"],
+        "settling_time": math.nan if metrics["settling_time"] is None else metrics["settling_time"],  # table: NaN
         "overshoot": metrics.get("overshoot", math.nan),
-        "rise_time": metrics.get("rise_time", math.nan),
+        "rise_time": math.nan if metrics.get("rise_time") is None else metrics["rise_time"],
     }
 
 

@@ -117,6 +117,7 @@ def _design_analysis(args: argparse.Namespace, sim) -> int:
         tracked=tracked,
         state_names=plant.state_names,
         input_names=plant.input_names,
+        duration=sim.scenario.sim.duration,
     )
     if args.kind == "mpc":
         print("linear analysis of the unconstrained first move (finite-horizon Riccati gain):")

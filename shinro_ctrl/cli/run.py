@@ -154,15 +154,14 @@ def _run_both(args: argparse.Namespace, config: Any) -> int:
 
 def format_metric_comparison(a: dict[str, float], b: dict[str, float], names: tuple[str, str]) -> str:
     """Two runs' metrics side by side with their difference ``b − a``."""
+    from shinro_ctrl.sim.metrics import format_metric
+
     rows = [f"  {'metric':22s} {names[0]:>14s} {names[1]:>14s} {'difference':>12s}"]
     for key in a:
-        va, vb = a[key], b.get(key, math.nan)
-
-        def show(v: float) -> str:
-            return "never" if isinstance(v, float) and math.isinf(v) else f"{v:.6g}"
-
-        diff = vb - va if math.isfinite(va) and math.isfinite(vb) else math.nan
-        rows.append(f"  {key:22s} {show(va):>14s} {show(vb):>14s} {'—' if math.isnan(diff) else f'{diff:+.3g}':>12s}")
+        va, vb = a[key], b.get(key)
+        numbers = all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in (va, vb))
+        diff = f"{vb - va:+.3g}" if numbers else "—"
+        rows.append(f"  {key:22s} {format_metric(key, va):>14s} {format_metric(key, vb):>14s} {diff:>12s}")
     return "\n".join(rows)
 
 

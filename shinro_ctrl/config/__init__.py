@@ -26,8 +26,6 @@ from shinro_ctrl.config.context import _Ctx as _Ctx  # private (not in __all__);
 from shinro_ctrl.config.parse import load_scenario, parse_scenario
 from shinro_ctrl.config.schema import (
     ENGINE_KEYS,
-    METRICS,
-    OUTPUT_FEEDBACK_METRICS,
     REFERENCE_KINDS,
     SIM_KEYS,
     TABLES,
@@ -53,8 +51,6 @@ __all__ = [
     "ENGINE_KEYS",
     "MAX_ELEMENTS",
     "MAX_NESTING",
-    "METRICS",
-    "OUTPUT_FEEDBACK_METRICS",
     "REFERENCE_KINDS",
     "SIM_KEYS",
     "SIZE_LIMITS",

@@ -11,8 +11,6 @@ from typing import Any
 from shinro_ctrl.config.context import _Ctx
 from shinro_ctrl.config.schema import (
     ENGINE_KEYS,
-    METRICS,
-    OUTPUT_FEEDBACK_METRICS,
     TABLES,
     ControllerConfig,
     EngineConfig,
@@ -175,6 +173,8 @@ def _parse_controller(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> Controll
 
 def _parse_regression(ctx: _Ctx, doc: Mapping[str, Any]) -> dict[str, dict[str, float]]:
     """``[regression]``: metric → ``{"rel": r, "abs": a}`` tolerances."""
+    from shinro_ctrl.sim.metrics import METRICS, OUTPUT_FEEDBACK_METRICS
+
     regression: dict[str, dict[str, float]] = {}
     for metric, tol in dict(doc.get("regression", {})).items():
         if metric not in METRICS and not metric.startswith(OUTPUT_FEEDBACK_METRICS):

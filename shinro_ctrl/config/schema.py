@@ -8,8 +8,6 @@ from typing import Any
 
 __all__ = [
     "ENGINE_KEYS",
-    "METRICS",
-    "OUTPUT_FEEDBACK_METRICS",
     "REFERENCE_KINDS",
     "SIM_KEYS",
     "TABLES",
@@ -44,19 +42,6 @@ REFERENCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "square": (("side", "speed"), ("center", "axes")),
     "waypoints": (("points", "times"), ("interpolation",)),
 }
-METRICS = (
-    "rms_error",
-    "max_error",
-    "final_error",
-    "settling_time",
-    "max_abs_input",
-    "constraint_violations",
-    "max_violation",
-    "solve_time_median_s",
-)
-#: Metrics only output-feedback runs report (``estimation_rms`` and ``estimation_rms_<state>``); a
-#: ``[regression]`` table may hold tolerances for them, sweep tables do not list them.
-OUTPUT_FEEDBACK_METRICS = ("estimation_rms",)
 
 
 #: ``[sim] disturbance``: a table or a list of tables (parsed into DisturbanceSpec; checked structurally here).

@@ -11,7 +11,11 @@ The contract:
 
 * ``from_plant(plant, **options)`` (classmethod, abstract): build from a plant;
   its keyword names (or :meth:`Controller.option_keys`) are the keys a
-  ``[controller]`` table may hold.
+  ``[controller]`` table may hold. Every subclass's ``from_plant`` first
+  refuses anything but a plant instance (None, a plant class) with a clear
+  ``TypeError`` (:func:`check_plant`, applied when the class is defined); a
+  controller that does not carry the affine term ``f(x0, u0)`` of its
+  linearization calls :func:`check_operating_point`.
 * ``__call__(x, ref=None) -> u`` (abstract): the input ``(m,)`` for the state
   ``(n,)`` the loop feeds it (the estimate ``x̂``); ``ref`` is a state
   ``(n,)`` or, with ``preview = p > 0``, the reference samples ``(p + 1, n)``
@@ -33,16 +37,75 @@ The contract:
 from __future__ import annotations
 
 import abc
+import functools
+import inspect
+import threading
 from typing import Any, ClassVar
 
 import numpy as np
 
+from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.registry import Registry
 
-__all__ = ["CONTROLLER_REGISTRY", "Controller"]
+__all__ = ["CONTROLLER_REGISTRY", "CallGuard", "Controller", "check_operating_point", "check_plant"]
+
+
+class CallGuard:
+    """Detects a call entering a stateful object while another thread is inside it.
+
+    The code that reads and writes the object's state or buffers runs inside
+    ``if not guard.acquire(False): raise guard.refused()`` ... ``guard.release()``
+    (a non-blocking lock: about 0.1 µs, the bound C methods of a
+    :class:`threading.Lock`), or ``with guard:`` where a few tenths of a µs do
+    not matter. A second thread is refused with
+    :class:`~shinro_ctrl.errors.ConcurrentUse` instead of interleaving. A copy
+    or a pickle of the object gets a fresh guard.
+
+    Args:
+        what: The object's name, for the message.
+    """
+
+    __slots__ = ("acquire", "release", "what")
+
+    def __init__(self, what: str):
+        lock = threading.Lock()
+        self.acquire, self.release, self.what = lock.acquire, lock.release, what
+
+    def refused(self) -> ConcurrentUse:
+        """The error for a call that found the object busy."""
+        return ConcurrentUse(
+            f"{self.what} was called from two threads at once: it keeps state between calls, so its calls "
+            "must come in order from one thread; use one object per thread"
+        )
+
+    def __enter__(self) -> None:
+        if not self.acquire(False):
+            raise self.refused()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+    def __reduce__(self) -> tuple[type, tuple[str]]:
+        return CallGuard, (self.what,)
+
 
 #: Every concrete :class:`Controller` subclass defined so far, by class name (``Controller.__init_subclass__``).
 CONTROLLER_REGISTRY: Registry[Controller] = Registry("controller", "shinro_ctrl.controllers")
+
+
+def _checks_plant(func: Any) -> Any:
+    """``from_plant`` preceded by :func:`check_plant` (every controller's, applied by ``__init_subclass__``)."""
+    if getattr(func, "_checks_plant", False):
+        return func
+
+    @functools.wraps(func)
+    def from_plant(cls: type, *args: Any, **kwargs: Any) -> Any:
+        if args or "plant" in kwargs:
+            check_plant(args[0] if args else kwargs["plant"], f"{cls.__name__}.from_plant")
+        return func(cls, *args, **kwargs)
+
+    from_plant._checks_plant = True  # type: ignore[attr-defined]
+    return from_plant
 
 
 class Controller(abc.ABC):
@@ -70,11 +133,26 @@ class Controller(abc.ABC):
     u0: np.ndarray | None = None
     model: Any = None
 
+    def __setattr__(self, name: str, value: Any) -> None:
+        """A public array attribute (a gain, a model matrix, a bound) is stored as a read-only copy.
+
+        The caller can read ``ctrl.K`` but not change the controller through it (``ctrl.K[0, 0] = 5``
+        raises ``ValueError: assignment destination is read-only``), nor does the controller keep a
+        view of the caller's own array. Rebinding the attribute is still possible; private
+        (``_name``) arrays are the controller's working buffers and stay writable.
+        """
+        if type(value) is np.ndarray and value.flags.writeable and not name.startswith("_"):
+            value = value.copy()
+            value.flags.writeable = False
+        object.__setattr__(self, name, value)
+
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         if "stateful" not in cls.__dict__:
             # default: a controller with its own reset() carries memory between calls
             cls.stateful = any("reset" in c.__dict__ for c in cls.__mro__ if c is not Controller and c is not object)
+        if isinstance(cls.__dict__.get("from_plant"), classmethod):
+            cls.from_plant = classmethod(_checks_plant(cls.__dict__["from_plant"].__func__))
         CONTROLLER_REGISTRY.register(cls)  # skips abstract and private classes
 
     @classmethod
@@ -108,3 +186,98 @@ class Controller(abc.ABC):
 
     def reset(self) -> None:  # noqa: B027 - an optional hook: a memoryless controller has nothing to forget
         """Forget any internal memory (warm starts, previous input)."""
+
+
+def check_plant(plant: Any, who: str) -> None:
+    """Raise a clear :class:`TypeError` unless ``plant`` is a plant instance (what every ``from_plant`` needs).
+
+    Args:
+        plant: The argument given to ``from_plant``.
+        who: ``"LQR.from_plant"`` etc., for the message.
+    """
+    from shinro_ctrl.plants.base import Plant
+
+    if isinstance(plant, Plant):
+        return
+    if inspect.isclass(plant) and issubclass(plant, Plant):
+        raise TypeError(f"{who}() expects a plant instance, got the class {plant.__name__}; pass {plant.__name__}()")
+    if plant is None:
+        raise TypeError(f"{who}() expects a plant instance (e.g. CartPole()), got None")
+    raise TypeError(f"{who}() expects a plant instance (e.g. CartPole()), got {type(plant).__name__}: {plant!r:.60}")
+
+
+#: Relative size of ``f(x0, u0)`` below which an operating point counts as an equilibrium.
+EQUILIBRIUM_TOL = 1e-6
+
+
+def _names(names: Any, size: int, letter: str) -> list[str]:
+    given = list(names) if names is not None else []
+    return [str(given[i]) if i < len(given) else f"{letter}[{i}]" for i in range(size)]
+
+
+def check_operating_point(plant: Any, x0: np.ndarray, u0: np.ndarray, who: str) -> None:
+    """Raise :class:`InvalidArgument` unless ``(x0, u0)`` is an equilibrium, ``f(x0, u0) = 0``.
+
+    A controller designed on the linearization ``δẋ = A δx + B δu`` at a point
+    where ``f(x0, u0) ≠ 0`` drops the constant term ``f(x0, u0)``: the loop
+    is pushed by it without knowing (a cart-pole "held" at a velocity, or with
+    a force on the cart, falls). Controllers that carry the affine term
+    (:class:`~shinro_ctrl.controllers.mpc.LinearMPC`'s ``offset``) do not need
+    this check; the others call it from ``from_plant``.
+
+    The residual counts when ``‖f‖∞ > EQUILIBRIUM_TOL · (1 + ‖A‖∞ ‖x0‖∞ + ‖B‖∞ ‖u0‖∞)``
+    (the Jacobians at the point). The message names the residual by state
+    and, when one exists, the equilibrium input nearest to ``u0`` (the
+    least-squares solution of ``f(x0, u) = 0`` by Gauss–Newton, whose
+    residual is within the same tolerance); otherwise it says no input holds
+    ``x0`` at rest.
+
+    Args:
+        plant: The plant.
+        x0: Operating state ``(n,)``.
+        u0: Operating input ``(m,)``.
+        who: The controller, for the message (``"LQR"``).
+    """
+    x0 = np.asarray(x0, dtype=float)
+    u0 = np.asarray(u0, dtype=float)
+    with np.errstate(all="ignore"):
+        f = np.asarray(plant.dynamics(x0, u0), dtype=float).reshape(-1)
+        A_c, B_c = plant.linearize(x0, u0)
+    norm = lambda v: float(np.max(np.abs(v), initial=0.0))  # noqa: E731
+    scale = 1.0 + float(np.abs(A_c).sum(axis=1).max(initial=0.0)) * norm(x0)
+    scale += float(np.abs(B_c).sum(axis=1).max(initial=0.0)) * norm(u0)
+    tol = EQUILIBRIUM_TOL * scale
+    if not np.all(np.isfinite(f)) or norm(f) <= tol:
+        return  # a non-finite f is the linearization's error to report
+    snames = _names(getattr(plant, "state_names", None), x0.size, "x")
+    residual = ", ".join(f"d{snames[i]}/dt = {f[i]:.4g}" for i in np.flatnonzero(np.abs(f) > tol))
+    head = (
+        f"{who}: the operating point is not an equilibrium: f(x0, u0) has {residual} "
+        f"(x0 = {np.array2string(x0, precision=4)}, u0 = {np.array2string(u0, precision=4)}); the linear design "
+        "drops this term, so the loop would drift or fall"
+    )
+    u, r = u0.copy(), f
+    best_u, best_r = u, norm(f)
+    for _ in range(20):  # Gauss–Newton on f(x0, u) = 0 from u0: the nearest equilibrium input
+        with np.errstate(all="ignore"):
+            step = np.linalg.lstsq(B_c, -r, rcond=None)[0]
+            u = u + step
+            r = np.asarray(plant.dynamics(x0, u), dtype=float).reshape(-1)
+        if not np.all(np.isfinite(r)):
+            break
+        if norm(r) < best_r:
+            best_u, best_r = u.copy(), norm(r)
+        if best_r <= tol or norm(step) <= 1e-12 * (1.0 + norm(u)):
+            break
+        with np.errstate(all="ignore"):
+            B_c = plant.linearize(x0, u)[1]
+    if best_r <= tol:
+        raise InvalidArgument(
+            f"{head}; the nearest equilibrium input is u0 = [{', '.join(f'{v:.10g}' for v in best_u)}] "
+            "(pass it as u0, or leave u0 out where the plant's equilibrium() gives it)"
+        )
+    raise InvalidArgument(
+        f"{head}; no input holds x0 at rest (the least-squares input "
+        f"{np.array2string(best_u, precision=4)} leaves |f| = {best_r:.3g}): choose an x0 at rest, e.g. with zero "
+        "velocities, or a controller that carries the affine term (LinearMPC)"
+    )

@@ -8,9 +8,10 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from shinro_ctrl.controllers.base import Controller
+from shinro_ctrl.analysis.structure import check_detectable, check_stabilizable
+from shinro_ctrl.controllers.base import CallGuard, Controller, check_operating_point
 from shinro_ctrl.controllers.lqi import integral_action
-from shinro_ctrl.errors import InvalidArgument, NotStabilizable
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, NotStabilizable
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
 
 __all__ = ["LQR", "check_closed_loop", "check_detectable", "check_stabilizable", "riccati", "riccati_solution"]
@@ -79,83 +80,74 @@ def riccati(
     return K, S
 
 
-def check_stabilizable(A: np.ndarray, B: np.ndarray, *, discrete: bool, names: Any = None) -> None:
-    """Raise :class:`NotStabilizable` if an unstable mode of ``A`` is unreachable from ``B``.
-
-    PBH test: ``(A, B)`` is stabilizable iff ``rank [A − λI, B] = n`` for every
-    eigenvalue ``λ`` with ``|λ| ≥ 1`` (discrete) or ``Re λ ≥ 0`` (continuous).
-    The rank is judged by the smallest singular value relative to ``‖[A, B]‖``.
-
-    Args:
-        A: ``(n, n)``.
-        B: ``(n, m)``.
-        discrete: Stability region of the unit circle (True) or left half-plane.
-        names: Optional state names, used to describe the offending mode.
-    """
-    n = A.shape[0]
-    scale = max(1.0, float(np.linalg.norm(np.hstack([A, B]), 2)))
-    eigvals, eigvecs = np.linalg.eig(A)
-    for k, lam in enumerate(eigvals):
-        unstable = abs(lam) >= 1.0 - 1e-12 if discrete else lam.real >= -1e-12
-        if not unstable:
-            continue
-        pbh = np.hstack([A - lam * np.eye(n), B.astype(complex)])
-        smin = np.linalg.svd(pbh, compute_uv=False)[-1]
-        if smin <= 1e-9 * scale:
-            v = eigvecs[:, k]
-            i = int(np.argmax(np.abs(v)))
-            where = f" (mostly state '{names[i]}')" if names is not None else f" (mostly state {i})"
-            region = "|λ| ≥ 1" if discrete else "Re λ ≥ 0"
-            raise NotStabilizable(
-                f"(A, B) is not stabilizable: the mode λ = {lam:.6g}{where} has {region} "
-                f"and the input cannot reach it (PBH rank test, σ_min = {smin:.2e})"
-            )
-
-
-def check_detectable(A: np.ndarray, Q: np.ndarray, *, discrete: bool, names: Any = None) -> None:
-    """Raise :class:`NotStabilizable` if an unstable or marginal mode of ``A`` is invisible to ``Q``.
-
-    PBH test on ``(A, Q^½)``: detectable iff ``rank [A − λI; Q^½] = n`` for
-    every eigenvalue with ``|λ| ≥ 1`` (discrete) or ``Re λ ≥ 0`` (continuous).
-    A mode ``Q`` does not weight costs nothing, so the Riccati solution leaves
-    it where it is (on the unit circle for an integrator): the loop would
-    never settle.
-
-    Args:
-        A: ``(n, n)``.
-        Q: Symmetric PSD ``(n, n)``.
-        discrete: Stability region of the unit circle (True) or left half-plane.
-        names: Optional state names, used to describe the offending mode.
-    """
-    n = A.shape[0]
-    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
-    C = (V * np.sqrt(np.clip(w, 0.0, None))) @ V.T  # Q^½
-    scale = max(1.0, float(np.linalg.norm(np.vstack([A, C]), 2)))
-    eigvals, eigvecs = np.linalg.eig(A)
-    for k, lam in enumerate(eigvals):
-        unstable = abs(lam) >= 1.0 - 1e-12 if discrete else lam.real >= -1e-12
-        if not unstable:
-            continue
-        smin = np.linalg.svd(np.vstack([A - lam * np.eye(n), C.astype(complex)]), compute_uv=False)[-1]
-        if smin <= 1e-9 * scale:
-            raise NotStabilizable(
-                f"(A, Q^½) is not detectable: the mode λ = {lam:.6g}{_mode_where(eigvecs[:, k], names)} has "
-                f"{'|λ| ≥ 1' if discrete else 'Re λ ≥ 0'} and Q does not weight it, so the design would leave it "
-                f"unstable or on the stability boundary (PBH rank test, σ_min = {smin:.2e}); weight that state in Q"
-            )
-
-
 def check_closed_loop(poles: np.ndarray, A_cl: np.ndarray, *, discrete: bool, names: Any = None) -> None:
-    """Raise :class:`NotStabilizable` unless every closed-loop pole is strictly stable (margin 1e-9)."""
+    """Raise :class:`NotStabilizable` unless every closed-loop pole is strictly stable beyond rounding.
+
+    The margin is relative, ``10³ eps max(1, ‖A_cl‖)``: a mode the design leaves on the stability
+    boundary (an unweighted integrator stays at ``z = 1`` to rounding) is refused, while a fast
+    sampled loop whose poles sit at ``1 − dt·σ`` (``dt = 1e-9``) is not.
+    """
     eigvals, eigvecs = np.linalg.eig(A_cl)
+    margin = 1e3 * float(np.finfo(float).eps) * max(1.0, float(np.linalg.norm(A_cl, 2)))
     for k, lam in enumerate(eigvals):
-        bad = abs(lam) >= 1.0 - 1e-9 if discrete else lam.real >= -1e-9
+        bad = abs(lam) >= 1.0 - margin if discrete else lam.real >= -margin
         if bad:
             size = f"|p| = {abs(lam):.9g}" if discrete else f"Re p = {lam.real:.3g}"
             raise NotStabilizable(
                 f"the closed loop is not strictly stable: pole p = {lam:.6g} ({size})"
                 f"{_mode_where(eigvecs[:, k], names)}; increase the weights of Q on that mode"
             )
+
+
+def _design(
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, discrete: bool, names: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(K, S)`` of a design whose closed loop is strictly stable, judged by the Riccati solution itself.
+
+    When the Riccati solve fails or leaves a pole on or outside the stability boundary, the PBH tests
+    (:func:`~shinro_ctrl.analysis.structure.check_stabilizable` and ``check_detectable`` on
+    ``(A, Q^½)``) name the mode at fault; a rank test never refuses a design that the Riccati solution
+    stabilizes.
+    """
+    try:
+        K, S = riccati(A, B, Q, R, discrete=discrete)
+        check_closed_loop(np.linalg.eigvals(A - B @ K), A - B @ K, discrete=discrete, names=names)
+    except NotStabilizable:
+        check_stabilizable(A, B, discrete=discrete, names=names)
+        check_detectable(
+            A,
+            _sqrt_psd(Q),
+            discrete=discrete,
+            names=names,
+            seen_by="the weights Q",
+            pair="(A, Q^½)",
+            fix="Q does not weight it, so the design would leave it unstable or on the stability boundary; "
+            "weight that state in Q",
+        )
+        raise
+    return K, S
+
+
+def _design_weight(Q: Any, size: int, lqi: Any, names: Any) -> np.ndarray:
+    """``Q`` on the design state; with integral action its shape error says the integral states are appended."""
+    try:
+        return weight_matrix("Q", Q, size)
+    except InvalidArgument as exc:
+        if lqi is None:
+            raise
+        q = len(lqi.indices)
+        n = size - q
+        listed = f": {', '.join(names)}" if names is not None else ""
+        raise InvalidArgument(
+            f"{exc}; with integral action Q weights the {n} states and then the {q} integral state"
+            f"{'s' if q != 1 else ''} appended after them ({size} entries{listed})"
+        ) from None
+
+
+def _sqrt_psd(Q: np.ndarray) -> np.ndarray:
+    """``Q^½`` of a symmetric PSD matrix."""
+    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    return (V * np.sqrt(np.clip(w, 0.0, None))) @ V.T
 
 
 def _mode_where(v: np.ndarray, names: Any) -> str:
@@ -201,6 +193,11 @@ class LQR(Controller):
     Raises:
         ValueError: wrong shapes, asymmetric or indefinite weights.
         NotStabilizable: an unstable mode the input cannot reach (PBH test).
+
+    Threads: a plain LQR is a pure state feedback (no buffer is shared between calls): one object
+    may be called from any number of threads at once. With integral action (LQI) it keeps the
+    integrators between calls: a call that enters while another thread is inside raises
+    :class:`~shinro_ctrl.errors.ConcurrentUse` (use one controller per thread).
     """
 
     stateful = False  # a pure state feedback
@@ -228,18 +225,15 @@ class LQR(Controller):
         # LQI (controllers/lqi.py): the design runs on the model augmented with the error integrators.
         self._lqi, design_names = integral_action(A, B, integral, integral_dt, state_names, discrete=bool(discrete))
         A_d, B_d = (A, B) if self._lqi is None else (self._lqi.A_aug, self._lqi.B_aug)
-        self.Q = weight_matrix("Q", Q, A_d.shape[0])
+        self.Q = _design_weight(Q, A_d.shape[0], self._lqi, design_names)
         self.R = weight_matrix("R", R, m, definite=True)
         self.discrete = bool(discrete)
         self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
         self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
         self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
-        check_stabilizable(A_d, B_d, discrete=self.discrete, names=design_names)
-        check_detectable(A_d, self.Q, discrete=self.discrete, names=design_names)
-        K, S = riccati(A_d, B_d, self.Q, self.R, discrete=self.discrete)
+        K, S = _design(A_d, B_d, self.Q, self.R, discrete=self.discrete, names=design_names)
         self.poles = np.linalg.eigvals(A_d - B_d @ K)
-        check_closed_loop(self.poles, A_d - B_d @ K, discrete=self.discrete, names=design_names)
         if self._lqi is not None:
             self.K_i = K[:, n:]  # integrator gain (m, q)
             self._lqi.set_gain(self.K_i)
@@ -249,6 +243,7 @@ class LQR(Controller):
         self.S = S
         self.state_dim, self.input_dim = n, m
         self._x0_u = self.u0 + self.K @ self.x0  # u = (u0 + K x0) - K x
+        self._guard = CallGuard("LQR with integral action")
         self.feedforward = bool(feedforward)
         self.preview = 1 if self.feedforward else 0  # future reference samples the controller wants
         self._B_pinv = np.linalg.pinv(B) if self.feedforward else None
@@ -272,6 +267,10 @@ class LQR(Controller):
     ) -> LQR:
         """Design on ``plant`` linearized at ``(x0, u0)`` (default its equilibrium).
 
+        The operating point must be an equilibrium, ``f(x0, u0) = 0`` (the LQR
+        does not carry the affine term; see
+        :func:`~shinro_ctrl.controllers.base.check_operating_point`).
+
         Args:
             plant: Any plant.
             Q, R: Weights (full matrices or diagonals).
@@ -285,8 +284,14 @@ class LQR(Controller):
             feedforward: Use reference feed-forward (see the class docstring).
             integral: State names whose tracking error is integrated (LQI;
                 ``Q`` then has ``n + q`` entries; see ``controllers/lqi.py``).
+
+        Raises:
+            TypeError: ``plant`` is not a plant instance (None, a class).
+            InvalidArgument: ``(x0, u0)`` is not an equilibrium (naming the residual and the nearest
+                equilibrium input when there is one).
         """
         lm = plant.linear_model(x0, u0, method=method, discretization=discretization)
+        check_operating_point(plant, lm.x0, lm.u0, cls.__name__)
         A, B = (lm.A, lm.B) if discrete else (lm.A_c, lm.B_c)
         ctrl = cls(
             A,
@@ -316,6 +321,17 @@ class LQR(Controller):
                 ``feedforward`` row 1 gives the feed-forward input).
                 Default: the operating point.
         """
+        if self._lqi is None:
+            return self._law(x, ref)
+        guard = self._guard  # the integrators: one thread at a time
+        if not guard.acquire(False):
+            raise guard.refused()
+        try:
+            return self._law(x, ref)
+        finally:
+            guard.release()
+
+    def _law(self, x: Any, ref: Any) -> np.ndarray:
         x = as_vector("x", x, self.state_dim)  # fast path for a finite (n,) array
         if ref is None:
             u = self._x0_u - self.K @ x
@@ -333,6 +349,11 @@ class LQR(Controller):
             else:
                 r = as_vector("ref", ref, self.state_dim)
                 u = self.u0 - self.K @ (x - r)
+        if not np.isfinite(u).all():  # the state (or the reference) is finite but K x overflows float64
+            raise NonFiniteError(
+                f"LQR: the input for the state {np.array2string(x, precision=3)} overflows float64 "
+                f"(u = {np.array2string(u, precision=3)}): the state is far outside the linear model's range"
+            )
         if self._lqi is not None:  # LQI: − K_i z, saturation, clamped integration
             return self._lqi.finish(u, x, r, self.u_min if self._saturate else None, self.u_max)
         if self._saturate:
@@ -349,4 +370,5 @@ class LQR(Controller):
     def reset(self) -> None:
         """Empty the integrators (LQI); a plain LQR has no memory."""
         if self._lqi is not None:
-            self._lqi.reset()
+            with self._guard:
+                self._lqi.reset()

@@ -7,9 +7,9 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.validation import as_matrix, weight_matrix
+from shinro_ctrl.validation import weight_matrix
 
-__all__ = ["QN_ON", "check_detectable", "measured_indices", "noise_covariance", "process_noise_input"]
+__all__ = ["QN_ON", "measured_indices", "noise_covariance", "process_noise_input", "seen_from"]
 
 #: Where the process noise ``Qn`` enters: on the inputs (``G = B``) or directly on the states (``G = I``).
 QN_ON = ("input", "state")
@@ -56,46 +56,6 @@ def measured_indices(C: np.ndarray) -> tuple[int, ...]:
     return tuple(rows)
 
 
-def check_detectable(
-    A: np.ndarray,
-    C: np.ndarray,
-    *,
-    names: Any = None,
-    measured: Any = None,
-    strict: bool = False,
-) -> None:
-    """Raise :class:`InvalidArgument` naming a mode of the discrete ``A`` that ``y = C x`` cannot see.
-
-    PBH test: the mode ``λ`` is observable iff ``rank [A − λI; C] = n``; the
-    rank is judged by the smallest singular value relative to ``‖[A; C]‖``.
-    ``strict`` (pole placement) requires every mode to be observable;
-    otherwise (a Kalman filter) only modes with ``|λ| ≥ 1`` must be
-    (detectability).
-
-    Args:
-        A: Discrete state matrix ``(n, n)``.
-        C: Measurement matrix ``(p, n)``.
-        names: State names ``(n,)`` for the message.
-        measured: The measured names, quoted in the message.
-        strict: Require observability instead of detectability.
-    """
-    n = A.shape[0]
-    C = as_matrix("C", C, (C.shape[0], n))
-    scale = max(1.0, float(np.linalg.norm(np.vstack([A, C]), 2)))
-    eigvals, eigvecs = np.linalg.eig(A)
-    for k, lam in enumerate(eigvals):
-        if not strict and abs(lam) < 1.0 - 1e-12:
-            continue
-        pbh = np.vstack([A - lam * np.eye(n), C.astype(complex)])
-        smin = np.linalg.svd(pbh, compute_uv=False)[-1]
-        if smin <= 1e-9 * scale:
-            v = eigvecs[:, k]
-            i = int(np.argmax(np.abs(v)))
-            state = f"'{names[i]}'" if names is not None else str(i)
-            seen = f"the measured states {list(measured)}" if measured is not None else "y = C x"
-            what = "observable" if strict else "detectable"
-            raise InvalidArgument(
-                f"(A, C) is not {what}: the mode λ = {complex(lam).real:.6g}"
-                f"{'' if abs(complex(lam).imag) < 1e-12 else f'{complex(lam).imag:+.6g}j'} (mostly state {state}) "
-                f"cannot be seen from {seen} (PBH rank test, σ_min = {smin:.2e}); measure a state that moves with it"
-            )
+def seen_from(measured: Any) -> str:
+    """What the measurements are, for the message of :func:`~shinro_ctrl.analysis.structure.check_detectable`."""
+    return f"the measured states {list(measured)}" if measured is not None else "y = C x"

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.controllers.base import CallGuard, _checks_plant
 from shinro_ctrl.registry import Registry
 
 __all__ = ["ESTIMATOR_REGISTRY", "Estimator"]
@@ -35,14 +36,30 @@ class Estimator(ABC):
         measured: Indices ``(p,)`` of the measured states, in the order of ``y``.
         stateful: True when the estimate depends on past calls (filters);
             the loop calls :meth:`reset` before every run regardless.
+
+    Threads: a filter's estimate depends on the order of its calls, and its
+    update works in buffers it owns, so :meth:`update` and :meth:`reset` of
+    one object must come from one thread at a time: a call that enters while
+    another thread is inside raises :class:`~shinro_ctrl.errors.ConcurrentUse`.
+    Separate objects (one per thread) run in parallel safely.
     """
 
     n: int
     measured: tuple[int, ...]
     stateful: bool = True
 
+    @property
+    def _busy(self) -> CallGuard:
+        """The guard of :meth:`update` and :meth:`reset` (see the class docstring: threads)."""
+        try:
+            return self.__dict__["_guard"]
+        except KeyError:  # the first call: created once, atomically (dict.setdefault holds the GIL)
+            return self.__dict__.setdefault("_guard", CallGuard(type(self).__name__))
+
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
+        if isinstance(cls.__dict__.get("from_plant"), classmethod):  # None or a plant class: a clear TypeError
+            cls.from_plant = classmethod(_checks_plant(cls.__dict__["from_plant"].__func__))
         ESTIMATOR_REGISTRY.register(cls)  # skips abstract and private classes
 
     @classmethod

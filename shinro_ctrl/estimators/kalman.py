@@ -30,13 +30,9 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
+from shinro_ctrl.analysis.structure import check_detectable
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.estimators._linear import (
-    check_detectable,
-    measured_indices,
-    noise_covariance,
-    process_noise_input,
-)
+from shinro_ctrl.estimators._linear import measured_indices, noise_covariance, process_noise_input, seen_from
 from shinro_ctrl.estimators.base import Estimator
 from shinro_ctrl.validation import as_vector, measurement_matrix, state_space, weight_matrix
 
@@ -127,7 +123,7 @@ class KalmanFilter(Estimator):
         self.Qn_on = Qn_on
         self.Qn, self.Rn = Qn, Rn
         measured_names = [self.state_names[i] for i in self.measured] if self.state_names and self.measured else None
-        check_detectable(A, C, names=self.state_names, measured=measured_names)
+        check_detectable(A, C, names=self.state_names, seen_by=seen_from(measured_names))
         Qw = G @ Qn @ G.T
         if disturbance_model == "input":
             Qd = 1e-4 * np.eye(m) if Qd is None else noise_covariance("Qd", Qd, m, definite=False)
@@ -136,7 +132,7 @@ class KalmanFilter(Estimator):
             C = np.hstack([C, np.zeros((p, m))])
             Qw = np.block([[Qw, np.zeros((n, m))], [np.zeros((m, n)), Qd]])
             names = (*self.state_names, *(f"d_{i}" for i in range(m))) if self.state_names else None
-            check_detectable(A, C, names=names, measured=measured_names)
+            check_detectable(A, C, names=names, seen_by=seen_from(measured_names))
         elif Qd is not None:
             raise InvalidArgument("Qd is the disturbance covariance: it needs disturbance_model='input'")
         self.A, self.B, self.C, self.G, self.Qw = A, B, C, G, Qw
@@ -218,6 +214,10 @@ class KalmanFilter(Estimator):
 
     def reset(self, x0_hat: Any, P0: Any = None) -> None:
         """Start from ``x0_hat (n,)`` (or ``(n + m,)`` with the disturbance) and, time-varying, ``P0`` (default I)."""
+        with self._busy:
+            self._reset(x0_hat, P0)
+
+    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
         N = self.n_aug
         if self.disturbance_model is not None and np.shape(x0_hat) == (self.n,):
             x0_hat = np.concatenate([np.asarray(x0_hat, dtype=float), np.zeros(self.m)])
@@ -237,6 +237,15 @@ class KalmanFilter(Estimator):
         Returns:
             ``x̂ (n,)``, or ``[x̂; d̂] (n + m,)`` with the input disturbance.
         """
+        guard = self._busy
+        if not guard.acquire(False):
+            raise guard.refused()
+        try:
+            return self._update(y, u)
+        finally:
+            guard.release()
+
+    def _update(self, y: Any, u: Any) -> np.ndarray:
         y = as_vector("y", y, self.p)
         if self.steady_state and not self._first:  # fused fast path
             z = self._z
@@ -333,7 +342,7 @@ class ExtendedKalmanFilter(Estimator):
         self.state_names = tuple(plant.state_names)
         lm = plant.linear_model(discretization="rk4")
         names = [self.state_names[i] for i in self.measured] if self.measured else None
-        check_detectable(lm.A, C, names=self.state_names, measured=names)
+        check_detectable(lm.A, C, names=self.state_names, seen_by=seen_from(names))
         self._build(plant.symbolic())
         self._first = True
 
@@ -417,12 +426,25 @@ class ExtendedKalmanFilter(Estimator):
 
     def reset(self, x0_hat: Any, P0: Any = None) -> None:
         """Start from ``x0_hat (n,)`` with covariance ``P0 (n, n)`` (default the identity)."""
+        with self._busy:
+            self._reset(x0_hat, P0)
+
+    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
         self._x[:] = as_vector("x0_hat", x0_hat, self.n)
         self._P[:] = np.eye(self.n) if P0 is None else weight_matrix("P0", P0, self.n)
         self._first = True
 
     def update(self, y: Any, u: Any) -> np.ndarray:
         """Predict one RK4 step with ``u (m,)`` (skipped right after :meth:`reset`), correct with ``y (p,)``."""
+        guard = self._busy
+        if not guard.acquire(False):
+            raise guard.refused()
+        try:
+            return self._update(y, u)
+        finally:
+            guard.release()
+
+    def _update(self, y: Any, u: Any) -> np.ndarray:
         self._y[:] = as_vector("y", y, self.p)
         if self._first:
             self._first = False

@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.analysis.structure import check_detectable
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.estimators._linear import check_detectable, measured_indices
+from shinro_ctrl.estimators._linear import measured_indices, seen_from
 from shinro_ctrl.estimators.base import Estimator
 from shinro_ctrl.validation import as_vector, measurement_matrix, state_space
 
@@ -78,7 +79,7 @@ class Luenberger(Estimator):
         names = tuple(state_names) if state_names is not None else None
         self.measured = measured_indices(C)
         measured_names = [names[i] for i in self.measured] if names and self.measured else None
-        check_detectable(A, C, names=names, measured=measured_names, strict=True)
+        check_detectable(A, C, names=names, seen_by=seen_from(measured_names), strict=True)
         import control  # deferred: importing python-control costs about a second
 
         try:
@@ -133,6 +134,10 @@ class Luenberger(Estimator):
 
     def reset(self, x0_hat: Any, P0: Any = None) -> None:
         """Start from ``x0_hat (n,)``; an observer has no covariance, so ``P0`` must be None."""
+        with self._busy:
+            self._reset(x0_hat, P0)
+
+    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
         if P0 is not None:
             raise InvalidArgument("P0: a Luenberger observer has no covariance")
         self._z[:] = as_vector("x0_hat", x0_hat, self.n) - self.x0
@@ -140,6 +145,15 @@ class Luenberger(Estimator):
 
     def update(self, y: Any, u: Any) -> np.ndarray:
         """Predict with ``u (m,)`` (skipped right after :meth:`reset`) and correct with ``y (p,)``; ``x̂ (n,)``."""
+        guard = self._busy
+        if not guard.acquire(False):
+            raise guard.refused()
+        try:
+            return self._update(y, u)
+        finally:
+            guard.release()
+
+    def _update(self, y: Any, u: Any) -> np.ndarray:
         y = as_vector("y", y, self.p)
         z = self._z
         if self._first:

@@ -363,7 +363,8 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
             A, B = discretize(A_c, B_c, self.dt, discretization)
         if not all_finite(A, B):
             self._check_finite_model(A, B, f"{type(self).__name__} {discretization} model at dt = {self.dt:g} s")
-        return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization)
+        names = (tuple(self.state_names), tuple(self.input_names))
+        return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization, *names)
 
     def statespace(self, x0: Any = None, u0: Any = None, *, discrete: bool = True, measured: Any = None) -> Any:
         """The linear model at ``(x0, u0)`` as a named python-control ``StateSpace`` (Euler at ``dt``).

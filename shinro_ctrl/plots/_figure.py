@@ -24,7 +24,7 @@ def _write_png(fig: Any, path: str | Path) -> Path:
     return path
 
 
-def _fmt_metric(v: float) -> str:
-    if isinstance(v, float) and math.isinf(v):
+def _fmt_metric(v: float | None) -> str:
+    if v is None or (isinstance(v, float) and math.isinf(v)):
         return "never"
     return f"{v:.3g}"

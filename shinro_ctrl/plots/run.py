@@ -197,7 +197,8 @@ def _figure_legend(fig: Any, axes: list[Any], panels: list[Any], result: Any, pl
 def _settle_info(result: Any) -> tuple[float, float]:
     sim = (result.config or {}).get("sim", {}) if isinstance(result.config, dict) else {}
     tol = float(sim.get("settle_tol", 0.01)) if isinstance(sim, dict) else 0.01
-    return tol, float(result.metrics.get("settling_time", math.inf))
+    settling = result.metrics.get("settling_time")
+    return tol, math.inf if settling is None else float(settling)
 
 
 def _planar_axes(result: Any) -> tuple[int, int] | None:
@@ -250,8 +251,8 @@ def _title(result: Any, compare: Any) -> str:
     c = compare.metrics
     parts = []
     for key, label in (("rms_error", "rms error"), ("settling_time", "settling [s]"), ("max_abs_input", "max |u|")):
-        a, b = m.get(key, math.nan), c.get(key, math.nan)
-        diff = "—" if not (math.isfinite(a) and math.isfinite(b)) else f"{b - a:+.3g}"
+        a, b = m.get(key), c.get(key)
+        diff = "—" if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)) else f"{b - a:+.3g}"
         parts.append(f"{label}: {_fmt_metric(a)} vs {_fmt_metric(b)} (Δ {diff})")
     return f"{head}: {result.loop} (solid) vs {compare.loop} (dashed)\n" + "   ".join(parts)
 

@@ -1,8 +1,15 @@
-"""Metrics of a closed-loop run: tracking error, settling, inputs, bound excess, response shape."""
+"""Metrics of a closed-loop run: tracking error, settling, inputs, bound excess, response shape.
+
+:data:`METRIC_REGISTRY` is the one list of the metrics a run reports (name,
+unit, kind, description); every other list of metric names in the package
+(the scenario layer's ``METRICS``, the sweep's table and wall-clock metrics,
+the regression checker's) is derived from it here.
+"""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -10,19 +17,107 @@ import numpy as np
 from shinro_ctrl.errors import NonFiniteError
 
 __all__ = [
+    "FLAG_METRICS",
+    "METRICS",
+    "METRIC_KINDS",
+    "METRIC_REGISTRY",
     "NEVER_METRICS",
+    "OUTPUT_FEEDBACK_METRICS",
     "RESPONSE_METRICS",
+    "WALL_CLOCK_METRICS",
+    "MetricInfo",
     "StreamingMetrics",
     "bound_excess",
     "compute_metrics",
+    "format_metric",
     "format_metrics",
+    "metric_unit",
     "response_metrics",
     "settling_time",
 ]
 
-NEVER_METRICS = ("settling_time", "rise_time")  # inf means the event never happened, not an overflow
+#: What a metric is: a value of the response, the time of an event in it (None: it never happened),
+#: a clock reading (varies from run to run), a count, or a yes/no flag.
+METRIC_KINDS = ("response", "timing", "wall-clock", "count", "flag")
+#: Which runs report a metric.
+REPORTED_BY = ("every run", "step response", "output feedback")
+
+
+@dataclass(frozen=True)
+class MetricInfo:
+    """One metric of a run.
+
+    Attributes:
+        name: Key in :attr:`SimResult.metrics <shinro_ctrl.sim.SimResult.metrics>`.
+        unit: Unit as printed (``""``: the units of the tracked states or inputs, or none).
+        kind: One of :data:`METRIC_KINDS`.
+        description: One line.
+        reported: One of :data:`REPORTED_BY` (``output feedback``: also ``NAME_<state>`` per state).
+    """
+
+    name: str
+    unit: str
+    kind: str
+    description: str
+    reported: str = "every run"
+
+    def __post_init__(self) -> None:
+        if self.kind not in METRIC_KINDS or self.reported not in REPORTED_BY:
+            raise ValueError(f"metric {self.name}: kind {self.kind!r} or reported {self.reported!r} is not known")
+
+
+#: Name -> :class:`MetricInfo` of every metric a run reports, in the order they are printed.
+METRIC_REGISTRY: dict[str, MetricInfo] = {
+    m.name: m
+    for m in (
+        MetricInfo("rms_error", "", "response", "root mean square of the tracking-error norm over the run"),
+        MetricInfo("max_error", "", "response", "largest tracking-error norm"),
+        MetricInfo("final_error", "", "response", "tracking-error norm at the last sample"),
+        MetricInfo("settling_time", "s", "timing", "time after which the error stays within settle_tol (None: never)"),
+        MetricInfo("stable", "", "flag", "the run settled within the band and every state stayed finite"),
+        MetricInfo("max_abs_input", "", "response", "largest |u| over every input and step (None: no step)"),
+        MetricInfo("constraint_violations", "steps", "count", "steps at which a bound or plant limit is exceeded"),
+        MetricInfo("max_violation", "", "response", "largest excess over a bound or plant limit"),
+        MetricInfo("solve_time_median_s", "s", "wall-clock", "median controller call (None: no call)"),
+        MetricInfo("overshoot", "%", "response", "swing past the reference of the step response", "step response"),
+        MetricInfo("rise_time", "s", "timing", "10-90 % rise time of the step response (None: never)", "step response"),
+        MetricInfo(
+            "estimation_rms", "", "response", "root mean square of the estimation error ‖x̂ − x‖", "output feedback"
+        ),
+    )
+}
+
+
+def _names(kind: str | None = None, reported: str | None = None, *, flags: bool = True) -> tuple[str, ...]:
+    return tuple(
+        m.name
+        for m in METRIC_REGISTRY.values()
+        if (kind is None or m.kind == kind)
+        and (reported is None or m.reported == reported)
+        and (flags or m.kind != "flag")
+    )
+
+
+#: The metrics every run reports that take a tolerance (a ``[regression]`` key, a sweep column): all but the flags.
+METRICS = _names(reported="every run", flags=False)
+#: Measured with a clock: they vary from run to run (compared only with a tolerance, kept out of sweep tables).
+WALL_CLOCK_METRICS = _names("wall-clock")
+#: Times of events: None means the event never happened (printed ``never``).
+NEVER_METRICS = _names("timing")
+#: Yes/no metrics (compared exactly).
+FLAG_METRICS = _names("flag")
 #: The step-response metrics of :func:`response_metrics` (newer than some stored baselines).
-RESPONSE_METRICS = ("overshoot", "rise_time")
+RESPONSE_METRICS = _names(reported="step response")
+#: Metrics only output-feedback runs report (``estimation_rms`` and ``estimation_rms_<state>``).
+OUTPUT_FEEDBACK_METRICS = _names(reported="output feedback")
+
+
+def metric_unit(name: str) -> str:
+    """The unit of a metric (``estimation_rms_<state>`` as ``estimation_rms``), ``""`` when unknown or none."""
+    info = METRIC_REGISTRY.get(name)
+    if info is None and name.startswith(OUTPUT_FEEDBACK_METRICS):
+        info = METRIC_REGISTRY[next(m for m in OUTPUT_FEEDBACK_METRICS if name.startswith(m))]
+    return info.unit if info is not None and info.unit != "steps" else ""
 
 
 def bound_excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
@@ -48,19 +143,25 @@ def settling_time(t: np.ndarray, last_outside: Any) -> np.ndarray:
 
     The run has settled at ``t[k + 1]`` when sample ``k`` is the last whose
     tracking error exceeds the tolerance: ``0`` when no sample does (``k = -1``),
-    ``inf`` when the final sample does.
+    NaN (undefined: it never settled) when the final sample does.
 
     Args:
         t: Sample times ``(T + 1,)`` [s].
         last_outside: ``k`` (a scalar, or ``(N,)`` for N instances).
 
     Returns:
-        The settling time(s) [s], shaped like ``last_outside``.
+        The settling time(s) [s], shaped like ``last_outside`` (NaN where undefined;
+        :func:`compute_metrics` reports it as None).
     """
     last = np.asarray(last_outside)
     steps = t.shape[0] - 1
     settled = np.where(last < 0, 0.0, t[np.minimum(last + 1, steps)])
-    return np.where(last == steps, math.inf, settled)
+    return np.where(last == steps, math.nan, settled)
+
+
+def _defined(v: float) -> float | None:
+    """``v``, or None when it is undefined (NaN or infinite: an event that never happened)."""
+    return float(v) if math.isfinite(v) else None
 
 
 def compute_metrics(
@@ -77,19 +178,23 @@ def compute_metrics(
     x_max: np.ndarray | None = None,
     plant_violation: np.ndarray | None = None,
     solve_times: np.ndarray | None = None,
-) -> dict[str, float]:
-    """Metrics of a closed-loop run.
+) -> dict[str, float | int | bool | None]:
+    """Metrics of a closed-loop run (an undefined one is None, never NaN or inf).
 
     The tracking error is ``e_k = ‖x_k[tracked] − r_k[tracked]‖₂``.
 
     Returns:
         ``rms_error`` (``sqrt(mean e_k²)``), ``max_error``, ``final_error``,
         ``settling_time`` (first time after which ``e`` stays within
-        ``settle_tol``; ``inf`` if it never does), ``max_abs_input``,
+        ``settle_tol``; None if it never does), ``stable`` (True when the run
+        settled within the band, i.e. the final error is within
+        ``settle_tol``, and every state stayed finite: False flags a run that
+        diverged, fell or never settled), ``max_abs_input`` (None
+        without a step),
         ``constraint_violations`` (steps at which an input or state bound, or
         a plant limit, is exceeded by more than 1e-9 relative),
         ``max_violation`` (the largest such excess),
-        ``solve_time_median_s`` (median controller call), and for a step or
+        ``solve_time_median_s`` (median controller call; None without one), and for a step or
         initial-condition response ``overshoot`` and ``rise_time`` (see
         :func:`response_metrics`).
     """
@@ -108,7 +213,7 @@ def compute_metrics(
             "where its metrics can be computed"
         )
     outside = np.nonzero(e > settle_tol)[0]
-    settling = float(settling_time(t, outside[-1] if outside.size else -1))
+    settling = _defined(float(settling_time(t, outside[-1] if outside.size else -1)))
 
     viol = np.zeros(len(t))
     viol[:-1] = np.maximum(viol[:-1], bound_excess(u, u_min, u_max))
@@ -120,15 +225,18 @@ def compute_metrics(
         "max_error": float(e.max()),
         "final_error": float(e[-1]),
         "settling_time": settling,
-        "max_abs_input": float(np.abs(u).max()) if u.size else 0.0,
+        "stable": bool(settling is not None and np.all(np.isfinite(x))),
+        "max_abs_input": float(np.abs(u).max()) if u.size else None,
         "constraint_violations": int(np.count_nonzero(viol > 0)),
         "max_violation": float(viol.max()),
-        "solve_time_median_s": float(np.median(solve_times)) if solve_times is not None and solve_times.size else 0.0,
+        "solve_time_median_s": float(np.median(solve_times)) if solve_times is not None and solve_times.size else None,
         **response_metrics(t, x[:, tracked], ref[:, tracked], settle_tol),
     }
 
 
-def response_metrics(t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: float = 0.01) -> dict[str, float]:
+def response_metrics(
+    t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: float = 0.01
+) -> dict[str, float | None]:
     """``overshoot`` [%] and ``rise_time`` [s] of a step or initial-condition response (else ``{}``).
 
     Meaningful when the reference ``ref (T+1, k)`` is constant (the run recovers
@@ -136,7 +244,7 @@ def response_metrics(t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: 
     step). The response is that of the tracked state with the largest
     deviation from the new reference at the start, and it must exceed
     ``settle_tol``; see :func:`shinro_ctrl.analysis.step_metrics` (overshoot
-    past the reference, 10–90 % rise time, ``inf`` if 90 % is never reached).
+    past the reference, 10–90 % rise time, None if 10 % or 90 % is never reached).
     """
     from shinro_ctrl.analysis.response import step_metrics
 
@@ -153,18 +261,23 @@ def response_metrics(t: np.ndarray, x: np.ndarray, ref: np.ndarray, settle_tol: 
     return {"overshoot": m.overshoot, "rise_time": m.rise_time}
 
 
-def format_metrics(metrics: dict[str, float]) -> str:
+def format_metric(name: str, value: float | int | bool | None) -> str:
+    """One metric value as text: None as ``never`` (an event metric) or ``n/a``, a flag as yes/no."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "never" if name in NEVER_METRICS else "n/a"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    return f"{value:.6g}"
+
+
+def format_metrics(metrics: dict[str, float | int | bool | None]) -> str:
     """A two-column table of metrics."""
-    units = {"settling_time": "s", "solve_time_median_s": "s", "rise_time": "s", "overshoot": "%"}
     rows = []
     for k, v in metrics.items():
-        if isinstance(v, float) and math.isinf(v):
-            val = "never" if k in NEVER_METRICS else ("inf" if v > 0 else "-inf")
-        elif isinstance(v, int):
-            val = str(v)
-        else:
-            val = f"{v:.6g}"
-        rows.append(f"  {k:22s} {val:>14s} {units.get(k, '')}".rstrip())
+        unit = metric_unit(k) if v is not None else ""
+        rows.append(f"  {k:22s} {format_metric(k, v):>14s} {unit}".rstrip())
     return "\n".join(rows)
 
 
@@ -207,7 +320,7 @@ class StreamingMetrics:
         np.maximum(self.viol_max, viol, out=self.viol_max)
 
     def finish(self, t: np.ndarray, call_times: np.ndarray, alive: np.ndarray) -> dict[str, np.ndarray]:
-        """Metric name -> ``(N,)`` (NaN for diverged instances)."""
+        """Metric name -> ``(N,)`` (NaN for diverged instances; ``stable`` as 0/1)."""
         steps = t.shape[0] - 1
         N = alive.shape[0]
         metrics = {
@@ -215,11 +328,13 @@ class StreamingMetrics:
             "max_error": self.e_max,
             "final_error": self.e,
             "settling_time": settling_time(t, self.last_out),
+            "stable": ((self.last_out < steps) & alive).astype(float),
             "max_abs_input": self.u_abs_max,
             "constraint_violations": self.viol_count.astype(float),
             "max_violation": self.viol_max,
             "solve_time_median_s": np.full(N, float(np.median(call_times)) / max(N, 1)),
         }
-        for v in metrics.values():
-            v[~alive] = math.nan
+        for k, v in metrics.items():
+            if k != "stable":
+                v[~alive] = math.nan
         return metrics

@@ -22,7 +22,10 @@ class SimResult:
         x: States ``(T + 1, n)``.
         u: Inputs ``(T, m)``.
         ref: References ``(T + 1, n)``.
-        metrics: See :func:`~shinro_ctrl.sim.compute_metrics`.
+        metrics: See :func:`~shinro_ctrl.sim.compute_metrics` and
+            :data:`~shinro_ctrl.sim.metrics.METRIC_REGISTRY`: numbers, the
+            ``stable`` flag, and None for a metric that is undefined (a
+            settling time that never happened); ``metrics.json`` writes it as null.
         state_names, input_names: Labels.
         tracked: Names of the states the error metrics use.
         u_min, u_max, x_min, x_max: Bounds for plots (None where absent).
@@ -42,7 +45,7 @@ class SimResult:
     x: np.ndarray
     u: np.ndarray
     ref: np.ndarray
-    metrics: dict[str, float]
+    metrics: dict[str, float | int | bool | None]
     state_names: tuple[str, ...]
     input_names: tuple[str, ...]
     tracked: list[str]

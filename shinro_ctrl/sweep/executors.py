@@ -103,7 +103,7 @@ def _run_one(nominal: Any, names: Sequence[str], index: int, values: Sequence[fl
     except SAMPLE_ERRORS as exc:
         return index, _nan_metrics(), False, _error_text(exc), _nan_timing()
     finite = bool(np.all(np.isfinite(result.x)))
-    metrics = {k: result.metrics.get(k, math.nan) for k in TABLE_METRICS}
+    metrics = {k: math.nan if result.metrics.get(k) is None else result.metrics[k] for k in TABLE_METRICS}  # table: NaN
     timing = {k: float(result.metrics.get(k, math.nan)) for k in WALL_CLOCK_METRICS}
     return index, metrics, _verdict(metrics, finite, stable_tol), None, timing
 

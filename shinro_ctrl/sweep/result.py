@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.config import METRICS
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.files import atomic_write, dump_json
+from shinro_ctrl.sim.metrics import METRICS
 from shinro_ctrl.sweep.spec import TABLE_METRICS, WALL_CLOCK_METRICS
 from shinro_ctrl.validation import did_you_mean
 
@@ -214,7 +214,7 @@ class SweepResult:
         lines = [
             f"sweep {self.scenario} ({self.loop}; {how}; {kind}): {n} samples in {self.elapsed_s:.2f} s",
             f"  stable: {int(stable.sum())}/{n} ({100 * stable.mean() if n else 0:.1f}%), "
-            f"{errors} raised; rule: final_error < {self.stable_tol:g}",
+            f"unstable: {n - int(stable.sum())} ({errors} raised); rule: final_error < {self.stable_tol:g}",
         ]
         values = self.values
         for j, key in enumerate(self.ranges):

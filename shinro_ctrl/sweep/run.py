@@ -11,9 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.config import METRICS, load_scenario, parse_scenario
+from shinro_ctrl.config import load_scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.progress import Progress
+from shinro_ctrl.sim.metrics import METRICS
 from shinro_ctrl.sweep.executors import SweepJob, batch_reason, build_nominal, run_batch, run_dask, run_pool, run_serial
 from shinro_ctrl.sweep.result import SweepResult, SweepRow
 from shinro_ctrl.sweep.spec import (

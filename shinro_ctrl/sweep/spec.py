@@ -9,8 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.config import METRICS
 from shinro_ctrl.errors import ConfigError, ShinroError
+from shinro_ctrl.sim.metrics import (
+    METRICS,
+    WALL_CLOCK_METRICS,  # measured with a clock: they stay out of the table
+)
 from shinro_ctrl.validation import did_you_mean
 
 __all__ = [
@@ -31,9 +34,7 @@ __all__ = [
 METHODS = ("auto", "pool", "dask", "batch", "serial")
 STABLE_TOL_FACTOR = 10.0
 MAX_ROWS = 10_000_000
-#: Metrics measured with a clock: they vary from run to run, so they stay out of the table.
-WALL_CLOCK_METRICS = ("solve_time_median_s",)
-#: The metrics of the table (every metric of :data:`shinro_ctrl.config.METRICS` but the wall-clock ones).
+#: The metrics of the table (every metric of :data:`shinro_ctrl.sim.metrics.METRICS` but the wall-clock ones).
 TABLE_METRICS = tuple(m for m in METRICS if m not in WALL_CLOCK_METRICS)
 #: Exceptions a sample may raise that mark it unstable (anything else is a bug and propagates).
 SAMPLE_ERRORS: tuple[type[BaseException], ...] = (ShinroError, ValueError, ArithmeticError, RuntimeError)
