@@ -143,6 +143,9 @@ def _mujoco_message(exc: BaseException) -> str:
     if not lines:
         return type(exc).__name__
     first = lines[0].removeprefix("Error: ").removeprefix("XML Error: ")
+    if first.startswith("XML parse error") and len(lines) > 1:  # tinyxml2: the reason and line on the next line
+        detail = re.sub(r"ErrorID=\S+ \(\S+\) ", "", lines[1].removeprefix("Error="))
+        return f"not a valid XML file: {detail}"
     element = next((ln for ln in lines[1:] if ln.startswith("Element")), "")
     return first + (f" ({element})" if element else "")
 
@@ -518,16 +521,16 @@ def _equality(m: mujoco.MjModel, e: int) -> str:
     name = m.equality(e).name
     kind = mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix("mjEQ_").lower()
     o1, o2 = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
-    obj = {
-        "joint": lambda i: f"joint {_joint(m, i)}",
-        "tendon": lambda i: f"tendon {_tendon(m, i)}",
-        "connect": lambda i: f"body {_body(m, i)}",
-        "weld": lambda i: f"body {_body(m, i)}",
-    }.get(kind)
+    verb, obj = {
+        "joint": ("coupling", lambda i: f"joint {_joint(m, i)}"),
+        "tendon": ("coupling", lambda i: f"tendon {_tendon(m, i)}"),
+        "connect": ("connecting", lambda i: f"body {_body(m, i)}"),
+        "weld": ("welding", lambda i: f"body {_body(m, i)}"),
+    }.get(kind, ("", None))
     if obj is None:
         what = f"{kind} #{e}"
     else:
-        what = f"{kind} {obj(o1)}" + (f" to {obj(o2)}" if o2 >= 0 else "")
+        what = f"{verb} {obj(o1)}" + (f" to {obj(o2)}" if o2 >= 0 else "")
     return f"'{name}' ({what})" if name else what
 
 
@@ -710,7 +713,7 @@ def _bad_numbers(m: mujoco.MjModel, label: _Label) -> list[str]:
     def check(what: str, value: np.ndarray, ok: Callable[[np.ndarray], bool] = lambda v: bool(np.isfinite(v).all())):
         v = np.asarray(value, dtype=float)
         if not ok(v):
-            shown = np.array2string(v, precision=6) if v.ndim else f"{float(v):g}"
+            shown = f"[{', '.join(f'{c:g}' for c in v.ravel())}]" if v.ndim else f"{float(v):g}"
             out.append(f"{what} = {shown}")
 
     check("<option gravity>", m.opt.gravity)
