@@ -339,11 +339,16 @@ def test_includes_and_meshes_resolve_beside_a_file_with_an_odd_suffix(tmp_path, 
         ("<robot_not><a/></robot_not>", "its root element is <robot_not>"),
         ("not xml at all", "not a valid XML file"),
         ("<mujoco><worldbody>", "not a valid XML file"),
+        (b"\x00\x01\xff\xfegarbage", "is not UTF-8 text: byte 0xff on line 1"),
+        ("<mujoco>\n<!-- caf\xe9 -->\n</mujoco>".encode("latin-1"), "is not UTF-8 text: byte 0xe9 on line 2"),
     ],
 )
 def test_files_that_are_not_models_are_refused_in_one_line(tmp_path, capsys, content, needle):
     path = tmp_path / "thing.xml"
-    path.write_text(content)
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
     for cmd in ("linearize", "crosscheck"):
         line = _one_error_line(capsys, [cmd, str(path)])
         assert needle in line and "thing.xml" in line

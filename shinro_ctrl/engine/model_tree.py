@@ -26,6 +26,7 @@ non-finite or invalid number (a ``NaN`` gravity, an infinite mass).
 from __future__ import annotations
 
 import hashlib
+import io
 import os
 import re
 import tempfile
@@ -100,15 +101,21 @@ def model_kind(path: str | os.PathLike[str]) -> str:
         FileNotFoundError: no such file.
     """
     path = Path(path)
-    if path.stat().st_size == 0:
+    data = path.read_bytes()
+    if not data.strip():
         raise InvalidArgument(f"model file '{path}' is empty (expected an MJCF <mujoco> or URDF <robot> XML file)")
     try:
-        with path.open("rb") as f:
-            for _, element in ET.iterparse(f, events=("start",)):
-                root = element.tag.rsplit("}", 1)[-1]
-                break
-            else:  # pragma: no cover - iterparse raises on a document without an element
-                root = ""
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise InvalidArgument(
+            f"model file '{path}' is not UTF-8 text: byte 0x{data[exc.start]:02x} on line {line} (save it as UTF-8)"
+        ) from None
+    try:
+        root = ""
+        for _, element in ET.iterparse(io.BytesIO(data), events=("start",)):
+            root = element.tag.rsplit("}", 1)[-1]
+            break
     except ET.ParseError as exc:
         raise InvalidArgument(
             f"model file '{path}' is not a valid XML file ({exc}); expected an MJCF <mujoco> or URDF <robot> model"

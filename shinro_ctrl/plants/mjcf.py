@@ -242,7 +242,6 @@ class MjcfPlant(Plant):
         self.position_indices = tuple(range(nq))
         self.velocity_indices = tuple(range(nq, 2 * nq))
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
-        self._jac_lock = threading.Lock()
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
         if x0 is None:
             self._x0 = self._default_x0(robot.keyframe)
