@@ -206,7 +206,8 @@ GOOD = {
         ("axis", "0 1 inf", "joint 'hinge' axis"),
         ("damping", "nan", "joint 'hinge' damping = nan"),
         ("stiffness", "-inf", "joint 'hinge' stiffness = -inf"),
-        ("gear", "inf", "actuator 'm' gear = inf"),
+        ("gear", "inf", "actuator 'm' gear (0: the actuator moves nothing) = inf"),
+        ("gear", "0", "actuator 'm' gear (0: the actuator moves nothing) = 0"),
         ("gain", "nan", "actuator 'm' gainprm"),
         ("bias", "0 nan 0", "actuator 'm' biasprm"),
         ("key", '<keyframe><key name="k" qpos="nan"/></keyframe>', "keyframe 'k' qpos"),
@@ -225,13 +226,28 @@ def test_invalid_numbers_are_refused_in_one_line(tmp_path, capsys, key, value, n
 
 
 @QUIET_NAN
+def test_non_finite_numbers_that_break_mujocos_compiler_are_named(tmp_path, capsys):
+    path = tmp_path / "pend.xml"
+    path.write_text(PEND.format(**GOOD).replace('<inertial pos="0 0 0.5"', '<inertial pos="0 0 nan"'))
+    with pytest.raises(ValueError):
+        mujoco.MjModel.from_xml_path(str(path))  # MuJoCo's own message is about what the NaN broke
+    line = _one_error_line(capsys, ["linearize", str(path)])
+    assert "holds non-finite numbers: body 'pole' inertial pos = [0, 0, nan]" in line
+    urdf = tmp_path / "one.urdf"
+    urdf.write_text(URDF_LINK.format(inertial=INERTIAL.format(mass="nan", ixx="1e-4", ixy="0"), origin="0 0 0"))
+    line = _one_error_line(capsys, ["crosscheck", str(urdf)])
+    assert f"URDF '{urdf}' holds non-finite numbers: link 'l1' mass = nan" in line
+
+
+@QUIET_NAN
 def test_every_invalid_number_is_listed_at_once(tmp_path):
     path = tmp_path / "pend.xml"
     path.write_text(PEND.format(**{**GOOD, "gravity": "0 0 nan", "damping": "inf", "gear": "nan"}))
     with pytest.raises(InvalidArgument) as info:
         MjcfPlant(path)
     msg = str(info.value)
-    assert "<option gravity>" in msg and "joint 'hinge' damping = inf" in msg and "actuator 'm' gear = nan" in msg
+    assert "<option gravity>" in msg and "joint 'hinge' damping = inf" in msg
+    assert "actuator 'm' gear (0: the actuator moves nothing) = nan" in msg
 
 
 def test_magnitudes_that_overflow_are_refused_not_linalg_errors(tmp_path, capsys):

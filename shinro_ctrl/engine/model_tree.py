@@ -223,14 +223,56 @@ def load_spec(model: str | os.PathLike[str], *, shipped: bool = False) -> tuple[
 
 
 def _compile(spec: mujoco.MjSpec, source: Path, kind: str) -> mujoco.MjModel:
-    """Compile ``spec``; a MuJoCo error becomes one line naming the user's file and, for a URDF, the link."""
+    """Compile ``spec``; a MuJoCo error becomes one line naming the user's file and, for a URDF, the link.
+
+    When the file holds non-finite numbers, those are named first: MuJoCo's own error for them is about
+    what they broke (``sameframe no longer holds``), not about them.
+    """
     with collect_messages() as said:
         try:
             m = spec.compile()
         except ValueError as exc:
+            bad = _spec_nonfinite(spec, kind)
+            if bad:
+                what = "URDF" if kind == "urdf" else "MJCF model"
+                raise InvalidArgument(
+                    f"{what} '{source}' holds non-finite numbers: {', '.join(bad)} (MuJoCo: {_mujoco_message(exc)})"
+                ) from None
             raise InvalidArgument(_compile_error(exc, source, kind)) from None
     _report(said, source)
     return m
+
+
+def _spec_nonfinite(spec: mujoco.MjSpec, kind: str) -> list[str]:
+    """The non-finite numbers among the option, body, joint and actuator attributes of ``spec``."""
+    out: list[str] = []
+
+    def check(what: str, value: object) -> None:
+        v = np.asarray(value, dtype=float)
+        unset = v.ndim == 1 and v.size > 1 and np.isnan(v[0]) and not np.any(v[1:])  # MjSpec's "not given"
+        if not np.isfinite(v).all() and not unset:
+            out.append(f"{what} = [{', '.join(f'{c:g}' for c in v.ravel())}]" if v.ndim else f"{what} = {v:g}")
+
+    check("<option gravity>", spec.option.gravity)
+    check("<option timestep>", spec.option.timestep)
+    body_word = "link" if kind == "urdf" else "body"
+    for b in spec.bodies:
+        if b is spec.worldbody:
+            continue
+        name = f"{body_word} '{b.name}'" if b.name else f"{body_word} #{b.id}"
+        for attr, label in (("pos", "pos"), ("quat", "quat"), ("mass", "mass"), ("ipos", "inertial pos")):
+            check(f"{name} {label}", getattr(b, attr))
+        check(f"{name} inertia", b.inertia)
+    for j in spec.joints:
+        name = f"joint '{j.name}'" if j.name else f"joint #{j.id}"
+        for attr in ("axis", "pos", "damping", "armature", "stiffness", "ref", "springref", "range"):
+            check(f"{name} {attr}", getattr(j, attr))
+    for a in spec.actuators:
+        name = f"actuator '{a.name}'" if a.name else f"actuator #{a.id}"
+        check(f"{name} gear", a.gear)
+        check(f"{name} gainprm", a.gainprm[:3])
+        check(f"{name} biasprm", a.biasprm[:3])
+    return out
 
 
 def _compile_error(exc: BaseException, source: Path, kind: str) -> str:
@@ -747,7 +789,9 @@ def _bad_numbers(m: mujoco.MjModel, label: _Label) -> list[str]:
             check(f"{joint} range", m.jnt_range[j], lambda v: bool(np.isfinite(v).all() and v[0] <= v[1]))
     for a in range(m.nu):
         act = f"actuator {_actuator(m, a)}"
-        check(f"{act} gear", m.actuator_gear[a, 0])
+        check(
+            f"{act} gear (0: the actuator moves nothing)", m.actuator_gear[a, 0], lambda v: bool(np.isfinite(v) and v)
+        )
         check(f"{act} gainprm", m.actuator_gainprm[a, :3])
         check(f"{act} biasprm", m.actuator_biasprm[a, :3])
         if m.actuator_ctrllimited[a]:
