@@ -24,14 +24,21 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, TypeAlias
 
 import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import CasadiBackend, ScalarBackend
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+#: A scalar of the chain: a Python float (numeric FK) or a CasADi ``SX`` (symbolic FK).
+ChainScalar: TypeAlias = "float | cs.SX"
 
 __all__ = [
     "IKResult",
@@ -88,7 +95,7 @@ class IKResult:
         return float(np.linalg.cond(self.jacobian))
 
 
-def wrap_angle(a: Any) -> Any:
+def wrap_angle(a: float | ArrayLike) -> float | np.ndarray:
     """Wrap angles [rad] into ``(-π, π]`` (float or array)."""
     if isinstance(a, float | int):
         w = math.remainder(float(a), 2.0 * math.pi)
@@ -97,13 +104,13 @@ def wrap_angle(a: Any) -> Any:
     return np.where(w == -np.pi, np.pi, w)
 
 
-def skew(w: Any) -> np.ndarray:
+def skew(w: ArrayLike) -> np.ndarray:
     """The ``(3, 3)`` matrix ``[w]×`` with ``[w]× v = w × v`` for ``w (3,)``."""
     x, y, z = (float(c) for c in np.asarray(w, dtype=float).reshape(3))
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def vee(S: Any) -> np.ndarray:
+def vee(S: ArrayLike) -> np.ndarray:
     """The vector ``w (3,)`` of the skew-symmetric part of ``S (3, 3)``: ``vee([w]×) = w``."""
     S = np.asarray(S, dtype=float)
     return 0.5 * np.array([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]])
@@ -121,7 +128,7 @@ def rotation_about(axis: str, angle: float) -> np.ndarray:
     raise InvalidArgument(f"axis must be 'x', 'y' or 'z', got {axis!r}")
 
 
-def euler_zyx_to_matrix(rpy: Any) -> np.ndarray:
+def euler_zyx_to_matrix(rpy: ArrayLike) -> np.ndarray:
     r"""Rotation ``(3, 3)`` of ZYX Euler angles ``[roll, pitch, yaw]`` [rad]: :math:`R_z R_y R_x`."""
     r, p, y = (float(c) for c in np.asarray(rpy, dtype=float).reshape(3))
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
@@ -134,7 +141,7 @@ def euler_zyx_to_matrix(rpy: Any) -> np.ndarray:
     )
 
 
-def euler_zyx_from_matrix(R: Any) -> np.ndarray:
+def euler_zyx_from_matrix(R: ArrayLike) -> np.ndarray:
     """ZYX Euler angles ``[roll, pitch, yaw]`` (3,) [rad] of a rotation ``R (3, 3)``.
 
     ``pitch = atan2(-R20, hypot(R00, R10))`` stays accurate near ±π/2 (an
@@ -152,7 +159,7 @@ def euler_zyx_from_matrix(R: Any) -> np.ndarray:
     return np.array([0.0, pitch, yaw])
 
 
-def pose_to_transform(pose: Any) -> np.ndarray:
+def pose_to_transform(pose: ArrayLike) -> np.ndarray:
     """Homogeneous transform ``(4, 4)`` of a pose ``[x, y, z, roll, pitch, yaw]`` (6,) [m, rad]."""
     pose = np.asarray(pose, dtype=float).reshape(6)
     T = np.eye(4)
@@ -161,13 +168,13 @@ def pose_to_transform(pose: Any) -> np.ndarray:
     return T
 
 
-def pose_from_transform(T: Any) -> np.ndarray:
+def pose_from_transform(T: ArrayLike) -> np.ndarray:
     """Pose ``[x, y, z, roll, pitch, yaw]`` (6,) [m, rad] of a transform ``T (4, 4)``."""
     T = np.asarray(T, dtype=float)
     return np.concatenate([T[:3, 3], euler_zyx_from_matrix(T[:3, :3])])
 
 
-def so3_exp(w: Any) -> np.ndarray:
+def so3_exp(w: ArrayLike) -> np.ndarray:
     """Rotation ``(3, 3)`` of a rotation vector ``w (3,)`` [rad] (Rodrigues' formula)."""
     w = np.asarray(w, dtype=float).reshape(3)
     theta = float(np.linalg.norm(w))
@@ -177,7 +184,7 @@ def so3_exp(w: Any) -> np.ndarray:
     return np.eye(3) + (math.sin(theta) / theta) * K + ((1.0 - math.cos(theta)) / theta**2) * K @ K
 
 
-def so3_log(R: Any) -> np.ndarray:
+def so3_log(R: ArrayLike) -> np.ndarray:
     r"""Rotation vector ``w (3,)`` [rad] with ``exp([w]×) = R``, ``|w| ≤ π``.
 
     Robust over the whole group: a Taylor expansion near the identity, the
@@ -255,7 +262,7 @@ class SerialChain:
         ee_offset: End-effector offset ``(3,)`` [m] in the last joint's frame.
     """
 
-    def __init__(self, offsets: Any, axes: Any, ee_offset: Any = (0.0, 0.0, 0.0)):
+    def __init__(self, offsets: ArrayLike, axes: Sequence[str], ee_offset: ArrayLike = (0.0, 0.0, 0.0)):
         self.offsets = [tuple(float(v) for v in row) for row in np.asarray(offsets, dtype=float)]
         self.axes = tuple(axes)
         for i, a in enumerate(self.axes):
@@ -267,11 +274,11 @@ class SerialChain:
         self._axis_index = [_AXES.index(a) for a in self.axes]
         self.ee = tuple(float(v) for v in ee_offset)
         self._sym: tuple | None = None
-        self._fk_fun: Any = None
-        self._exact_fun: Any = None
+        self._fk_fun: cs.Function | None = None
+        self._exact_fun: cs.Function | None = None
         self._fast: KinematicsBuffer | None = None
 
-    def chain(self, bk: Any, q: Any) -> tuple[list, list, list, list]:
+    def chain(self, bk: ScalarBackend | CasadiBackend, q: Sequence[ChainScalar]) -> tuple[list, list, list, list]:
         """The kinematic chain against a scalar backend.
 
         Args:
@@ -326,7 +333,7 @@ class SerialChain:
             self._sym = (qs, P, R, J)
         return self._sym
 
-    def symbolic_fk(self) -> Any:
+    def symbolic_fk(self) -> cs.Function:
         """The FK as a CasADi ``Function`` named ``"fk"``: ``q (n,) -> (p (3,), R (3, 3))``."""
         if self._fk_fun is None:
             qs, p, R, _ = self.symbolic()
@@ -412,7 +419,7 @@ class KinematicsBuffer:
 
 
 def damped_least_squares(
-    error_jacobian: Any,
+    error_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     q: np.ndarray,
     lo: np.ndarray,
     hi: np.ndarray,
@@ -420,7 +427,7 @@ def damped_least_squares(
     max_iters: int,
     max_step: float,
     lam: float,
-    converged: Any,
+    converged: Callable[[np.ndarray], bool],
 ) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
     r"""The damped-least-squares IK loop (one for the analytic and the engine kinematics).
 

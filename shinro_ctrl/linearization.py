@@ -23,6 +23,7 @@ Discretizations at step ``dt``:
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -224,6 +225,8 @@ class ExactJacobian:
     itself allocates nothing. CasADi writes column-major nonzeros; the
     function returns the *transposed* Jacobians, whose column-major layout is
     the row-major layout of ``A_c`` and ``B_c``, so reading back is a plain copy.
+    Thread-safe: a lock serializes the use of the one buffer (concurrent
+    callers get their own correct results).
     """
 
     def __init__(self, f: cs.Function, p: np.ndarray):
@@ -245,6 +248,7 @@ class ExactJacobian:
         self._p = np.zeros(ps.shape[0])
         self._A = np.zeros((self.n, self.n))
         self._B = np.zeros((self.n, self.m))
+        self._lock = threading.Lock()
         self._buf, self._eval = jac.buffer()
         self._buf.set_arg(0, memoryview(self._x))
         self._buf.set_arg(1, memoryview(self._u))
@@ -255,13 +259,15 @@ class ExactJacobian:
 
     def set_params(self, p: np.ndarray) -> None:
         """Bind new parameter values ``(n_p,)``."""
-        self._p[:] = p
+        with self._lock:
+            self._p[:] = p
 
     def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        self._x[:] = x0
-        self._u[:] = u0
-        self._eval()
-        return self._A.copy(), self._B.copy()
+        with self._lock:  # one buffer: concurrent callers take turns (an uncontended lock costs ~0.1 us)
+            self._x[:] = x0
+            self._u[:] = u0
+            self._eval()
+            return self._A.copy(), self._B.copy()
 
 
 @dataclass(frozen=True)

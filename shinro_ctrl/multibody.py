@@ -47,7 +47,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, TypeAlias
 
 import casadi as cs
 import numpy as np
@@ -68,7 +68,15 @@ from shinro_ctrl._scalar_algebra import (
     quat_to_mat,
 )
 
-__all__ = ["ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree", "RigidBodyTree"]
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+__all__ = ["ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree", "RigidBodyTree", "Scalar"]
+
+#: The numbers the algorithms run on: floats, complex numbers (complex step) or CasADi ``SX`` scalars.
+Scalar: TypeAlias = "float | complex | cs.SX"
+#: Each node's ``(R (3, 3), p (3,))`` in its parent node frame, as nested lists of scalars.
+Transforms: TypeAlias = "Transforms"
 
 
 # ------------------------------------------------------------------ description
@@ -225,7 +233,7 @@ class _Node:
 class Ops:
     """The elementwise functions the algorithms need (``sin``, ``cos``) for one number type."""
 
-    def __init__(self, sin: Callable[[Any], Any], cos: Callable[[Any], Any]):
+    def __init__(self, sin: Callable[[Scalar], Scalar], cos: Callable[[Scalar], Scalar]):
         self.sin = sin
         self.cos = cos
 
@@ -315,7 +323,7 @@ class RigidBodyTree:
         return out
 
     # ----------------------------------------------------------- kinematics
-    def _joint_transforms(self, q: Sequence[Any], ops: Ops) -> list[tuple[list[list[Any]], list[Any]]]:
+    def _joint_transforms(self, q: Sequence[Scalar], ops: Ops) -> Transforms:
         """Each node's ``(R (3, 3), p (3,))`` in its parent node frame at ``q``."""
         out = []
         for i, nd in enumerate(self._nodes):
@@ -344,12 +352,12 @@ class RigidBodyTree:
     # ------------------------------------------------------------------ RNEA
     def _rnea(
         self,
-        X: list[tuple[list[list[Any]], list[Any]]],
-        qd: Sequence[Any] | None,
-        qdd: Sequence[Any],
-        a_base: Sequence[Any],
+        X: Transforms,
+        qd: Sequence[Scalar] | None,
+        qdd: Sequence[Scalar],
+        a_base: Sequence[Scalar],
         nodes: Sequence[int] | None = None,
-    ) -> list[Any]:
+    ) -> list[Scalar]:
         """Joint forces ``τ = M q̈ + c`` by recursive Newton–Euler.
 
         Args:
@@ -362,11 +370,11 @@ class RigidBodyTree:
         """
         n = self.nq
         zero3 = [0.0, 0.0, 0.0]
-        w: list[list[Any]] = [zero3] * n
-        al: list[list[Any]] = [zero3] * n
-        a: list[list[Any]] = [zero3] * n
-        f: list[list[Any]] = [zero3] * n
-        m_: list[list[Any]] = [zero3] * n
+        w: list[list[Scalar]] = [zero3] * n
+        al: list[list[Scalar]] = [zero3] * n
+        a: list[list[Scalar]] = [zero3] * n
+        f: list[list[Scalar]] = [zero3] * n
+        m_: list[list[Scalar]] = [zero3] * n
         active = range(n) if nodes is None else nodes
         moving = set(active)
         for i in active:
@@ -399,7 +407,7 @@ class RigidBodyTree:
             f[i] = _vadd(_vscale(ai, nd.mass), _cross(ali, h), _cross(wi, _cross(wi, h)))
             m_[i] = _vadd(_matvec(Ib, ali), _cross(wi, _matvec(Ib, wi)), _cross(h, ai))
         # backward pass: forces of the moving nodes propagate to every ancestor
-        tau: list[Any] = [0.0] * n
+        tau: list[Scalar] = [0.0] * n
         f = list(f)
         m_ = list(m_)
         for i in range(n - 1, -1, -1):
@@ -415,11 +423,11 @@ class RigidBodyTree:
         return tau
 
     # ---------------------------------------------------------------- public
-    def mass_matrix(self, q: Sequence[Any], ops: Ops = NUMPY_OPS, X: Any = None) -> list[list[Any]]:
+    def mass_matrix(self, q: Sequence[Scalar], ops: Ops = NUMPY_OPS, X: Transforms | None = None) -> list[list[Scalar]]:
         """Joint-space mass matrix ``M(q)`` (without armature) as nested lists ``(nq, nq)``."""
         X = self._joint_transforms(q, ops) if X is None else X
         n = self.nq
-        M: list[list[Any]] = [[0.0] * n for _ in range(n)]
+        M: list[list[Scalar]] = [[0.0] * n for _ in range(n)]
         for j in range(n):
             e = [1.0 if k == j else 0.0 for k in range(n)]
             col = self._rnea(X, None, e, [0.0, 0.0, 0.0], self._subtree[j])
@@ -428,19 +436,21 @@ class RigidBodyTree:
                 M[j][i] = col[i]
         return M
 
-    def bias(self, q: Sequence[Any], qd: Sequence[Any], ops: Ops = NUMPY_OPS, X: Any = None) -> list[Any]:
+    def bias(
+        self, q: Sequence[Scalar], qd: Sequence[Scalar], ops: Ops = NUMPY_OPS, X: Transforms | None = None
+    ) -> list[Scalar]:
         """``c(q, q̇)``: Coriolis, centrifugal and gravity forces ``(nq,)``."""
         X = self._joint_transforms(q, ops) if X is None else X
         return self._rnea(X, qd, [0.0] * self.nq, self._a_base)
 
     def actuator_forces(
-        self, q: Sequence[Any], qd: Sequence[Any], u: Sequence[Any], active: Sequence[int]
-    ) -> list[Any]:
+        self, q: Sequence[Scalar], qd: Sequence[Scalar], u: Sequence[Scalar], active: Sequence[int]
+    ) -> list[Scalar]:
         """Generalized actuator forces ``(nq,)`` of the actuators ``active`` driven by ``u``.
 
         Actuators not in ``active`` get control 0 (their bias still acts).
         """
-        tau: list[Any] = [0.0] * self.nq
+        tau: list[Scalar] = [0.0] * self.nq
         if not self.tree.actuation_enabled:
             return tau
         ctrl = dict(zip(active, u, strict=True))
@@ -450,14 +460,14 @@ class RigidBodyTree:
             length = _mul(g, q[j])
             vel = _mul(g, qd[j])
             p0, p1, p2 = (float(c) for c in act.gainprm)
-            gain: Any = p0 if act.gaintype == "fixed" else _add(p0, _mul(p1, length), _mul(p2, vel))
+            gain: Scalar = p0 if act.gaintype == "fixed" else _add(p0, _mul(p1, length), _mul(p2, vel))
             b0, b1, b2 = (float(c) for c in act.biasprm)
-            bias: Any = 0.0 if act.biastype == "none" else _add(b0, _mul(b1, length), _mul(b2, vel))
+            bias: Scalar = 0.0 if act.biastype == "none" else _add(b0, _mul(b1, length), _mul(b2, vel))
             force = _add(_mul(gain, ctrl[k]) if k in ctrl else 0.0, bias)
             tau[j] = _add(tau[j], _mul(g, force))
         return tau
 
-    def passive_forces(self, q: Sequence[Any], qd: Sequence[Any]) -> list[Any]:
+    def passive_forces(self, q: Sequence[Scalar], qd: Sequence[Scalar]) -> list[Scalar]:
         """Joint damping and spring forces ``-b q̇ - k (q - q_spring)`` ``(nq,)``."""
         return [
             _sub(
@@ -468,8 +478,13 @@ class RigidBodyTree:
         ]
 
     def accelerations(
-        self, q: Sequence[Any], qd: Sequence[Any], u: Sequence[Any], active: Sequence[int], ops: Ops = NUMPY_OPS
-    ) -> list[Any]:
+        self,
+        q: Sequence[Scalar],
+        qd: Sequence[Scalar],
+        u: Sequence[Scalar],
+        active: Sequence[int],
+        ops: Ops = NUMPY_OPS,
+    ) -> list[Scalar]:
         """Forward dynamics ``q̈ = (M + diag(a))⁻¹ (τ_act + τ_passive − c)`` ``(nq,)``."""
         X = self._joint_transforms(q, ops)
         M = self.mass_matrix(q, ops, X)
@@ -490,7 +505,7 @@ class RigidBodyTree:
         qdd = self.accelerations(q, qd, uu, active, CASADI_OPS)
         return cs.vertcat(*qd, *[cs.SX(v) if isinstance(v, float | int) else v for v in qdd])
 
-    def xdot_numpy(self, x: Any, u: Any, active: Sequence[int]) -> np.ndarray:
+    def xdot_numpy(self, x: ArrayLike, u: ArrayLike, active: Sequence[int]) -> np.ndarray:
         """``ẋ (2nq,)`` evaluated directly on numbers (float or complex; the complex-step path)."""
         n = self.nq
         x = np.asarray(x)

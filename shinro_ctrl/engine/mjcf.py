@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -11,8 +12,10 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from shinro_ctrl.engine.model_tree import load_spec
+from shinro_ctrl.engine.warnings import ModelWarning, collect_messages
 from shinro_ctrl.errors import InvalidArgument, UnknownName
-from shinro_ctrl.resources import asset_path, list_assets, shipped_asset
+from shinro_ctrl.resources import list_assets
 from shinro_ctrl.validation import closest
 
 __all__ = ["TINY_INERTIA"]
@@ -65,10 +68,14 @@ def _load_spec(path_or_xml: str | Path, *, shipped: bool = False) -> tuple[mujoc
     only: a same-named file in the current directory does not shadow it.
     """
     if isinstance(path_or_xml, str) and path_or_xml.lstrip().startswith("<"):
-        try:
-            return mujoco.MjSpec.from_string(path_or_xml), "<xml string>"
-        except ValueError as exc:
-            raise InvalidArgument(f"invalid MJCF XML string: {_mujoco_message(exc)}") from exc
+        with collect_messages() as said:
+            try:
+                spec = mujoco.MjSpec.from_string(path_or_xml)
+            except ValueError as exc:
+                raise InvalidArgument(f"invalid MJCF XML string: {_mujoco_message(exc)}") from exc
+        for msg in said:
+            warnings.warn(ModelWarning(f"MuJoCo, loading an XML string: {msg}"), stacklevel=3)
+        return spec, "<xml string>"
     if not isinstance(path_or_xml, str | os.PathLike) or isinstance(path_or_xml, bytes):
         raise InvalidArgument(
             "MuJoCo model must be an MJCF file path, a shipped asset name (such as 'cartpole.xml') or an "
@@ -80,7 +87,7 @@ def _load_spec(path_or_xml: str | Path, *, shipped: bool = False) -> tuple[mujoc
             f"or an MJCF XML string (shipped assets: {_shipped_list()})"
         )
     try:
-        path = shipped_asset(path_or_xml) if shipped else asset_path(path_or_xml)
+        spec, path, _ = load_spec(path_or_xml, shipped=shipped)
     except FileNotFoundError:
         if shipped:
             raise FileNotFoundError(
@@ -94,17 +101,18 @@ def _load_spec(path_or_xml: str | Path, *, shipped: bool = False) -> tuple[mujoc
         raise FileNotFoundError(
             f"MuJoCo model file not found: '{path_or_xml}' (shipped assets: {_shipped_list()})"
         ) from None
-    try:
-        return mujoco.MjSpec.from_file(str(path)), str(path)
-    except ValueError as exc:
-        raise InvalidArgument(f"invalid MJCF model '{path}': {_mujoco_message(exc)}") from exc
+    return spec, str(path)
 
 
 def _compile(spec: mujoco.MjSpec, source: str) -> mujoco.MjModel:
-    try:
-        return spec.compile()
-    except ValueError as exc:
-        raise InvalidArgument(f"MJCF model '{source}' does not compile: {_mujoco_message(exc)}") from exc
+    with collect_messages() as said:
+        try:
+            model = spec.compile()
+        except ValueError as exc:
+            raise InvalidArgument(f"MJCF model '{source}' does not compile: {_mujoco_message(exc)}") from exc
+    for msg in said:
+        warnings.warn(ModelWarning(f"MuJoCo, compiling '{Path(source).name}': {msg}"), stacklevel=3)
+    return model
 
 
 def _find(spec: mujoco.MjSpec, kind: str, name: str) -> Any:

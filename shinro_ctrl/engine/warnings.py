@@ -1,12 +1,27 @@
-"""MuJoCo's warnings: the process-wide handler that records their text, and the warning tables."""
+"""MuJoCo's warnings: the process-wide handler that records their text, and the warning tables.
+
+MuJoCo prints its warnings (``WARNING: XML contains a 'NaN'``, ...) on the
+terminal unless a handler takes them. The handler installed here keeps their
+text per thread instead; the engine turns the ones of a step into errors, and
+the model loader (:func:`collect_messages`) reports the ones of a model file
+as a :class:`ModelWarning`, which the CLI prints as ``warning: ...`` after a
+successful command (never as stray lines of MuJoCo's own).
+"""
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import mujoco
 
-__all__ = ["install_warning_handler", "take_warning_messages"]
+__all__ = ["ModelWarning", "collect_messages", "install_warning_handler", "take_warning_messages"]
+
+
+class ModelWarning(UserWarning):
+    """A model file loads, but something about it deserves a word (MuJoCo's own warnings, a welded base)."""
+
 
 _WARNINGS = {
     int(w): (w.name, text)
@@ -62,3 +77,28 @@ def take_warning_messages() -> list[str]:
     out = list(msgs)
     msgs.clear()
     return out
+
+
+@contextmanager
+def collect_messages() -> Iterator[list[str]]:
+    """Collect MuJoCo's warnings of the ``with`` block in this thread (none reach the terminal).
+
+    Installs the handler if needed. Messages recorded before the block stay
+    for the next :func:`take_warning_messages`; the block's own go into the
+    yielded list only.
+
+    Yields:
+        The list the block's messages are appended to when it ends.
+    """
+    with _WARNING_LOCK:
+        if not _HANDLER["installed"]:
+            mujoco.set_mju_user_warning(_record_warning)
+            _HANDLER["installed"] = True
+    before = take_warning_messages()
+    out: list[str] = []
+    try:
+        yield out
+    finally:
+        out.extend(take_warning_messages())
+        if before:
+            _RECENT.messages = before

@@ -28,48 +28,103 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Protocol
 
 import casadi as cs
 import numpy as np
 
-from shinro_ctrl.backend import CasadiBackend
-from shinro_ctrl.errors import InvalidArgument, UnknownName
-from shinro_ctrl.multibody import ModelTree, RigidBodyTree
+from shinro_ctrl.backend import ArrayBackend, CasadiBackend
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
+from shinro_ctrl.multibody import RigidBodyTree
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_positive, closest
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from shinro_ctrl.engine.model_tree import RobotModel
 
 __all__ = ["MODEL_SUFFIXES", "MjcfPlant", "is_model_file"]
 
 MODEL_SUFFIXES = (".xml", ".mjcf", ".urdf")
 
+#: How far inside a joint's range (as a fraction of its width) the default operating point moves a ``qpos0``
+#: that lies outside the range, or on its edge.
+RANGE_MARGIN = 0.01
 
-def is_model_file(name: Any) -> bool:
-    """Whether ``name`` names a model file (MJCF/URDF suffix) rather than a plant class."""
-    return isinstance(name, str | os.PathLike) and Path(os.fspath(name)).suffix.lower() in MODEL_SUFFIXES
+
+def is_model_file(name: object) -> bool:
+    """Whether ``name`` names a model file rather than a plant class.
+
+    True for an MJCF/URDF suffix in any case (``.xml``, ``.mjcf``, ``.urdf``,
+    ``.XML`` ...), and for an existing file of another name whose content is
+    MJCF or URDF (``shinro_ctrl.engine.model_tree.model_kind``).
+    """
+    if not isinstance(name, str | os.PathLike) or isinstance(name, bytes):
+        return False
+    p = Path(os.fspath(name))
+    if p.suffix.lower() in MODEL_SUFFIXES:
+        return True
+    if p.suffix.lower() == ".toml" or not p.is_file():
+        return False
+    from shinro_ctrl.engine.model_tree import model_kind
+
+    try:
+        model_kind(p)
+    except (InvalidArgument, OSError):
+        return False
+    return True
 
 
 @functools.lru_cache(maxsize=16)
-def _read(path: str, mtime_ns: int) -> tuple[ModelTree, RigidBodyTree, np.ndarray | None]:
-    """Read one model file version once: its tree, dynamics builder and first keyframe ``[qpos; qvel]``."""
+def _read(source: str, mtime_ns: int) -> tuple[RobotModel, RigidBodyTree]:
+    """Read one model file version once: the checked model and its dynamics builder."""
     # the agreed exception to the layering: the model reader lives in the engine package
-    from shinro_ctrl.engine.model_tree import load_model, read_model_tree
+    from shinro_ctrl.engine.model_tree import read_robot
 
-    mj, _ = load_model(path)
-    tree = read_model_tree(mj, path=path)
-    key = np.concatenate([mj.key_qpos[0], mj.key_qvel[0]]).astype(float) if mj.nkey else None
-    return tree, RigidBodyTree(tree), key
+    robot = read_robot(source)
+    return robot, RigidBodyTree(robot.tree)
 
 
 @functools.lru_cache(maxsize=16)
-def _function(path: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
+def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
     """The compiled ``f(x, u) -> xdot`` of one model file version and actuator selection."""
-    tree, rb, _ = _read(path, mtime_ns)
-    x = cs.SX.sym("x", 2 * tree.nq)
+    robot, rb = _read(source, mtime_ns)
+    x = cs.SX.sym("x", 2 * robot.tree.nq)
     u = cs.SX.sym("u", len(active))
     return cs.Function("f", [x, u], [rb.xdot_sx(x, u, active)], ["x", "u"], ["xdot"])
+
+
+class MujocoEngine(Protocol):
+    """What :class:`MjcfPlant`'s engine hooks use of a ``shinro_ctrl.engine.MujocoEngine`` (duck-typed)."""
+
+    model: object
+    data: object
+
+    def get_state_vector(self) -> np.ndarray: ...
+
+    def set_state_vector(self, x: np.ndarray) -> None: ...
+
+    def set_ctrl(self, u: np.ndarray) -> None: ...
+
+
+class _Buffers:
+    """One thread's evaluation buffer of the compiled dynamics (arrays bound to a CasADi ``FunctionBuffer``)."""
+
+    __slots__ = ("buf", "run", "u", "x", "y")
+
+    def __init__(self, fun: cs.Function):
+        self.x = np.zeros(fun.size1_in(0))
+        self.u = np.zeros(fun.size1_in(1))
+        self.y = np.zeros(fun.size1_out(0))
+        self.buf, self.run = fun.buffer()
+        self.buf.set_arg(0, memoryview(self.x))
+        self.buf.set_arg(1, memoryview(self.u))
+        self.buf.set_res(0, memoryview(self.y))
 
 
 class MjcfPlant(Plant):
@@ -84,15 +139,33 @@ class MjcfPlant(Plant):
     their gains and biases, ``general`` with fixed/affine gain and bias; see
     :mod:`shinro_ctrl.multibody`).
 
+    The file's kind is read from its content (``<mujoco>`` or ``<robot>``),
+    whatever its name. Everything in it the plant cannot model (free or ball
+    joints, equality constraints, tendons that exert force, frictionloss, an
+    unsupported actuator ...) and every invalid number (a ``NaN`` gravity, an
+    infinite mass) is refused in one error that lists them all by element
+    name, with the fix where one exists.
+
     A URDF file carries no actuators: its inputs are joint torques (forces
     for prismatic joints), one motor per joint named after the joint, in an
     MJCF translation that both the plant and the engine load (see
-    ``shinro_ctrl.engine.model_tree.urdf_with_motors``).
+    ``shinro_ctrl.engine.model_tree.urdf_with_motors``); messages name the
+    URDF and its elements, never the translation. MuJoCo welds a URDF's root
+    link to the world: when that root carries mass and several moving
+    branches (a legged or wheeled robot meant to float), the plant says so
+    with a :class:`~shinro_ctrl.engine.warnings.ModelWarning`.
 
     ``MjcfPlant`` has no float physical parameters: the model file is the
     parameter. ``param_names`` is empty, ``params()`` is ``{}`` and
     ``symbolic(params=True)`` takes an empty ``p``; to change the physics,
     edit the file.
+
+    Threads: :meth:`dynamics`, :meth:`linearize`, :meth:`equilibrium_input`
+    and the other model methods may be called from any number of threads at
+    once: each thread evaluates the compiled dynamics in its own buffer
+    (created on its first call), and the exact Jacobian's one buffer is
+    behind a lock. :meth:`step` and the state belong to one thread (see
+    :class:`~shinro_ctrl.plants.base.Plant`).
 
     Args:
         model: MJCF/URDF path, or the name of a shipped asset; default the
@@ -101,36 +174,45 @@ class MjcfPlant(Plant):
         actuators: Names of the actuators that are the inputs, in this order;
             None: all, in the model's order. Actuators left out get control 0.
         dt: Step [s]; default the model's ``opt.timestep``.
-        x0: Operating state ``(2 nq,)``; default the model's first keyframe,
-            else ``[qpos0; 0]``.
+        x0: Operating state ``(2 nq,)``; default the model's first keyframe
+            (``[key qpos; key qvel]``), else ``[qpos0; 0]`` with every joint
+            whose ``qpos0`` lies outside its range (or on its edge) moved
+            inside it, :data:`RANGE_MARGIN` of the range's width from the
+            nearer end. Must lie within the joint ranges.
         u0: Operating input ``(m,)``; default :meth:`equilibrium_input` at
             ``x0`` when the actuators can hold it there (gravity
             compensation), else zeros.
-        backend: Kept for API compatibility (unused).
+        backend: The seed's keyword, accepted and not used.
 
     Raises:
         FileNotFoundError: no such file or shipped asset.
-        InvalidArgument: an unsupported joint or actuator (named), no
-            actuators, an unknown actuator name, a bad ``dt``/``x0``/``u0``.
+        InvalidArgument: a file that is not MJCF/URDF or that MuJoCo cannot
+            load; unsupported features or invalid numbers (all listed at
+            once); no actuators, an unknown actuator name; a bad ``dt`` or
+            ``u0``; an ``x0`` (or keyframe) outside a joint's range (naming
+            the joint).
     """
 
     def __init__(
         self,
-        model: str | os.PathLike = "furuta_pendulum.xml",
+        model: str | os.PathLike[str] = "furuta_pendulum.xml",
         *,
         actuators: Sequence[str] | None = None,
         dt: float | None = None,
-        x0: Any = None,
-        u0: Any = None,
-        backend: Any = None,
+        x0: ArrayLike | None = None,
+        u0: ArrayLike | None = None,
+        backend: ArrayBackend | None = None,
     ):
-        from shinro_ctrl.engine.model_tree import resolve_model_path, urdf_with_motors
+        from shinro_ctrl.engine.model_tree import resolve_model_path
 
-        path = resolve_model_path(model)
-        if path.suffix.lower() == ".urdf":  # URDF has no actuators: a motor per joint, in a converted MJCF
-            path = urdf_with_motors(path)
-        mtime = path.stat().st_mtime_ns
-        tree, rb, key = _read(str(path), mtime)
+        source = resolve_model_path(model)
+        mtime = source.stat().st_mtime_ns
+        robot, rb = _read(str(source), mtime)
+        for note in robot.notes:
+            from shinro_ctrl.engine.model_tree import ModelWarning
+
+            warnings.warn(ModelWarning(note), stacklevel=2)
+        tree = robot.tree
         names = [a.name for a in tree.actuators]
         if actuators is None:
             active = tuple(range(tree.nu))
@@ -148,9 +230,10 @@ class MjcfPlant(Plant):
                 raise InvalidArgument(f"actuators lists a name twice: {list(actuators)!r}")
             active = tuple(active_list)
         self.tree, self.rigid_body_tree = tree, rb
-        self._fun = _function(str(path), mtime, active)
-        self.model_path = str(path)
-        self.asset = str(path)  # the engine loads the same file
+        self._fun = _function(str(source), mtime, active)
+        self.source_path = str(robot.source)  # the user's file (a URDF itself for a URDF)
+        self.model_path = str(robot.path)  # the file plant and engine load (a URDF's translation)
+        self.asset = self.model_path  # the engine loads the same file
         self.active_actuators = active
         nq = tree.nq
         self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
@@ -158,22 +241,46 @@ class MjcfPlant(Plant):
         self.input_names = tuple(names[k] or f"u{k}" for k in active)
         self.position_indices = tuple(range(nq))
         self.velocity_indices = tuple(range(nq, 2 * nq))
+        self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
-        # fast numeric path: one buffer bound to arrays this object owns
-        self._xb = np.zeros(2 * nq)
-        self._ub = np.zeros(len(active))
-        self._yb = np.zeros(2 * nq)
-        self._buf, self._eval = self._fun.buffer()
-        self._buf.set_arg(0, memoryview(self._xb))
-        self._buf.set_arg(1, memoryview(self._ub))
-        self._buf.set_res(0, memoryview(self._yb))
         if x0 is None:
-            x0 = key if key is not None else np.r_[[j.qpos0 for j in tree.joints], np.zeros(nq)]
-        self._x0 = as_vector("x0", x0, 2 * nq).copy()
+            self._x0 = self._default_x0(robot.keyframe)
+        else:
+            self._x0 = as_vector("x0", x0, 2 * nq).copy()
+            self._check_in_range(self._x0, "x0")
         self._u0 = as_vector("u0", u0, self.input_dim).copy() if u0 is not None else self._default_u0()
         self.state = self._x0.copy()
 
     # ------------------------------------------------------------ operating
+    def _default_x0(self, keyframe: tuple[str, np.ndarray] | None) -> np.ndarray:
+        """The first keyframe, else ``[qpos0; 0]`` moved inside the joint ranges (see the class docstring)."""
+        nq = self.tree.nq
+        if keyframe is not None:
+            name, x = keyframe
+            self._check_in_range(x, f"keyframe '{name}'" if name else "the model's first keyframe")
+            return x.copy()
+        x = np.r_[[j.qpos0 for j in self.tree.joints], np.zeros(nq)]
+        for i, j in enumerate(self.tree.joints):
+            if j.limited:
+                lo, hi = j.range
+                margin = RANGE_MARGIN * (hi - lo)
+                x[i] = min(max(x[i], lo + margin), hi - margin)
+        return x
+
+    def _check_in_range(self, x: np.ndarray, what: str) -> None:
+        """Raise InvalidArgument naming every joint of ``x`` outside its range."""
+        outside = [
+            f"'{self.joint_names[i]}' = {x[i]:g} (range [{j.range[0]:g}, {j.range[1]:g}])"
+            for i, j in enumerate(self.tree.joints)
+            if j.limited and not j.range[0] <= x[i] <= j.range[1]
+        ]
+        if outside:
+            raise InvalidArgument(
+                f"{self._label()}: {what} puts {'joints' if len(outside) > 1 else 'a joint'} outside the joint "
+                f"range: {', '.join(outside)}; MuJoCo's joint limit would push it back (give an operating "
+                "point inside the ranges)"
+            )
+
     def _default_u0(self) -> np.ndarray:
         try:
             return self.equilibrium_input(self._x0)
@@ -184,7 +291,7 @@ class MjcfPlant(Plant):
         """The operating point ``(x0 (2nq,), u0 (m,))`` (see the constructor)."""
         return self._x0.copy(), self._u0.copy()
 
-    def equilibrium_input(self, x: Any, *, tol: float = 1e-9) -> np.ndarray:
+    def equilibrium_input(self, x: ArrayLike, *, tol: float = 1e-9) -> np.ndarray:
         r"""The input that makes the accelerations vanish at ``x`` (e.g. gravity compensation).
 
         ``q̈`` is affine in ``u``: ``q̈ = a₀ + B_q u`` with ``a₀ = q̈(x, 0)``
@@ -200,12 +307,18 @@ class MjcfPlant(Plant):
             InvalidArgument: the actuators cannot hold ``x`` (an unactuated
                 direction with a nonzero acceleration); the message gives the
                 residual acceleration.
+            NonFiniteError: the accelerations at ``x`` overflow float64.
         """
         x = as_vector("x", x, self.state_dim)
         nq = self.tree.nq
         u0 = np.zeros(self.input_dim)
         a0 = self._eval_one(x, u0)[nq:]
         Bq = np.column_stack([self._eval_one(x, e)[nq:] - a0 for e in np.eye(self.input_dim)])
+        if not (np.isfinite(a0).all() and np.isfinite(Bq).all()):
+            raise NonFiniteError(
+                f"{self._label()}: the accelerations at x = {np.array2string(x, precision=4)} overflow float64 "
+                "(check the magnitudes of the masses, gains and gears in the model file)"
+            )
         u, *_ = np.linalg.lstsq(Bq, -a0, rcond=None)
         res = a0 + Bq @ u
         if np.abs(res).max() > tol * max(1.0, np.abs(a0).max()):
@@ -226,12 +339,36 @@ class MjcfPlant(Plant):
 
     # -------------------------------------------------------------- dynamics
     def _eval_one(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        self._xb[:] = x
-        self._ub[:] = u
-        self._eval()
-        return self._yb.copy()
+        """``ẋ (2nq,)`` at one ``x``, ``u`` through this thread's buffer."""
+        try:
+            b = self._local.buffers
+        except AttributeError:
+            b = self._local.buffers = _Buffers(self._fun)
+        b.x[:] = x
+        b.u[:] = u
+        b.run()
+        return b.y.copy()
 
-    def _f(self, bk: Any, x: Any, u: Any, p: Any) -> Any:
+    def dynamics(self, state: ArrayLike, control: ArrayLike, params: dict[str, ArrayLike] | None = None) -> np.ndarray:
+        """``ẋ = f(x, u)`` (see :meth:`Plant.dynamics`).
+
+        Raises:
+            InvalidArgument: wrong shapes.
+            NonFiniteError: ``x`` or ``u`` holds NaN or inf, or ``ẋ`` overflows float64.
+        """
+        for what, v, names in (("x", state, self.state_names), ("u", control, self.input_names)):
+            a = np.asarray(v, dtype=float)
+            if not np.isfinite(a).all():
+                k = int(np.argwhere(~np.isfinite(a))[0][-1]) if a.ndim else 0
+                raise NonFiniteError(
+                    f"{self._label()}.dynamics: {what} holds NaN or inf (in {names[min(k, len(names) - 1)]}): "
+                    f"{np.array2string(a, precision=4)}"
+                )
+        return super().dynamics(state, control, params)
+
+    def equations(
+        self, bk: ArrayBackend, x: np.ndarray | cs.SX, u: np.ndarray | cs.SX, p: dict[str, float]
+    ) -> np.ndarray | cs.SX | list[float]:
         """``ẋ``: the model's SX expression for the CasADi backend, the compiled function otherwise."""
         if isinstance(bk, CasadiBackend):
             return self._fun(x, u)
@@ -271,7 +408,7 @@ class MjcfPlant(Plant):
                 self._symbolic[True] = cs.Function("f", [x, u, p], [self._fun(x, u)], ["x", "u", "p"], ["xdot"])
         return self._symbolic[params]
 
-    def _integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """One semi-implicit Euler step: ``q̇⁺ = q̇ + dt q̈``, ``q⁺ = q + dt q̇⁺`` (MuJoCo's Euler)."""
         nq = self.tree.nq
         xd = self._eval_one(x, u)
@@ -288,27 +425,30 @@ class MjcfPlant(Plant):
         integrator with explicit damping, as for every plant.
         """
         g = self.tree.gravity  # the model's own (its disable flag stays in the file)
-        return MjcfPatch(asset=self.model_path, timestep=self.dt, gravity=tuple(float(c) for c in g))
+        return MjcfPatch(asset=self.model_path, timestep=self.dt, gravity=(float(g[0]), float(g[1]), float(g[2])))
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Identity: the state is MuJoCo's ``[qpos; qvel]`` (see :meth:`Plant.engine_state_map`)."""
         n = self.state_dim
         return np.eye(n), np.arange(n)
 
-    def _engine_read(self, engine: Any) -> np.ndarray:
+    def engine_read(self, engine: MujocoEngine) -> np.ndarray:
+        """The state ``[qpos; qvel]`` read from the engine."""
         return engine.get_state_vector()
 
-    def _engine_write(self, engine: Any, x: np.ndarray) -> None:
+    def engine_write(self, engine: MujocoEngine, x: np.ndarray) -> None:
+        """Write ``[qpos; qvel]`` into the engine."""
         engine.set_state_vector(x)
 
-    def _engine_apply(self, engine: Any, u: np.ndarray) -> None:
+    def engine_apply(self, engine: MujocoEngine, u: np.ndarray) -> None:
+        """Set the selected actuators' controls (the others stay 0)."""
         if len(self.active_actuators) == self.tree.nu and self.active_actuators == tuple(range(self.tree.nu)):
             engine.set_ctrl(u)
             return
         for k, a in enumerate(self.active_actuators):
             engine.data.ctrl[a] = u[k]
 
-    def _check_engine(self, engine: Any) -> None:
+    def _check_engine(self, engine: MujocoEngine | None) -> None:
         super()._check_engine(engine)
         if engine is not None:
             m = engine.model
@@ -322,7 +462,7 @@ class MjcfPlant(Plant):
 
     # ---------------------------------------------------------------- config
     def _label(self) -> str:
-        return f"MjcfPlant('{Path(self.model_path).name}')"
+        return f"MjcfPlant('{Path(self.source_path).name}')"
 
     def __repr__(self) -> str:
-        return f"MjcfPlant('{self.model_path}', dt={self.dt:g})"
+        return f"MjcfPlant('{self.source_path}', dt={self.dt:g})"
