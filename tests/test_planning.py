@@ -242,7 +242,7 @@ def test_save_load_round_trip_and_plot(swingups, tmp_path):
     png = swingups["trapezoid"].plot(tmp_path / "plan.png")
     assert png.stat().st_size > 1000
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(InvalidArgument, match="not a saved Trajectory"):
+    with pytest.raises(InvalidArgument, match="not a saved plan"):
         Trajectory.load(tmp_path / "junk.npz")
 
 
@@ -332,10 +332,11 @@ track = ["x", "theta"]
     assert main(["run", str(scenario), "--plan", str(saved), "--out", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
     assert f"objective {traj.objective:.6g}" in out  # the loaded plan, not a new one
-    from shinro_ctrl.cli import _scenario_with_plan_file
+    from shinro_ctrl.config import load_scenario
+    from shinro_ctrl.planning import with_plan_file
     from shinro_ctrl.sim import RobotSim
 
-    sim = RobotSim(_scenario_with_plan_file(str(scenario), str(saved)))
+    sim = RobotSim(with_plan_file(load_scenario(scenario), saved))
     assert sim.controller.trajectory.objective == traj.objective
     np.testing.assert_array_equal(sim.controller.u_max, [5.0])  # the plan's bounds still saturate the controller
     assert main(["plan", str(tmp_path / "missing.toml")]) == 2

@@ -16,8 +16,8 @@ depends only on the scenario, the key, the range and ``points``: never on
 the worker count. Outputs (``out``): ``tradeoff.csv`` (one row per point),
 ``tradeoff.json`` (rows, the scenario's current design, the elapsed time)
 and ``tradeoff.png`` (tracking RMS against peak input, coloured by disk
-margin, the Pareto front joined, the current design starred), written
-atomically.
+margin, the Pareto front joined, the current design starred), written as
+one set (all three new or all three old, even if killed).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ import numpy as np
 
 from shinro_ctrl.config import load_scenario
 from shinro_ctrl.errors import InvalidArgument, ShinroError
-from shinro_ctrl.files import atomic_write, dump_json
+from shinro_ctrl.files import atomic_folder, atomic_write, dump_json
 
 __all__ = ["COLUMNS", "OUTPUT_FILES", "TradeoffResult", "parse_tradeoff", "run_tradeoff"]
 
@@ -286,20 +286,28 @@ class TradeoffResult:
         ax.set_title(f"LQR trade-off over {what} ({len(self.values)} points, {self.engine} loop)")
         ax.grid(True, color="0.88", lw=0.6)
         ax.legend(fontsize=8, loc="upper right")
-        p = Path(path)
-        atomic_write(p, lambda f: fig.savefig(f, format="png"), binary=True)
-        return p
+        from shinro_ctrl.plots._figure import save_figure
+
+        return save_figure(fig, path)
 
     def save(self, directory: str | Path) -> dict[str, Path]:
-        """Write ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png`` into ``directory``."""
+        """Write ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png`` into ``directory`` as one set.
+
+        The three files are built in a hidden folder swapped into place in one step
+        (:func:`~shinro_ctrl.files.atomic_folder`, as ``run --out``): a kill leaves the
+        previous set or the new one, never a mix. Only a new or empty folder, or one
+        an earlier save wrote, is replaced.
+
+        Raises:
+            InvalidArgument: ``directory`` is a folder shinro-ctrl did not write or a symbolic link.
+        """
         d = Path(directory)
-        d.mkdir(parents=True, exist_ok=True)
         text = self.to_csv()
-        self.paths = {
-            "csv": atomic_write(d / "tradeoff.csv", lambda f: f.write(text)),
-            "json": dump_json(d / "tradeoff.json", self.to_dict()),
-            "png": self.plot(d / "tradeoff.png"),
-        }
+        with atomic_folder(d, OUTPUT_FILES) as staging:
+            atomic_write(staging / "tradeoff.csv", lambda f: f.write(text))
+            dump_json(staging / "tradeoff.json", self.to_dict())
+            self.plot(staging / "tradeoff.png")
+        self.paths = {"csv": d / "tradeoff.csv", "json": d / "tradeoff.json", "png": d / "tradeoff.png"}
         return self.paths
 
     def summary(self) -> str:

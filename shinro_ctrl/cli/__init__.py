@@ -39,7 +39,6 @@ from shinro_ctrl.cli.common import side_by_side as side_by_side
 from shinro_ctrl.cli.design import cmd_design
 from shinro_ctrl.cli.models import cmd_crosscheck, cmd_linearize, cmd_list
 from shinro_ctrl.cli.run import DEFAULT_SCENARIO as DEFAULT_SCENARIO
-from shinro_ctrl.cli.run import _scenario_with_plan_file as _scenario_with_plan_file
 from shinro_ctrl.cli.run import cmd_plan, cmd_run
 from shinro_ctrl.cli.run import format_metric_comparison as format_metric_comparison
 from shinro_ctrl.cli.sets import cmd_regress, cmd_sweep

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -96,9 +98,22 @@ def _check_count(option: str, value: int, limit: int) -> None:
 
 
 def _check_output(path: str, inputs: Sequence[str | None] = ()) -> None:
+    """``--plot`` (PDF for a ``.pdf`` name, else PNG): no input, link, folder or file shinro-ctrl did not write."""
     from shinro_ctrl.files import check_output_file
+    from shinro_ctrl.plots._figure import plot_format
 
-    check_output_file(path, inputs=[i for i in inputs if i], what="--plot", kind=".png")
+    check_output_file(path, inputs=[i for i in inputs if i], what="--plot", kind=plot_format(path).upper())
+
+
+def _same_path(a: str | Path, b: str | Path) -> bool:
+    """The same file name after resolving links and ``..`` (whether it exists or not)."""
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _inside(path: str | Path, folder: str | Path) -> bool:
+    """``path`` lies in ``folder`` or below it (links and ``..`` resolved)."""
+    p, d = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
+    return d == p or d in p.parents
 
 
 def _check_scheduler(address: str, timeout: float = 5.0) -> None:

@@ -55,9 +55,16 @@ def _check_design_options(args: argparse.Namespace) -> None:
         report = Path(args.report)
         if report.suffix.lower() not in (".html", ".htm"):
             raise InvalidArgument(f"--report: expected a FILE.html, got '{report}'")
-        check_output_file(report, inputs=[args.config], what="--report")
-        if report.is_file() and report.stat().st_size and not report.read_bytes()[:15].lower() == b"<!doctype html>":
-            raise InvalidArgument(f"--report '{report}' exists and is not an HTML report; refusing to overwrite it")
+        if args.out:
+            from shinro_ctrl.cli.common import _inside
+
+            if _inside(report, args.out):
+                raise InvalidArgument(
+                    f"--report '{report}' is inside --out '{args.out}', which is replaced as a whole: "
+                    "put the report elsewhere"
+                )
+        # only over a report of ours (its generator meta tag), never through a link
+        check_output_file(report, inputs=[args.config], what="--report", kind="HTML report")
 
 
 def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
