@@ -112,7 +112,7 @@ def test_a_users_file_of_the_same_format_is_refused_unchanged(kind, tmp_path):
     data = USER_FILES[kind]()
     path.write_bytes(data)
     assert not written_by_us(path)
-    with pytest.raises(InvalidArgument, match="not .* written by shinro-ctrl; refusing to overwrite") as info:
+    with pytest.raises(InvalidArgument, match=r"not .* written by shinro-ctrl; refusing to overwrite") as info:
         _write_ours(kind, path)
     assert len(str(info.value).splitlines()) == 1
     assert path.read_bytes() == data

@@ -88,7 +88,8 @@ def _print_mpc(sim: Any) -> None:
     """The MPC problem and the solve statistics of a short closed-loop run (at most 2 s)."""
     ctrl = sim.controller
     print(ctrl.describe())
-    result = sim.run(min(sim.scenario.sim.duration, 2.0))
+    dt = sim.plant.dt
+    result = sim.run(dt * min(round(sim.scenario.sim.duration / dt), max(1, int(2.0 / dt))))  # <= 2 s, whole steps
     solve = result.solve_times
     print(
         f"closed loop ({len(solve)} steps, {sim.loop}): median call {1e3 * np.median(solve):.3f} ms, "

@@ -27,6 +27,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.engine == "both":
         return _run_both(args, config)
     sim = _build_sim(config, args.plan, args.engine)
+    _check_duration(args.duration, sim.plant.dt)
     _print_plan(sim.controller)
     label = f"{sim.scenario.name} ({sim.loop})"
     print(f"running {label}: {type(sim.plant).__name__} + {type(sim.controller).__name__}, ", end="")
@@ -45,12 +46,20 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_config_argument(config: str | None) -> None:
+def _check_duration(duration: float | None, dt: float) -> None:
+    """``--duration``: a whole number of the plant's steps, at least one (never rounded silently)."""
+    if duration is not None:
+        from shinro_ctrl.config import whole_steps
+
+        whole_steps(duration, dt, "--duration")
+
+
+def _check_config_argument(config: str | None, *, demo: bool = True) -> None:
     """An empty CONFIG (``run ""``, an unset shell variable) is refused, never taken for the demo."""
     if config is not None and not config.strip():
         raise InvalidArgument(
             "the scenario argument CONFIG is empty (an unset shell variable?): give a scenario file or a shipped "
-            "name, or leave it out for the demo"
+            "name" + (", or leave it out for the demo" if demo else "")
         )
 
 
@@ -146,6 +155,7 @@ def _save_run(args: argparse.Namespace, sim: Any, result: Any) -> Path:
 def _run_both(args: argparse.Namespace, config: Any) -> int:
     """``run --engine both``: the standalone and the MuJoCo loop of one scenario, compared and overlaid."""
     a, b = (_build_sim(config, args.plan, loop) for loop in ("standalone", "mujoco"))
+    _check_duration(args.duration, a.plant.dt)
     duration = args.duration if args.duration is not None else a.scenario.sim.duration
     what = f"{type(a.plant).__name__} + {type(a.controller).__name__}"
     print(f"running {a.scenario.name} in both loops: {what}, {duration:g} s at dt = {a.plant.dt:g} s")
@@ -187,7 +197,7 @@ def format_metric_comparison(a: dict[str, float], b: dict[str, float], names: tu
 def cmd_plan(args: argparse.Namespace) -> int:
     from shinro_ctrl.config import load_scenario
 
-    _check_config_argument(args.config)
+    _check_config_argument(args.config, demo=False)
     from shinro_ctrl.planning.spec import make_plan
     from shinro_ctrl.plants import plant_class
 

@@ -22,7 +22,7 @@ dataclasses), :mod:`~shinro_ctrl.config.parse` (loading; ``[plant]``,
 from ``shinro_ctrl.config``.
 """
 
-from shinro_ctrl.config.context import _Ctx
+from shinro_ctrl.config.context import ConfigContext, _Ctx, whole_steps
 from shinro_ctrl.config.parse import load_scenario, parse_scenario
 from shinro_ctrl.config.schema import (
     ENGINE_KEYS,
@@ -59,6 +59,7 @@ __all__ = [
     "SIM_KEYS",
     "SIZE_LIMITS",
     "TABLES",
+    "ConfigContext",
     "ControllerConfig",
     "DisturbanceTables",
     "EngineConfig",
@@ -73,4 +74,5 @@ __all__ = [
     "signature_annotations",
     "table_annotations",
     "toml_type",
+    "whole_steps",
 ]

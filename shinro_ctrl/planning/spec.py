@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument, PlanningFailed
-from shinro_ctrl.planning.trajectory import METHODS, Trajectory
+from shinro_ctrl.planning.trajectory import METHODS, Trajectory, check_transcription_size
 from shinro_ctrl.validation import did_you_mean
 
 __all__ = [
@@ -90,16 +90,17 @@ def check_plan(spec: Any, n: int, m: int) -> dict[str, Any]:
         out["start"] = _vector("start", spec["start"], n)
     if "goal" in spec:
         out["goal"] = _vector("goal", spec["goal"], n, allow_nan=True)
+    if "method" in spec:
+        meth = spec["method"]
+        if meth not in METHODS:
+            raise InvalidArgument(f"'method': unknown transcription {meth!r}{did_you_mean(str(meth), METHODS)}")
+    knots, substeps = check_transcription_size(
+        spec.get("knots", 61), spec.get("substeps", 1), spec.get("method", "hermite_simpson")
+    )
     if "knots" in spec:
-        k = spec["knots"]
-        if isinstance(k, bool) or not isinstance(k, int) or k < 3:
-            raise InvalidArgument(f"'knots' must be an integer >= 3, got {k!r}")
-        out["knots"] = k
+        out["knots"] = knots
     if "substeps" in spec:
-        k = spec["substeps"]
-        if isinstance(k, bool) or not isinstance(k, int) or k < 1:
-            raise InvalidArgument(f"'substeps' must be a positive integer, got {k!r}")
-        out["substeps"] = k
+        out["substeps"] = substeps
     if "method" in spec:
         meth = spec["method"]
         if meth not in METHODS:

@@ -29,9 +29,36 @@ import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
 
-__all__ = ["METHODS", "Trajectory"]
+__all__ = ["MAX_KNOTS", "MAX_SHOOTING_STEPS", "MAX_SUBSTEPS", "METHODS", "Trajectory", "check_transcription_size"]
 
 METHODS = ("hermite_simpson", "trapezoid", "multiple_shooting")
+MAX_KNOTS = 1_000  # knots of a transcription (20,000 hung building the NLP; 1,000 builds in ~15 s)
+MAX_SUBSTEPS = 100  # RK4 steps per interval (multiple_shooting)
+MAX_SHOOTING_STEPS = 1_000  # knots x substeps of a multiple-shooting NLP (5,000 take ~100 s to build)
+
+
+def _count(key: str, value: Any, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or not low <= value <= high:
+        raise InvalidArgument(f"'{key}' must be an integer in [{low}, {high:,}] (the limit), got {value!r}")
+    return int(value)
+
+
+def check_transcription_size(knots: Any, substeps: Any = 1, method: str = "hermite_simpson") -> tuple[int, int]:
+    """``(knots, substeps)`` checked against the limits that keep a plan's NLP buildable in seconds.
+
+    Raises:
+        InvalidArgument: a count that is not an integer, below its minimum or above its limit (named).
+    """
+    k = _count("knots", knots, 3, MAX_KNOTS)
+    s = _count("substeps", substeps, 1, MAX_SUBSTEPS)
+    if method == "multiple_shooting" and k * s > MAX_SHOOTING_STEPS:
+        raise InvalidArgument(
+            f"'knots' x 'substeps' = {k * s:,} exceeds the limit of {MAX_SHOOTING_STEPS:,} RK4 steps of a "
+            "multiple-shooting plan (it would take minutes to build); use fewer knots or substeps"
+        )
+    return k, s
+
+
 _REQUIRED = ("t", "x", "u", "xdot", "method", "stats", "status", "state_names", "input_names")
 
 
