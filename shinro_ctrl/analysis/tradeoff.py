@@ -40,7 +40,12 @@ from shinro_ctrl.config import load_scenario
 from shinro_ctrl.errors import InvalidArgument, ShinroError
 from shinro_ctrl.files import atomic_folder, atomic_write, dump_json
 
-__all__ = ["COLUMNS", "OUTPUT_FILES", "TradeoffResult", "parse_tradeoff", "run_tradeoff"]
+__all__ = ["COLUMNS", "MAX_POINTS", "MAX_WORKERS", "OUTPUT_FILES", "TradeoffResult", "parse_tradeoff", "run_tradeoff"]
+
+#: Largest number of trade-off points (each a design, an analysis and a nonlinear run).
+MAX_POINTS = 1_000
+#: Largest number of worker processes.
+MAX_WORKERS = 256
 
 #: The files a trade-off writes into its ``out`` folder.
 OUTPUT_FILES = ("tradeoff.csv", "tradeoff.json", "tradeoff.png")
@@ -365,7 +370,7 @@ def run_tradeoff(
         config: Scenario path or shipped name (an LQR scenario).
         key: ``"R"``, ``"Q"`` (multipliers), ``"Q[i]"``, ``"R[i]"``, ``"Q.<state>"``, ``"R.<input>"`` (entries).
         lo, hi: Range, ``0 < lo < hi``.
-        points: Number of values, >= 2.
+        points: Number of values, 2 to :data:`MAX_POINTS`.
         engine: ``"standalone"``, ``"mujoco"``, or None (the scenario's loop).
         out: Folder for ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png``.
         workers: Local worker processes (1: in this process).
@@ -374,10 +379,10 @@ def run_tradeoff(
         InvalidArgument: a bad key, range, point count or worker count; a scenario whose controller is not an LQR.
     """
     parse_tradeoff(f"{key}={lo!r}:{hi!r}")
-    if isinstance(points, bool) or not isinstance(points, int) or points < 2:
-        raise InvalidArgument(f"points must be an integer >= 2, got {points!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InvalidArgument(f"workers must be an integer >= 1, got {workers!r}")
+    if isinstance(points, bool) or not isinstance(points, int) or not 2 <= points <= MAX_POINTS:
+        raise InvalidArgument(f"points must be an integer in [2, {MAX_POINTS:,}] (the limit), got {points!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_WORKERS:
+        raise InvalidArgument(f"workers must be an integer in [1, {MAX_WORKERS}] (the limit), got {workers!r}")
     scenario = load_scenario(config)
     if scenario.controller.type != "LQR":
         raise InvalidArgument(

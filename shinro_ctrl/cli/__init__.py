@@ -65,7 +65,11 @@ def _add_model_commands(sub: argparse._SubParsersAction) -> None:
     from shinro_ctrl.plants import PLANT_ALIASES
 
     p = sub.add_parser("linearize", help="exact (CasADi) and finite-difference Jacobians side by side")
-    p.add_argument("plant", metavar="PLANT", help=f"one of: {', '.join(PLANT_ALIASES)}; or an MJCF/URDF model file")
+    p.add_argument(
+        "plant",
+        metavar="PLANT",
+        help=f"one of: {', '.join(PLANT_ALIASES)}; an MJCF/URDF model file; or a scenario (CONFIG: its plant)",
+    )
     p.add_argument("--x0", help="operating state, e.g. '0,0,0.1,0' (pi allowed: 'pi,pi,0,0')")
     p.add_argument("--u0", help="operating input, e.g. '0'")
     p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
@@ -77,7 +81,7 @@ def _add_model_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "plant",
         metavar="PLANT",
-        help=f"one of: {', '.join(CROSSCHECK_PLANTS)}; an MJCF/URDF model file; or a scenario file (its plant)",
+        help=f"one of: {', '.join(CROSSCHECK_PLANTS)}; an MJCF/URDF model file; or a scenario (CONFIG: its plant)",
     )
     p.add_argument("--x0", help="operating state (pi allowed)")
     p.add_argument("--u0", help="operating input")

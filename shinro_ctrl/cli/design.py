@@ -38,8 +38,11 @@ def _check_design_options(args: argparse.Namespace) -> None:
             raise InvalidArgument("--tradeoff sweeps LQR weights: use 'design lqr'")
         if not args.out:
             raise InvalidArgument("--tradeoff needs --out DIR for tradeoff.csv, tradeoff.json and tradeoff.png")
-        if args.points < 2 or args.workers < 1:
-            raise InvalidArgument(f"--points must be >= 2 and --workers >= 1, got {args.points} and {args.workers}")
+        from shinro_ctrl.analysis.tradeoff import MAX_POINTS, MAX_WORKERS
+        from shinro_ctrl.cli.common import _check_count
+
+        _check_count("--points", args.points, MAX_POINTS, low=2)
+        _check_count("--workers", args.workers, MAX_WORKERS)
         parse_tradeoff(args.tradeoff)
         from shinro_ctrl.analysis.tradeoff import OUTPUT_FILES
         from shinro_ctrl.files import check_output_folder
