@@ -444,15 +444,91 @@ def _run_jobs(
             results.extend(_run_job(job))
         current = _evaluate(doc, source, engine)
     else:
-        import multiprocessing
-
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(_POOL_PRELOAD)
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futures = [pool.submit(_run_job, job) for job in jobs]
-            cur_future = pool.submit(_evaluate, doc, source, engine)
-            for f in futures:
-                results.extend(f.result())
-            current = cur_future.result()
+        results, current = _run_pool(_run_job, jobs, workers, (doc, source, engine))
     results.sort(key=lambda r: r[0])
     return results, current
+
+
+#: The error recorded for a point whose worker process died while running it.
+WORKER_DIED = "WorkerDied: the worker process died while running this point (killed, e.g. by the out-of-memory killer)"
+
+
+def _run_pool(
+    run_job: Any, jobs: list[_Job], workers: int, current_args: tuple[Any, ...]
+) -> tuple[list[tuple[int, dict[str, float], str]], Any]:
+    """The chunks in a forkserver pool whose workers ignore Ctrl-C (the parent stops them, without tracebacks).
+
+    A worker that dies (``BrokenProcessPool``: killed by the OOM killer or a signal) breaks every chunk still
+    in the pool; those chunks are run again one point at a time, each in a fresh worker, so the point that
+    kills its worker is named (:data:`WORKER_DIED`) and every other point keeps its result.
+    """
+    import multiprocessing
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(_POOL_PRELOAD)
+    results: list[tuple[int, dict[str, float], str]] = []
+    broken: list[_Job] = []
+    current: Any = None
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        futures = {pool.submit(run_job, job): job for job in jobs}
+        cur_future = pool.submit(_evaluate, *current_args)
+        for f in as_completed(futures):
+            try:
+                results.extend(f.result())
+            except BrokenProcessPool:
+                broken.append(futures[f])
+        try:
+            current = cur_future.result()
+        except BrokenProcessPool:
+            current = None
+        pool.shutdown(wait=True)
+        for job in broken:
+            for i, v in zip(job.indices, job.values, strict=True):
+                one = _Job(job.doc, job.source, job.engine, job.key, (v,), (i,))
+                results.extend(_isolated(ctx, run_job, one))
+        if current is None:
+            current = _isolated_current(ctx, current_args)
+    except BaseException:  # Ctrl-C (or an error): stop the workers now, not after their queued chunks
+        _stop_pool(pool)
+        raise
+    return results, current
+
+
+def _isolated(ctx: Any, run_job: Any, job: _Job) -> list[tuple[int, dict[str, float], str]]:
+    """One point in a fresh one-worker pool: its result, or :data:`WORKER_DIED` if it kills the worker."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
+
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        out = pool.submit(run_job, job).result()
+    except BrokenProcessPool:
+        out = [(job.indices[0], dict.fromkeys(COLUMNS, math.nan), WORKER_DIED)]
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+    return out
+
+
+def _isolated_current(ctx: Any, current_args: tuple[Any, ...]) -> dict[str, float]:
+    from concurrent.futures.process import BrokenProcessPool
+
+    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
+
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        current = pool.submit(_evaluate, *current_args).result()
+    except BrokenProcessPool:
+        current = dict.fromkeys(COLUMNS, math.nan)  # the scenario's own design: not starred on the plot
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+    return current
