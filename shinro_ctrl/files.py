@@ -496,7 +496,9 @@ def _is_device(p: Path) -> bool:
 
 def _kind_name(p: Path, kind: str | None) -> str:
     """``"a PNG file"``, ``"an HTML report"``: what ``p`` should be, for a message."""
-    kind = kind or (f"{p.suffix[1:].upper()} file" if p.suffix else "file")
+    kind = kind or p.suffix
+    if not kind:
+        return "a file"
     if " " not in kind:
         kind = f"{kind.lstrip('.').upper()} file"
     return f"{'an' if kind[:1] in 'AEFHILMNORSX' else 'a'} {kind}"

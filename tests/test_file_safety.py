@@ -292,8 +292,9 @@ def test_plot_inside_out_joins_the_set(tmp_path, capsys):
     for plot in (out / "sub" / "x.png", out / "metrics.json"):
         assert main(["run", "--out", str(out), "--plot", str(plot), "--duration", "0.1"]) == 2
         assert "inside --out" in _one_error_line(capsys)
-    assert main(["run", "--out", str(out), "--video", str(out / "v.gif"), "--duration", "0.1"]) == 2
-    assert "inside --out" in _one_error_line(capsys)
+    for video in (out / "sub" / "v.gif", out / "result.npz"):
+        assert main(["run", "--out", str(out), "--video", str(video), "--duration", "0.1"]) == 2
+        assert "inside --out" in _one_error_line(capsys)
 
 
 def test_plot_and_video_on_one_file_are_refused(tmp_path, capsys):

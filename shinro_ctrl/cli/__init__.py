@@ -68,7 +68,7 @@ def _add_model_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "plant",
         metavar="PLANT",
-        help=f"one of: {', '.join(PLANT_ALIASES)}; an MJCF/URDF model file; or a scenario (CONFIG: its plant)",
+        help=f"one of: {', '.join(PLANT_ALIASES)}; an MJCF/URDF file; or a scenario file or name (its plant)",
     )
     p.add_argument("--x0", help="operating state, e.g. '0,0,0.1,0' (pi allowed: 'pi,pi,0,0')")
     p.add_argument("--u0", help="operating input, e.g. '0'")
@@ -81,7 +81,7 @@ def _add_model_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "plant",
         metavar="PLANT",
-        help=f"one of: {', '.join(CROSSCHECK_PLANTS)}; an MJCF/URDF model file; or a scenario (CONFIG: its plant)",
+        help=f"one of: {', '.join(CROSSCHECK_PLANTS)}; an MJCF/URDF file; or a scenario file or name (its plant)",
     )
     p.add_argument("--x0", help="operating state (pi allowed)")
     p.add_argument("--u0", help="operating input")

@@ -34,13 +34,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"{args.duration if args.duration is not None else sim.scenario.sim.duration:g} s at dt = {sim.plant.dt:g} s")
     result = sim.run(args.duration)
     print(format_metrics(result.metrics))
-    print(f"plot: {_save_run(args, sim, result)}")
+    plot, video = _save_run(args, sim, result)
+    print(f"plot: {plot}")
     if args.video:
-        from shinro_ctrl.video import render_rollout
-
-        video = render_rollout(sim, result, args.video)
+        if video is None:
+            video = _render(sim, result, args.video)
         print(
-            f"video: {video.path} ({video.frames} frames at {video.fps:.3g} frames/s, "
+            f"video: {args.video} ({video.frames} frames at {video.fps:.3g} frames/s, "
             f"{video.frames / video.fps:.2f} s of playback; rendered in {video.seconds:.2f} s)"
         )
     return 0
@@ -66,9 +66,9 @@ def _check_config_argument(config: str | None, *, demo: bool = True) -> None:
 def _check_run_args(args: argparse.Namespace) -> None:
     """Every argument and output path of ``run``, checked before any work (an output never overwrites an input).
 
-    A ``--plot`` directly inside ``--out`` joins the folder's set (``args.plot_in_out`` = its name); one deeper
-    inside, or a ``--video`` inside ``--out``, is refused (the folder is replaced as a whole); ``--plot`` and
-    ``--video`` must be two files.
+    A ``--plot`` or ``--video`` directly inside ``--out`` joins the folder's set (``args.plot_in_out`` /
+    ``args.video_in_out`` = its name); one deeper inside, or named like one of the run's own files, is refused
+    (the folder is replaced as a whole); ``--plot`` and ``--video`` must be two files.
     """
     from shinro_ctrl.cli.common import _check_output, _inside, _same_path
     from shinro_ctrl.files import check_output_file, check_output_folder
@@ -85,27 +85,28 @@ def _check_run_args(args: argparse.Namespace) -> None:
         raise InvalidArgument("--video renders one loop: give --engine standalone or --engine mujoco")
     if args.plot and args.video and _same_path(args.plot, args.video):
         raise InvalidArgument(f"--plot and --video name the same file '{args.plot}': give each its own name")
-    args.plot_in_out = None
+    args.plot_in_out = args.video_in_out = None
     if args.out:
         names = RUN_FILES_BOTH if both else RUN_FILES
-        if args.video and _inside(args.video, args.out):
-            raise InvalidArgument(
-                f"--video '{args.video}' is inside --out '{args.out}', which is replaced as a whole: "
-                "put the video elsewhere"
-            )
-        if args.plot and _inside(args.plot, args.out):
-            rel = Path(os.path.realpath(args.plot)).relative_to(os.path.realpath(args.out))
+        for option, value in (("--plot", args.plot), ("--video", args.video)):
+            if not value or not _inside(value, args.out):
+                continue
+            rel = Path(os.path.realpath(value)).relative_to(os.path.realpath(args.out))
             if len(rel.parts) != 1 or rel.name in names[:-1]:
                 raise InvalidArgument(
-                    f"--plot '{args.plot}' is inside --out '{args.out}', which is replaced as a whole: leave --plot "
-                    f"out (the plot is {Path(args.out) / names[-1]}), name a file directly in it, or put it elsewhere"
+                    f"{option} '{value}' is inside --out '{args.out}', which is replaced as a whole: name a file "
+                    f"directly in it (not one of {', '.join(names[:-1])}), or put it elsewhere"
                 )
-            args.plot_in_out = rel.name  # the plot joins the folder's set under this name
-            names = (*names[:-1], rel.name)
+            if option == "--plot":
+                args.plot_in_out = rel.name  # the plot joins the folder's set under this name
+                names = (*names[:-1], rel.name)
+            else:
+                args.video_in_out = rel.name  # so does the video
+                names = (*names, rel.name)
         check_output_folder(args.out, names, inputs=inputs)
     if args.plot and args.plot_in_out is None:
         _check_output(args.plot, inputs)
-    if args.video:
+    if args.video and args.video_in_out is None:
         check_output_file(args.video, inputs=inputs, what="--video")
     if args.video:  # before mujoco is imported: it reads MUJOCO_GL once
         from shinro_ctrl.video import prepare_video
@@ -135,21 +136,35 @@ def _print_plan(controller: Any) -> None:
         )
 
 
-def _save_run(args: argparse.Namespace, sim: Any, result: Any) -> Path:
-    """``--out``: the run's files as one set (the plot too, unless ``--plot`` puts it elsewhere); returns the plot."""
+def _render(sim: Any, result: Any, path: str | Path) -> Any:
+    from shinro_ctrl.video import render_rollout
+
+    return render_rollout(sim, result, path)
+
+
+def _save_run(args: argparse.Namespace, sim: Any, result: Any) -> tuple[Path, Any]:
+    """``--out``: the run's files as one set (the plot, and the video, too when they are named inside it).
+
+    Returns:
+        ``(the plot's path, the rendered video or None when it is rendered afterwards)``.
+    """
     if not args.out:
-        return result.plot(args.plot or Path("out") / f"{sim.scenario.name}_{sim.loop}.png")
+        return result.plot(args.plot or Path("out") / f"{sim.scenario.name}_{sim.loop}.png"), None
     from shinro_ctrl.files import atomic_folder
 
     out = Path(args.out)
     in_set = args.plot_in_out or (None if args.plot else RUN_FILES[-1])
-    with atomic_folder(out, (*RUN_FILES[:-1], *([in_set] if in_set else []))) as staging:  # one run, even if killed
+    names = (*RUN_FILES[:-1], *([in_set] if in_set else []), *([args.video_in_out] if args.video_in_out else []))
+    video = None
+    with atomic_folder(out, names) as staging:  # one complete run or the previous one, even if killed
         result.save(staging)
         if in_set:
             result.plot(staging / in_set)
+        if args.video_in_out:
+            video = _render(sim, result, staging / args.video_in_out)
     plot = out / in_set if in_set else result.plot(args.plot)
     print(f"saved result.npz, metrics.json, scenario.toml to {out}")
-    return plot
+    return plot, video
 
 
 def _run_both(args: argparse.Namespace, config: Any) -> int:
