@@ -35,7 +35,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print("interrupted", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
-    sys.exit(cli_main(argv))
+    try:
+        status = cli_main(argv)
+    except KeyboardInterrupt:  # between the imports and the command's own handling
+        print("interrupted", file=sys.stderr)
+        status = EXIT_INTERRUPTED
+    sys.exit(status)
 
 
 if __name__ == "__main__":  # pragma: no cover
