@@ -324,20 +324,26 @@ def test_a_sweep_worker_killed_mid_run_loses_no_sample(tmp_path):
 
 
 # ----------------------------------------------------------------- Ctrl-C
-def test_ctrl_c_during_start_up_imports_exits_130_without_a_traceback():
-    # the first import of numpy sends this process SIGINT: a real Ctrl-C while the command line loads
+@pytest.mark.parametrize(
+    "start",
+    [
+        "from shinro_ctrl._entry import main\nmain()\n",  # the console script
+        "import runpy\nrunpy.run_module('shinro_ctrl.cli', run_name='__main__')\n",  # python -m shinro_ctrl.cli
+    ],
+)
+@pytest.mark.parametrize("module", ["numpy", "casadi"])
+def test_ctrl_c_during_start_up_imports_exits_130_without_a_traceback(start, module):
+    # the first import of the module sends this process SIGINT: a real Ctrl-C while the command line loads
     code = (
         "import os, signal, sys\n"
         "class Hook:\n"
         "    def find_spec(self, name, path=None, target=None):\n"
-        "        if name == 'numpy':\n"
+        f"        if name == '{module}':\n"
         "            sys.meta_path.remove(self)\n"
         "            os.kill(os.getpid(), signal.SIGINT)\n"
         "        return None\n"
         "sys.meta_path.insert(0, Hook())\n"
-        "sys.argv = ['shinro-ctrl', 'list']\n"
-        "from shinro_ctrl._entry import main\n"
-        "main()\n"
+        "sys.argv = ['shinro-ctrl', 'list']\n" + start
     )
     proc = subprocess.run(
         [sys.executable, "-c", code],

@@ -3,6 +3,11 @@ matrix printing and the one-line error report."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
 import argparse
 import math
 import os
@@ -10,8 +15,6 @@ import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-
-import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument, ShinroError
 
@@ -60,6 +63,8 @@ def parse_vector(text: str, *, what: str = "vector") -> np.ndarray:
         InvalidArgument: an empty vector or entry (``'0,,0'``, ``'0,'``), an unbalanced bracket,
             a token that is not a number, or a non-finite value; naming ``what`` and the text.
     """
+    import numpy as np
+
     body = text.strip()
     if body.startswith("[") or body.endswith("]"):
         if not (body.startswith("[") and body.endswith("]")):
@@ -86,6 +91,8 @@ def parse_vector(text: str, *, what: str = "vector") -> np.ndarray:
 
 
 def _matrix_lines(M: np.ndarray, width: int = 11) -> list[str]:
+    import numpy as np
+
     return [" ".join(f"{v + 0.0:{width}.5g}" for v in row) for row in np.atleast_2d(M)]
 
 

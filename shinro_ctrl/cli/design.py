@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
 import argparse
 from typing import Any
-
-import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
 
@@ -13,6 +16,8 @@ __all__ = ["cmd_design"]
 
 
 def cmd_design(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from shinro_ctrl.sim import RobotSim
 
     sim = RobotSim.from_config(args.config)  # the scenario's own loop: a bad [engine] table is reported too
@@ -72,6 +77,8 @@ def _check_design_options(args: argparse.Namespace) -> None:
 
 def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
     """The LQR's model, gain, closed-loop poles and predicted cost from ``x_init``."""
+    import numpy as np
+
     model = ctrl.model  # the Controller contract: the LinearModel designed on, or None
     if not ctrl.discrete:
         method = model.method if model is not None else "exact"
@@ -89,6 +96,8 @@ def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
 
 def _print_mpc(sim: Any) -> None:
     """The MPC problem and the solve statistics of a short closed-loop run (at most 2 s)."""
+    import numpy as np
+
     ctrl = sim.controller
     print(ctrl.describe())
     dt = sim.plant.dt

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 from shinro_ctrl.cli.common import CROSSCHECK_PLANTS, _check_output, _check_step, parse_vector, side_by_side
 from shinro_ctrl.errors import InvalidArgument
 
@@ -14,6 +12,8 @@ __all__ = ["cmd_crosscheck", "cmd_linearize", "cmd_list"]
 
 # ------------------------------------------------------------------ linearize
 def cmd_linearize(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from shinro_ctrl.linearization import compare
 
     if args.plot and not args.eps_sweep:
