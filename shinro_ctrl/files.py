@@ -12,10 +12,16 @@ Temporary files and folders carry an advisory lock (``flock``) for as long as
 their writer lives; :func:`remove_stale_temps` deletes only those whose lock
 it can take (their writer died), never another live writer's.
 
-Outputs never overwrite inputs: :func:`check_output_file` and
-:func:`check_output_folder` refuse a target that is one of the command's
-input files, or a file that is not an earlier output of the same kind, before
-any work is done.
+Nothing a user owns is overwritten. Every file the workbench writes for a
+user carries the marker :data:`GENERATOR` inside it (a PNG ``tEXt`` chunk
+``Software``, a GIF comment, an HTML ``<meta name="generator">``, PDF
+``Creator``/``Producer`` metadata, an NPZ member, an MP4 comment) and every
+folder it writes carries the manifest :data:`RUN_MANIFEST` (which covers the
+folder's CSV, JSON and NPZ files). :func:`check_output_file`,
+:func:`check_output_folder` and :func:`write_output` replace an existing file
+or folder only when it carries the marker, never follow a symbolic link to
+replace its target, and refuse one of the command's input files: each with
+one line, before any work is done.
 """
 
 from __future__ import annotations
@@ -27,7 +33,9 @@ import errno
 import json
 import os
 import shutil
+import struct
 import tempfile
+import zipfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -41,21 +49,28 @@ except ImportError:  # pragma: no cover
     fcntl = None  # type: ignore[assignment]
 
 __all__ = [
+    "GENERATOR",
+    "NPZ_MARKER",
     "RUN_MANIFEST",
     "atomic_folder",
     "atomic_write",
     "atomic_write_set",
     "check_output_file",
     "check_output_folder",
+    "check_replaceable",
     "dump_json",
     "dump_toml",
     "recover_journals",
     "remove_stale_temps",
+    "write_output",
+    "written_by_us",
 ]
 
 RUN_MANIFEST = ".shinro-run.json"  # written last into a run folder: the names (and sizes) of its files
 TEMP_SUFFIX = ".tmp"
-_MAGIC = {".png": b"\x89PNG\r\n\x1a\n", ".gif": b"GIF8", ".npz": b"PK\x03\x04", ".mp4": b"ftyp"}
+GENERATOR = "shinro-ctrl"  # the marker inside every file we write (see the module docstring)
+NPZ_MARKER = "generator"  # the member of our .npz files that holds GENERATOR
+HTML_MARKER = f'<meta name="generator" content="{GENERATOR}">'
 
 
 # ---------------------------------------------------------------- locks
@@ -317,12 +332,19 @@ def atomic_folder(directory: str | Path, names: Iterable[str] = ()) -> Iterator[
     are removed). An exception or a kill inside the block leaves ``directory``
     as it was; the orphaned temporary folder is removed by the next call.
 
+    Only a new or empty folder, or one shinro-ctrl wrote (it holds the
+    manifest), is replaced; a symbolic link is never followed.
+
     Args:
-        directory: The output folder (created; a symlink is followed).
+        directory: The output folder (created).
         names: The files the block may write (checked by :func:`check_output_folder` beforehand).
+
+    Raises:
+        InvalidArgument: ``directory`` is a symbolic link, not a folder, or a folder shinro-ctrl did not write.
     """
     directory = Path(directory)
-    target = Path(os.path.realpath(directory) if directory.is_symlink() else os.path.abspath(directory))
+    _check_folder_replaceable(directory)
+    target = Path(os.path.abspath(directory))
     parent = target.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -370,6 +392,92 @@ def _fsync_dir(path: Path) -> None:
             os.close(fd)
 
 
+# ------------------------------------------------------------ our marker
+_MARK = GENERATOR.encode()
+_SCAN_LIMIT = 256 * 2**20  # bytes of an MP4/PDF scanned for the marker
+
+
+def _png_marked(f: Any) -> bool:
+    """A ``tEXt``/``iTXt`` chunk ``Software`` = :data:`GENERATOR` (chunks walked by their lengths)."""
+    f.seek(8)
+    while True:
+        head = f.read(8)
+        if len(head) < 8:
+            return False
+        length, ctype = struct.unpack(">I4s", head)
+        if ctype == b"IEND":
+            return False
+        if ctype in (b"tEXt", b"iTXt") and length < 2**16:
+            key, _, value = f.read(length).partition(b"\0")
+            if ctype == b"iTXt":  # compression flag, method, language\0, translated keyword\0, text
+                value = value[2:].split(b"\0", 2)[-1] if value[:1] == b"\0" else b""
+            if key == b"Software" and value == _MARK:
+                return True
+            f.seek(4, os.SEEK_CUR)
+        else:
+            f.seek(length + 4, os.SEEK_CUR)
+
+
+def _gif_marked(f: Any) -> bool:
+    """A comment extension holding exactly :data:`GENERATOR` (Pillow writes it before the first frame)."""
+    return b"\x21\xfe" + bytes([len(_MARK)]) + _MARK + b"\0" in f.read(2**20)
+
+
+def _contains(f: Any, needle: bytes) -> bool:
+    """``needle`` anywhere in the first :data:`_SCAN_LIMIT` bytes (read in blocks)."""
+    tail, read = b"", 0
+    while read < _SCAN_LIMIT:
+        block = f.read(2**20)
+        if not block:
+            return False
+        if needle in tail + block:
+            return True
+        tail, read = block[-len(needle) :], read + len(block)
+    return False
+
+
+def _npz_marked(path: Path) -> bool:
+    try:
+        with zipfile.ZipFile(path) as z:
+            if f"{NPZ_MARKER}.npy" not in z.namelist():
+                return False
+            import numpy as np
+
+            with z.open(f"{NPZ_MARKER}.npy") as member:
+                value = np.lib.format.read_array(member, allow_pickle=False)
+            return value.shape == () and str(value) == GENERATOR
+    except (zipfile.BadZipFile, OSError, ValueError, KeyError, EOFError):
+        return False
+
+
+def written_by_us(path: str | Path) -> bool:
+    """Whether the regular file ``path`` carries our marker (judged by its content, whatever its name).
+
+    PNG: a ``tEXt`` chunk ``Software=shinro-ctrl``; GIF: that comment; PDF:
+    ``/Creator (shinro-ctrl)``; HTML: ``<meta name="generator" content="shinro-ctrl">``
+    in its head; NPZ: a member ``generator`` holding it; MP4: a ``comment``
+    tag holding it. Anything else (an empty file too) is not ours.
+    """
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            head = f.read(16)
+            f.seek(0)
+            if head.startswith(b"\x89PNG\r\n\x1a\n"):
+                return _png_marked(f)
+            if head.startswith(b"GIF8"):
+                return _gif_marked(f)
+            if head.startswith(b"%PDF"):
+                return _contains(f, b"/Creator (" + _MARK + b")")
+            if head[4:8] == b"ftyp":
+                return _contains(f, _MARK)
+            if head.startswith(b"PK\x03\x04"):
+                return _npz_marked(p)
+            return HTML_MARKER.encode() in f.read(4096).lower()
+    except OSError:
+        return False
+
+
 # ------------------------------------------------------------- output checks
 def _same_file(a: Path, b: Path) -> bool:
     try:
@@ -378,15 +486,88 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def _is_device(p: Path) -> bool:
+    """A character device, pipe or socket (``/dev/null``, ``/dev/stdout``): written through, never renamed over."""
+    try:
+        return p.exists() and not p.is_file() and not p.is_dir()
+    except OSError:
+        return False
+
+
+def _kind_name(p: Path, kind: str | None) -> str:
+    """``"a PNG file"``, ``"an HTML report"``: what ``p`` should be, for a message."""
+    kind = kind or p.suffix
+    if not kind:
+        return "a file"
+    if " " not in kind:
+        kind = f"{kind.lstrip('.').upper()} file"
+    return f"{'an' if kind[:1] in 'AEFHILMNORSX' else 'a'} {kind}"
+
+
+def check_replaceable(path: str | Path, *, what: str = "output", kind: str | None = None) -> Path:
+    """Refuse to replace ``path`` unless it is new, a device, or a file shinro-ctrl wrote.
+
+    Refused: a symbolic link (its target is never replaced through it; a link
+    to a device is written through), a folder, and an existing file that does
+    not carry our marker (:func:`written_by_us`), such as the user's own photo
+    given as ``--plot``.
+
+    Args:
+        path: The output file.
+        what: The option or role named in the message (``"--plot"``).
+        kind: What the file should be, for the message (``"PNG"``, ``"HTML report"``; default: by the suffix).
+
+    Raises:
+        InvalidArgument: naming ``what``, the path and the reason.
+    """
+    p = Path(path)
+    if _is_device(p):
+        return p
+    if p.is_symlink():
+        raise InvalidArgument(
+            f"{what} '{p}' is a symbolic link (to '{os.readlink(p)}'); refusing to replace a file through a link "
+            "(give the real path or another name)"
+        )
+    if p.is_dir():
+        raise InvalidArgument(f"{what} '{p}' is a folder; give a file name")
+    if p.exists() and not written_by_us(p):
+        raise InvalidArgument(
+            f"{what} '{p}' exists and is not {_kind_name(p, kind)} written by {GENERATOR}; refusing to overwrite it "
+            "(remove it or choose another name)"
+        )
+    return p
+
+
+def write_output(
+    path: str | Path,
+    write: Callable[[Any], None],
+    *,
+    binary: bool = False,
+    what: str = "output",
+    kind: str | None = None,
+) -> Path:
+    """:func:`atomic_write` for a user-facing output: only over a new file, a device or one of ours.
+
+    The writer ``write(f)`` must put our marker into the file (see
+    :func:`written_by_us`) so that the next run may replace it.
+
+    Raises:
+        InvalidArgument: see :func:`check_replaceable`.
+    """
+    check_replaceable(path, what=what, kind=kind)
+    return atomic_write(path, write, binary=binary)
+
+
 def check_output_file(
     path: str | Path, *, inputs: Iterable[str | Path] = (), what: str = "output", kind: str | None = None
 ) -> Path:
     """Refuse, before any work, an output path that would destroy something the user owns.
 
-    Refused: one of the command's ``inputs`` (also through a link), a folder,
-    and an existing regular file that is not an earlier output of the same
-    kind (by its first bytes: ``kind`` such as ``".png"``, else the suffix's
-    kind), such as a scenario or a photo given as ``--plot``.
+    Refused: one of the command's ``inputs`` (also through a link), and what
+    :func:`check_replaceable` refuses: a symbolic link, a folder, an existing
+    file shinro-ctrl did not write (judged by the marker inside it, never by
+    its name or magic bytes), and a path whose folder cannot be written.
+    ``kind`` names what the file should be in the message (``"PNG"``).
 
     Raises:
         InvalidArgument: naming the path and the reason.
@@ -395,46 +576,63 @@ def check_output_file(
     for inp in inputs:
         if inp is not None and _same_file(p, Path(inp)):
             raise InvalidArgument(f"{what} '{p}' is the input file '{inp}': an output never overwrites an input")
-    if p.is_dir():
-        raise InvalidArgument(f"{what} '{p}' is a folder; give a file name")
-    kind = (kind or p.suffix).lower()
-    magic = _MAGIC.get(kind)
-    if p.is_file() and magic is not None and p.stat().st_size > 0:
-        with open(p, "rb") as f:
-            head = f.read(12)
-        if not (head.startswith(magic) or (kind == ".mp4" and head[4:8] == magic)):
-            raise InvalidArgument(
-                f"{what} '{p}' exists and is not a {kind[1:].upper()} file; "
-                "refusing to overwrite it (remove it or choose another name)"
-            )
-    if p.exists() and not p.is_file() and not p.is_symlink():
+    check_replaceable(p, what=what, kind=kind)
+    if _is_device(p):
         return p  # a device or pipe: written through
     _check_writable_parent(p, what)
     return p
 
 
+def _folder_is_ours(d: Path) -> bool:
+    """An empty folder, or one holding our manifest (valid JSON with the written file names)."""
+    entries = list(d.iterdir())
+    if not entries:
+        return True
+    try:
+        manifest = json.loads((d / RUN_MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(manifest, dict) and isinstance(manifest.get("files"), dict)
+
+
+def _check_folder_replaceable(d: Path, what: str = "output folder") -> None:
+    if d.is_symlink():
+        raise InvalidArgument(
+            f"{what} '{d}' is a symbolic link (to '{os.readlink(d)}'); refusing to replace a folder through a link "
+            "(give the real path or another name)"
+        )
+    if d.exists() and not d.is_dir():
+        raise InvalidArgument(f"{what} '{d}' exists and is not a folder")
+    if d.is_dir() and not _folder_is_ours(d):
+        raise InvalidArgument(
+            f"{what} '{d}' holds files but is not a run output of {GENERATOR} (it has no manifest {RUN_MANIFEST}); "
+            "it is replaced as a whole, so choose a new or empty folder"
+        )
+
+
 def check_output_folder(directory: str | Path, names: Iterable[str], *, inputs: Iterable[str | Path] = ()) -> Path:
     """Refuse, before any work, an output folder whose contents are not an earlier output.
 
-    The folder may be new, empty, or hold only files named in ``names`` (and
-    the manifest): it is replaced as a whole by :func:`atomic_folder`, so a
-    folder holding anything else (the input scenario, the user's notes) is
-    refused rather than lost.
+    The folder may be new, empty, or one shinro-ctrl wrote (it holds the
+    manifest :data:`RUN_MANIFEST`) holding only files named in ``names``: it
+    is replaced as a whole by :func:`atomic_folder`, so a folder holding
+    anything else (the input scenario, the user's own ``metrics.json``) or a
+    symbolic link is refused rather than lost.
 
     Raises:
-        InvalidArgument: naming the folder and the first foreign entry.
+        InvalidArgument: naming the folder and the reason.
     """
     d = Path(directory)
     allowed = {*names, RUN_MANIFEST}
-    if d.exists() and not d.is_dir():
-        raise InvalidArgument(f"output folder '{d}' exists and is not a folder")
-    if d.is_dir():
+    if d.is_dir() and not d.is_symlink():
         for inp in inputs:
             if inp is not None and any(_same_file(e, Path(inp)) for e in d.iterdir()):
                 raise InvalidArgument(
                     f"output folder '{d}' holds the input file '{inp}': an output never overwrites an input; "
                     "choose another folder"
                 )
+    _check_folder_replaceable(d)
+    if d.is_dir():
         foreign = sorted(e.name for e in d.iterdir() if e.name not in allowed)
         if foreign:
             raise InvalidArgument(

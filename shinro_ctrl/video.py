@@ -279,18 +279,27 @@ def write_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float) -> Pat
     """
     from PIL import Image
 
-    from shinro_ctrl.files import atomic_write
+    from shinro_ctrl.files import GENERATOR, write_output
 
     if not frames:
         raise InvalidArgument("no frames to write")
     images = [Image.fromarray(np.ascontiguousarray(f)).quantize(colors=256, dither=Image.Dither.NONE) for f in frames]
     duration = max(10, 10 * round(100.0 / fps))  # [ms], a multiple of 10
-    return atomic_write(
+    return write_output(
         path,
         lambda f: images[0].save(
-            f, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0, optimize=False
+            f,
+            format="GIF",
+            save_all=True,
+            append_images=images[1:],
+            duration=duration,
+            loop=0,
+            optimize=False,
+            comment=GENERATOR.encode(),  # our marker: a later run may replace this file, never a user's GIF
         ),
         binary=True,
+        what="--video",
+        kind="GIF",
     )
 
 
@@ -305,14 +314,20 @@ def write_mp4(frames: Sequence[np.ndarray], path: str | Path, fps: float, *, ffm
         raise VideoError("writing .mp4 needs ffmpeg: pip install imageio-ffmpeg (or apt-get install ffmpeg)")
     if not frames:
         raise InvalidArgument("no frames to write")
+    from shinro_ctrl.files import GENERATOR, check_replaceable
+
     path = Path(path)
+    check_replaceable(
+        path, what="--video", kind="MP4"
+    )  # only over a video of ours (its comment tag), never through a link
     path.parent.mkdir(parents=True, exist_ok=True)
     h, w = frames[0].shape[:2]
     tmp = path.with_name(f".{path.name}.tmp.mp4")
     cmd = [
         ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
         "-r", f"{fps:.6g}", "-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p",
-        "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-movflags", "+faststart", str(tmp),
+        "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-metadata", f"comment={GENERATOR}",
+        "-movflags", "+faststart", str(tmp),
     ]  # fmt: skip
     data = b"".join(np.ascontiguousarray(f, dtype=np.uint8).tobytes() for f in frames)
     try:

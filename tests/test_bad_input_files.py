@@ -92,7 +92,7 @@ def test_plan_checks_its_outputs_before_solving(tmp_path, capsys):
     cases = [
         (["--plot", str(scenario)], "is the input file"),
         (["--out", str(scenario)], "is not a folder"),
-        (["--out", str(tmp_path / "o")], "is not a NPZ file"),
+        (["--out", str(tmp_path / "o")], "is not an NPZ file"),
         (["--out", str(tmp_path / "p"), "--plot", str(tmp_path / "p" / "swing_plan.npz")], "is the plan file"),
     ]
     for extra, needle in cases:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from shinro_ctrl.config import load_scenario, parse_scenario
@@ -145,7 +147,7 @@ def test_a_new_table_gets_strict_types_from_its_dataclass():
     # how the [plan] / [estimator] tables (and any later one) are checked: their dataclass's annotations
     from dataclasses import dataclass
 
-    from shinro_ctrl.config import _Ctx, table_annotations
+    from shinro_ctrl.config import ConfigContext, table_annotations
 
     @dataclass
     class NewTable:
@@ -153,7 +155,7 @@ def test_a_new_table_gets_strict_types_from_its_dataclass():
         horizon: int = 10
         weights: list[float] | None = None
 
-    ctx = _Ctx("<test>")
+    ctx = ConfigContext("<test>")
     ctx.check_types("new", {"enabled": False, "horizon": 3, "weights": [1, 2]}, table_annotations(NewTable))
     for bad, needle in (({"enabled": "no"}, "'enabled' must be a boolean"), ({"horizon": 2.5}, "'horizon'")):
         with pytest.raises(ConfigError, match=needle):
@@ -165,3 +167,96 @@ def test_sizes_are_bounded_and_the_limit_is_named(key, value):
     doc = {**BASE, "engine": {"type": "mujoco", key: value}}
     with pytest.raises(ConfigError, match="limit of 1,000"):
         parse_scenario(doc)
+
+
+# ------------------------------------------------------- duration and dt
+@pytest.mark.parametrize(
+    "dt, duration, needle",
+    [
+        (10.0, 0.5, "'duration' = 0.5 s is shorter than one step (dt = 10 s)"),
+        (0.01, 0.005, "shorter than one step"),
+        (
+            0.01,
+            1.005,
+            "'duration' = 1.005 s is not a whole number of steps of dt = 0.01 s (100.5 steps): use 1 s or 1.01 s",
+        ),
+        (0.03, 1.0, "not a whole number of steps of dt = 0.03 s"),
+        (0.3, 5.0, "'duration' (the default) = 5 s is not a whole number"),
+    ],
+)
+def test_a_duration_that_is_not_whole_steps_is_refused_naming_both(dt, duration, needle):
+    doc = with_("plant", dt=dt)
+    if needle.startswith("'duration' (the default)"):
+        del doc["sim"]["duration"]
+    else:
+        doc["sim"]["duration"] = duration
+    with pytest.raises(ConfigError, match=re.escape(needle)) as info:
+        parse_scenario(doc)
+    assert "[sim]" in str(info.value) and len(str(info.value).splitlines()) == 1
+
+
+@pytest.mark.parametrize("dt, duration", [(0.01, 6.0), (0.01, 0.01), (0.002, 3.0), (0.1, 0.3), (1 / 3, 2.0)])
+def test_whole_step_durations_pass_despite_rounding(dt, duration):
+    from shinro_ctrl.config import whole_steps
+
+    doc = with_("plant", dt=dt)
+    doc["sim"]["duration"] = duration
+    assert parse_scenario(doc).sim.duration == duration
+    assert whole_steps(duration, dt) == round(duration / dt)
+
+
+def test_a_fixed_plan_horizon_must_be_whole_steps_too():
+    doc = {
+        "plant": {"type": "CartPole"},
+        "controller": {"type": "TVLQR", "Q": [1, 1, 1, 1], "R": [1]},
+        "plan": {"start": [0, 0, 3.14, 0], "goal": [0, 0, 0, 0], "duration": 2.005},
+    }
+    with pytest.raises(ConfigError, match=r"\[plan\] 'duration' = 2.005 s is not a whole number of steps of dt = 0.01"):
+        parse_scenario(doc)
+    doc["plan"]["duration"] = 2.0
+    assert parse_scenario(doc).plan["duration"] == 2.0
+    doc["plan"]["duration"] = [0.5, 2.005]  # a free horizon is the optimizer's to pick
+    parse_scenario(doc)
+
+
+@pytest.mark.parametrize(
+    "plan, needle",
+    [
+        ({"knots": 20_000}, "'knots' must be an integer in [3, 1,000] (the limit), got 20000"),
+        ({"knots": 2}, "'knots' must be an integer in [3, 1,000]"),
+        ({"knots": 61.0}, "'knots' must be an integer"),
+        ({"substeps": 10**8}, "'substeps' must be an integer in [1, 100] (the limit), got 100000000"),
+        ({"substeps": 0}, "'substeps'"),
+        ({"method": "multiple_shooting", "knots": 200, "substeps": 50}, "exceeds the limit of 1,000 RK4 steps"),
+    ],
+)
+def test_plan_sizes_are_bounded_and_the_limit_is_named(plan, needle):
+    doc = {
+        "plant": {"type": "CartPole"},
+        "controller": {"type": "TVLQR", "Q": [1, 1, 1, 1], "R": [1]},
+        "plan": {"start": [0, 0, 3.14, 0], "goal": [0, 0, 0, 0], **plan},
+    }
+    with pytest.raises(ConfigError, match=re.escape(needle)):
+        parse_scenario(doc)
+
+
+# --------------------------------------------------------- file encoding
+@pytest.mark.parametrize(
+    "prefix, needle",
+    [
+        (b"\xef\xbb\xbf", "starts with a UTF-8 byte-order mark (BOM)"),
+        (b"\xff\xfe", "UTF-16"),
+    ],
+)
+def test_a_byte_order_mark_is_named(prefix, needle, tmp_path):
+    path = tmp_path / "bom.toml"
+    text = config_path("pendulum_lqr").read_text(encoding="utf-8")
+    path.write_bytes(prefix + (text.encode("utf-16-le") if prefix == b"\xff\xfe" else text.encode()))
+    with pytest.raises(ConfigError, match=re.escape(needle)):
+        load_scenario(path)
+
+
+@pytest.mark.parametrize("name", ["", "  ", "\t"])
+def test_an_empty_scenario_name_is_refused(name):
+    with pytest.raises(ConfigError, match="scenario name is empty"):
+        load_scenario(name)

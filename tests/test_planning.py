@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 from shinro_ctrl.config import parse_scenario
 from shinro_ctrl.errors import ConfigError, InvalidArgument, PlanningFailed
 from shinro_ctrl.planning import METHODS, Trajectory, TrajectoryOptimizer
-from shinro_ctrl.plants import CartPole
+from shinro_ctrl.plants import CartPole, InvertedPendulum
 
 INF = np.inf
 X_MIN = [-1.0, -INF, -INF, -INF]
@@ -242,7 +242,7 @@ def test_save_load_round_trip_and_plot(swingups, tmp_path):
     png = swingups["trapezoid"].plot(tmp_path / "plan.png")
     assert png.stat().st_size > 1000
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(InvalidArgument, match="not a saved Trajectory"):
+    with pytest.raises(InvalidArgument, match="not a saved plan"):
         Trajectory.load(tmp_path / "junk.npz")
 
 
@@ -332,13 +332,55 @@ track = ["x", "theta"]
     assert main(["run", str(scenario), "--plan", str(saved), "--out", str(tmp_path / "run")]) == 0
     out = capsys.readouterr().out
     assert f"objective {traj.objective:.6g}" in out  # the loaded plan, not a new one
-    from shinro_ctrl.cli import _scenario_with_plan_file
+    from shinro_ctrl.config import load_scenario
+    from shinro_ctrl.planning import with_plan_file
     from shinro_ctrl.sim import RobotSim
 
-    sim = RobotSim(_scenario_with_plan_file(str(scenario), str(saved)))
+    sim = RobotSim(with_plan_file(load_scenario(scenario), saved))
     assert sim.controller.trajectory.objective == traj.objective
     np.testing.assert_array_equal(sim.controller.u_max, [5.0])  # the plan's bounds still saturate the controller
     assert main(["plan", str(tmp_path / "missing.toml")]) == 2
+    capsys.readouterr()
+    assert traj.origin == {
+        "plant": "CartPole",
+        "params": {k: float(v) for k, v in CartPole().params().items()},
+        "dt": CartPole().dt,
+        "bounds": {
+            "u_min": [-5.0],
+            "u_max": [5.0],
+            "x_min": [-1.0, "-inf", "-inf", "-inf"],
+            "x_max": [1.0] + 3 * ["inf"],
+        },
+    }
+    # the same plan on another plant, other parameters, another dt or other bounds is refused, naming the mismatch
+    text = scenario.read_text()
+    other = tmp_path / "other.toml"
+    variants = {
+        'type = "CartPole"\ncart_mass = 5.0': "params.cart_mass = 0.5 in the plan, 5.0 in the scenario",
+        'type = "CartPole"\npole_length = 0.7': "params.pole_length",
+        'type = "CartPole"\ndt = 0.02': "dt = 0.01 in the plan, 0.02 in the scenario",
+    }
+    for plant, needle in variants.items():
+        other.write_text(text.replace('type = "CartPole"', plant))
+        assert main(["run", str(other), "--plan", str(saved), "--duration", "0.1"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert needle in err and len(err.splitlines()) == 1, err
+    other.write_text(text.replace("u_min = [-5.0], u_max = [5.0]", "u_min = [-20.0], u_max = [20.0]"))
+    assert main(["run", str(other), "--plan", str(saved), "--duration", "0.1"]) == 2
+    assert "bounds.u_max = [5.0] in the plan, [20.0] in the scenario" in capsys.readouterr().err
+
+
+def test_a_plan_without_its_origin_is_refused(swingups, tmp_path):
+    from shinro_ctrl.planning import check_origin, plan_origin
+
+    path = swingups["trapezoid"].save(tmp_path / "old.npz")  # solved by the optimizer directly: no origin
+    with pytest.raises(InvalidArgument, match="does not record the plant"):
+        check_origin(Trajectory.load(path), plan_origin(CartPole(), {}), path)
+    traj = Trajectory.load(path)
+    traj.origin = plan_origin(CartPole(), {})
+    check_origin(traj, plan_origin(CartPole(), {}), path)  # the same plant: accepted
+    with pytest.raises(InvalidArgument, match="was solved for a CartPole, the scenario's plant is a InvertedPendulum"):
+        check_origin(traj, plan_origin(InvertedPendulum(), {}), path)
 
 
 def test_plan_plot_labels_axes_with_units_like_run_plots(swingups, tmp_path, monkeypatch):

@@ -231,7 +231,7 @@ def test_stable_tol_is_the_rule():
 # -------------------------------------------------------------- MuJoCo loop
 def test_mujoco_sweep_rebuilds_the_engine_for_each_plant(capfd, tmp_path, monkeypatch):
     mujoco = pytest.importorskip("mujoco")
-    from shinro_ctrl.engine import _record_warning
+    from shinro_ctrl.engine import take_warning_messages
 
     monkeypatch.chdir(tmp_path)
     nominal = RobotSim.from_config("cartpole_lqr_mujoco")
@@ -250,7 +250,10 @@ def test_mujoco_sweep_rebuilds_the_engine_for_each_plant(capfd, tmp_path, monkey
     ctypes.CDLL(None).fflush(None)
     out, err = capfd.readouterr()
     assert "WARNING" not in out and "WARNING" not in err
-    assert mujoco.get_mju_user_warning() is _record_warning
+    handler = mujoco.get_mju_user_warning()  # still the engine's: a warning is recorded, not printed
+    take_warning_messages()
+    handler("probe  warning")
+    assert take_warning_messages() == ["probe warning"]
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
 
 

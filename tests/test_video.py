@@ -217,3 +217,35 @@ def test_write_mp4_with_ffmpeg_or_a_clear_error(tmp_path):
         assert path.stat().st_size > 0
         assert path.read_bytes()[4:8] == b"ftyp"
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left behind
+
+
+def test_a_video_inside_out_joins_the_run_folder(tmp_path):
+    import json
+
+    from shinro_ctrl.files import RUN_MANIFEST, written_by_us
+
+    out = tmp_path / "run"
+    args = ["run", "pendulum_lqr", "--duration", "0.5", "--out", str(out), "--video", str(out / "flight.gif")]
+    res = run_cli(*args, cwd=tmp_path, env=headless_env())
+    assert res.returncode == 0, res.stderr
+    files = json.loads((out / RUN_MANIFEST).read_text())["files"]
+    assert set(files) == {"result.npz", "metrics.json", "scenario.toml", "run.png", "flight.gif"}
+    assert written_by_us(out / "flight.gif") and len(gif_frames(out / "flight.gif")[0]) > 5
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no temporaries beside it
+
+
+def test_mp4_carries_the_marker_and_a_users_mp4_is_refused(tmp_path):
+    from shinro_ctrl.errors import InvalidArgument
+    from shinro_ctrl.files import written_by_us
+
+    if video.find_ffmpeg() is None:
+        pytest.skip("no ffmpeg (pip install imageio-ffmpeg)")
+    frames = _synthetic_frames(h=40, w=64)
+    ours = write_mp4(frames, tmp_path / "a.mp4", fps=30)
+    assert written_by_us(ours)
+    write_mp4(frames, ours, fps=30)  # our own earlier video: replaced
+    user = tmp_path / "holiday.mp4"
+    user.write_bytes(b"\0\0\0\x18ftypmp42" + bytes(64))  # an MP4 header without our comment
+    with pytest.raises(InvalidArgument, match="not an MP4 file written by shinro-ctrl"):
+        write_mp4(frames, user, fps=30)
+    assert user.read_bytes() == b"\0\0\0\x18ftypmp42" + bytes(64)

@@ -367,7 +367,7 @@ def render_report(
     ]
     out = [
         "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
+        '<html lang="en"><head><meta charset="utf-8"><meta name="generator" content="shinro-ctrl">',
         f"<title>{e(title)}</title><style>{_CSS}</style></head><body>",
         f"<h1>{e(title)}</h1>",
         f"<p>{e(description)}</p>" if description else "",
@@ -396,10 +396,12 @@ def write_report(path: str | Path, analysis: DesignAnalysis, **kwargs: Any) -> P
     Returns:
         The path written.
     """
-    from shinro_ctrl.files import atomic_write
+    from shinro_ctrl.files import write_output
 
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     text = render_report(analysis, **kwargs)
-    atomic_write(p, lambda f: f.write(text))
+    write_output(
+        p, lambda f: f.write(text), what="report", kind="HTML report"
+    )  # only over a report of ours (the meta tag)
     return p

@@ -16,8 +16,8 @@ depends only on the scenario, the key, the range and ``points``: never on
 the worker count. Outputs (``out``): ``tradeoff.csv`` (one row per point),
 ``tradeoff.json`` (rows, the scenario's current design, the elapsed time)
 and ``tradeoff.png`` (tracking RMS against peak input, coloured by disk
-margin, the Pareto front joined, the current design starred), written
-atomically.
+margin, the Pareto front joined, the current design starred), written as
+one set (all three new or all three old, even if killed).
 """
 
 from __future__ import annotations
@@ -38,9 +38,14 @@ import numpy as np
 
 from shinro_ctrl.config import load_scenario
 from shinro_ctrl.errors import InvalidArgument, ShinroError
-from shinro_ctrl.files import atomic_write, dump_json
+from shinro_ctrl.files import atomic_folder, atomic_write, dump_json
 
-__all__ = ["COLUMNS", "OUTPUT_FILES", "TradeoffResult", "parse_tradeoff", "run_tradeoff"]
+__all__ = ["COLUMNS", "MAX_POINTS", "MAX_WORKERS", "OUTPUT_FILES", "TradeoffResult", "parse_tradeoff", "run_tradeoff"]
+
+#: Largest number of trade-off points (each a design, an analysis and a nonlinear run).
+MAX_POINTS = 1_000
+#: Largest number of worker processes.
+MAX_WORKERS = 256
 
 #: The files a trade-off writes into its ``out`` folder.
 OUTPUT_FILES = ("tradeoff.csv", "tradeoff.json", "tradeoff.png")
@@ -286,20 +291,28 @@ class TradeoffResult:
         ax.set_title(f"LQR trade-off over {what} ({len(self.values)} points, {self.engine} loop)")
         ax.grid(True, color="0.88", lw=0.6)
         ax.legend(fontsize=8, loc="upper right")
-        p = Path(path)
-        atomic_write(p, lambda f: fig.savefig(f, format="png"), binary=True)
-        return p
+        from shinro_ctrl.plots._figure import save_figure
+
+        return save_figure(fig, path)
 
     def save(self, directory: str | Path) -> dict[str, Path]:
-        """Write ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png`` into ``directory``."""
+        """Write ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png`` into ``directory`` as one set.
+
+        The three files are built in a hidden folder swapped into place in one step
+        (:func:`~shinro_ctrl.files.atomic_folder`, as ``run --out``): a kill leaves the
+        previous set or the new one, never a mix. Only a new or empty folder, or one
+        an earlier save wrote, is replaced.
+
+        Raises:
+            InvalidArgument: ``directory`` is a folder shinro-ctrl did not write or a symbolic link.
+        """
         d = Path(directory)
-        d.mkdir(parents=True, exist_ok=True)
         text = self.to_csv()
-        self.paths = {
-            "csv": atomic_write(d / "tradeoff.csv", lambda f: f.write(text)),
-            "json": dump_json(d / "tradeoff.json", self.to_dict()),
-            "png": self.plot(d / "tradeoff.png"),
-        }
+        with atomic_folder(d, OUTPUT_FILES) as staging:
+            atomic_write(staging / "tradeoff.csv", lambda f: f.write(text))
+            dump_json(staging / "tradeoff.json", self.to_dict())
+            self.plot(staging / "tradeoff.png")
+        self.paths = {"csv": d / "tradeoff.csv", "json": d / "tradeoff.json", "png": d / "tradeoff.png"}
         return self.paths
 
     def summary(self) -> str:
@@ -357,7 +370,7 @@ def run_tradeoff(
         config: Scenario path or shipped name (an LQR scenario).
         key: ``"R"``, ``"Q"`` (multipliers), ``"Q[i]"``, ``"R[i]"``, ``"Q.<state>"``, ``"R.<input>"`` (entries).
         lo, hi: Range, ``0 < lo < hi``.
-        points: Number of values, >= 2.
+        points: Number of values, 2 to :data:`MAX_POINTS`.
         engine: ``"standalone"``, ``"mujoco"``, or None (the scenario's loop).
         out: Folder for ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png``.
         workers: Local worker processes (1: in this process).
@@ -366,10 +379,10 @@ def run_tradeoff(
         InvalidArgument: a bad key, range, point count or worker count; a scenario whose controller is not an LQR.
     """
     parse_tradeoff(f"{key}={lo!r}:{hi!r}")
-    if isinstance(points, bool) or not isinstance(points, int) or points < 2:
-        raise InvalidArgument(f"points must be an integer >= 2, got {points!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InvalidArgument(f"workers must be an integer >= 1, got {workers!r}")
+    if isinstance(points, bool) or not isinstance(points, int) or not 2 <= points <= MAX_POINTS:
+        raise InvalidArgument(f"points must be an integer in [2, {MAX_POINTS:,}] (the limit), got {points!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_WORKERS:
+        raise InvalidArgument(f"workers must be an integer in [1, {MAX_WORKERS}] (the limit), got {workers!r}")
     scenario = load_scenario(config)
     if scenario.controller.type != "LQR":
         raise InvalidArgument(
@@ -431,15 +444,91 @@ def _run_jobs(
             results.extend(_run_job(job))
         current = _evaluate(doc, source, engine)
     else:
-        import multiprocessing
-
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(_POOL_PRELOAD)
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futures = [pool.submit(_run_job, job) for job in jobs]
-            cur_future = pool.submit(_evaluate, doc, source, engine)
-            for f in futures:
-                results.extend(f.result())
-            current = cur_future.result()
+        results, current = _run_pool(_run_job, jobs, workers, (doc, source, engine))
     results.sort(key=lambda r: r[0])
     return results, current
+
+
+#: The error recorded for a point whose worker process died while running it.
+WORKER_DIED = "WorkerDied: the worker process died while running this point (killed, e.g. by the out-of-memory killer)"
+
+
+def _run_pool(
+    run_job: Any, jobs: list[_Job], workers: int, current_args: tuple[Any, ...]
+) -> tuple[list[tuple[int, dict[str, float], str]], Any]:
+    """The chunks in a forkserver pool whose workers ignore Ctrl-C (the parent stops them, without tracebacks).
+
+    A worker that dies (``BrokenProcessPool``: killed by the OOM killer or a signal) breaks every chunk still
+    in the pool; those chunks are run again one point at a time, each in a fresh worker, so the point that
+    kills its worker is named (:data:`WORKER_DIED`) and every other point keeps its result.
+    """
+    import multiprocessing
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(_POOL_PRELOAD)
+    results: list[tuple[int, dict[str, float], str]] = []
+    broken: list[_Job] = []
+    current: Any = None
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        futures = {pool.submit(run_job, job): job for job in jobs}
+        cur_future = pool.submit(_evaluate, *current_args)
+        for f in as_completed(futures):
+            try:
+                results.extend(f.result())
+            except BrokenProcessPool:
+                broken.append(futures[f])
+        try:
+            current = cur_future.result()
+        except BrokenProcessPool:
+            current = None
+        pool.shutdown(wait=True)
+        for job in broken:
+            for i, v in zip(job.indices, job.values, strict=True):
+                one = _Job(job.doc, job.source, job.engine, job.key, (v,), (i,))
+                results.extend(_isolated(ctx, run_job, one))
+        if current is None:
+            current = _isolated_current(ctx, current_args)
+    except BaseException:  # Ctrl-C (or an error): stop the workers now, not after their queued chunks
+        _stop_pool(pool)
+        raise
+    return results, current
+
+
+def _isolated(ctx: Any, run_job: Any, job: _Job) -> list[tuple[int, dict[str, float], str]]:
+    """One point in a fresh one-worker pool: its result, or :data:`WORKER_DIED` if it kills the worker."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
+
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        out = pool.submit(run_job, job).result()
+    except BrokenProcessPool:
+        out = [(job.indices[0], dict.fromkeys(COLUMNS, math.nan), WORKER_DIED)]
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+    return out
+
+
+def _isolated_current(ctx: Any, current_args: tuple[Any, ...]) -> dict[str, float]:
+    from concurrent.futures.process import BrokenProcessPool
+
+    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
+
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        current = pool.submit(_evaluate, *current_args).result()
+    except BrokenProcessPool:
+        current = dict.fromkeys(COLUMNS, math.nan)  # the scenario's own design: not starred on the plot
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+    return current

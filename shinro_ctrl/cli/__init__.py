@@ -39,7 +39,6 @@ from shinro_ctrl.cli.common import parse_number as parse_number
 from shinro_ctrl.cli.common import parse_vector as parse_vector
 from shinro_ctrl.cli.common import side_by_side as side_by_side
 from shinro_ctrl.cli.run import DEFAULT_SCENARIO as DEFAULT_SCENARIO
-from shinro_ctrl.cli.run import _scenario_with_plan_file as _scenario_with_plan_file
 from shinro_ctrl.cli.run import format_metric_comparison as format_metric_comparison
 
 __all__ = ["COMMANDS", "add_command", "build_parser", "main"]

@@ -3,13 +3,18 @@ matrix printing and the one-line error report."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
 import argparse
 import math
+import os
 import re
 import sys
 from collections.abc import Sequence
-
-import numpy as np
+from pathlib import Path
 
 from shinro_ctrl.errors import InvalidArgument, ShinroError
 
@@ -51,15 +56,43 @@ def parse_number(text: str) -> float:
     return sign * factor * math.pi / div
 
 
-def parse_vector(text: str) -> np.ndarray:
-    """A comma- or space-separated list of numbers (see :func:`parse_number`)."""
-    parts = [p for p in re.split(r"[,\s]+", text.strip().strip("[]")) if p]
-    if not parts:
-        raise InvalidArgument("empty vector")
-    return np.array([parse_number(p) for p in parts])
+def parse_vector(text: str, *, what: str = "vector") -> np.ndarray:
+    """A comma- or space-separated list of finite numbers (see :func:`parse_number`), optionally in ``[...]``.
+
+    Raises:
+        InvalidArgument: an empty vector or entry (``'0,,0'``, ``'0,'``), an unbalanced bracket,
+            a token that is not a number, or a non-finite value; naming ``what`` and the text.
+    """
+    import numpy as np
+
+    body = text.strip()
+    if body.startswith("[") or body.endswith("]"):
+        if not (body.startswith("[") and body.endswith("]")):
+            raise InvalidArgument(f"{what}: unbalanced bracket in '{text}'")
+        body = body[1:-1].strip()
+    if not body:
+        raise InvalidArgument(f"{what}: empty vector '{text}'")
+    if "," in body:
+        parts = [p.strip() for p in body.split(",")]
+        if not all(parts):
+            raise InvalidArgument(f"{what}: empty entry in '{text}' (two commas in a row, or a comma at an end)")
+    else:
+        parts = body.split()
+    values = []
+    for p in parts:
+        try:
+            v = parse_number(p)
+        except InvalidArgument as exc:
+            raise InvalidArgument(f"{what}: {exc} in '{text}'") from None
+        if not math.isfinite(v):
+            raise InvalidArgument(f"{what}: '{p}' is not a finite number in '{text}'")
+        values.append(v)
+    return np.array(values)
 
 
 def _matrix_lines(M: np.ndarray, width: int = 11) -> list[str]:
+    import numpy as np
+
     return [" ".join(f"{v + 0.0:{width}.5g}" for v in row) for row in np.atleast_2d(M)]
 
 
@@ -90,15 +123,29 @@ def _check_step(option: str, value: float) -> None:
         raise InvalidArgument(f"{option} must be a finite step in (0, 1], got {value:g}")
 
 
-def _check_count(option: str, value: int, limit: int) -> None:
-    if not 1 <= value <= limit:
-        raise InvalidArgument(f"{option} must be an integer in [1, {limit:,}], got {value}")
+def _check_count(option: str, value: int, limit: int, *, low: int = 1) -> None:
+    """An integer option in ``[low, limit]``; the limit is named in the message."""
+    if not low <= value <= limit:
+        raise InvalidArgument(f"{option} must be an integer in [{low}, {limit:,}] (the limit), got {value}")
 
 
 def _check_output(path: str, inputs: Sequence[str | None] = ()) -> None:
+    """``--plot`` (PDF for a ``.pdf`` name, else PNG): no input, link, folder or file shinro-ctrl did not write."""
     from shinro_ctrl.files import check_output_file
+    from shinro_ctrl.plots._figure import plot_format
 
-    check_output_file(path, inputs=[i for i in inputs if i], what="--plot", kind=".png")
+    check_output_file(path, inputs=[i for i in inputs if i], what="--plot", kind=plot_format(path).upper())
+
+
+def _same_path(a: str | Path, b: str | Path) -> bool:
+    """The same file name after resolving links and ``..`` (whether it exists or not)."""
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _inside(path: str | Path, folder: str | Path) -> bool:
+    """``path`` lies in ``folder`` or below it (links and ``..`` resolved)."""
+    p, d = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
+    return d == p or d in p.parents
 
 
 def _check_scheduler(address: str, timeout: float = 5.0) -> None:
@@ -106,8 +153,8 @@ def _check_scheduler(address: str, timeout: float = 5.0) -> None:
     import socket
     from urllib.parse import urlparse
 
-    url = urlparse(address if "://" in address else f"tcp://{address}")
-    try:
+    try:  # urlparse itself raises on a malformed IPv6 host ('tcp://[::1')
+        url = urlparse(address if "://" in address else f"tcp://{address}")
         host, port = url.hostname, url.port
     except ValueError:
         host, port = None, None

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
 import argparse
 from typing import Any
-
-import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
 
@@ -27,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_design(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from shinro_ctrl.sim import RobotSim
 
     sim = RobotSim.from_config(args.config)  # the scenario's own loop: a bad [engine] table is reported too
@@ -52,8 +57,11 @@ def _check_design_options(args: argparse.Namespace) -> None:
             raise InvalidArgument("--tradeoff sweeps LQR weights: use 'design lqr'")
         if not args.out:
             raise InvalidArgument("--tradeoff needs --out DIR for tradeoff.csv, tradeoff.json and tradeoff.png")
-        if args.points < 2 or args.workers < 1:
-            raise InvalidArgument(f"--points must be >= 2 and --workers >= 1, got {args.points} and {args.workers}")
+        from shinro_ctrl.analysis.tradeoff import MAX_POINTS, MAX_WORKERS
+        from shinro_ctrl.cli.common import _check_count
+
+        _check_count("--points", args.points, MAX_POINTS, low=2)
+        _check_count("--workers", args.workers, MAX_WORKERS)
         parse_tradeoff(args.tradeoff)
         from shinro_ctrl.analysis.tradeoff import OUTPUT_FILES
         from shinro_ctrl.files import check_output_folder
@@ -69,13 +77,22 @@ def _check_design_options(args: argparse.Namespace) -> None:
         report = Path(args.report)
         if report.suffix.lower() not in (".html", ".htm"):
             raise InvalidArgument(f"--report: expected a FILE.html, got '{report}'")
-        check_output_file(report, inputs=[args.config], what="--report")
-        if report.is_file() and report.stat().st_size and not report.read_bytes()[:15].lower() == b"<!doctype html>":
-            raise InvalidArgument(f"--report '{report}' exists and is not an HTML report; refusing to overwrite it")
+        if args.out:
+            from shinro_ctrl.cli.common import _inside
+
+            if _inside(report, args.out):
+                raise InvalidArgument(
+                    f"--report '{report}' is inside --out '{args.out}', which is replaced as a whole: "
+                    "put the report elsewhere"
+                )
+        # only over a report of ours (its generator meta tag), never through a link
+        check_output_file(report, inputs=[args.config], what="--report", kind="HTML report")
 
 
 def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
     """The LQR's model, gain, closed-loop poles and predicted cost from ``x_init``."""
+    import numpy as np
+
     model = ctrl.model  # the Controller contract: the LinearModel designed on, or None
     if not ctrl.discrete:
         method = model.method if model is not None else "exact"
@@ -93,9 +110,12 @@ def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
 
 def _print_mpc(sim: Any) -> None:
     """The MPC problem and the solve statistics of a short closed-loop run (at most 2 s)."""
+    import numpy as np
+
     ctrl = sim.controller
     print(ctrl.describe())
-    result = sim.run(min(sim.scenario.sim.duration, 2.0))
+    dt = sim.plant.dt
+    result = sim.run(dt * min(round(sim.scenario.sim.duration / dt), max(1, int(2.0 / dt))))  # <= 2 s, whole steps
     solve = result.solve_times
     print(
         f"closed loop ({len(solve)} steps, {sim.loop}): median call {1e3 * np.median(solve):.3f} ms, "

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 from shinro_ctrl.cli.common import CROSSCHECK_PLANTS, _check_output, _check_step, parse_vector, side_by_side
 from shinro_ctrl.errors import InvalidArgument
 
@@ -17,7 +15,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     from shinro_ctrl.plants import PLANT_ALIASES
 
     p = sub.add_parser("linearize", help="exact (CasADi) and finite-difference Jacobians side by side")
-    p.add_argument("plant", metavar="PLANT", help=f"one of: {', '.join(PLANT_ALIASES)}; or an MJCF/URDF model file")
+    p.add_argument(
+        "plant",
+        metavar="PLANT",
+        help=f"one of: {', '.join(PLANT_ALIASES)}; an MJCF/URDF file; or a scenario file or name (its plant)",
+    )
     p.add_argument("--x0", help="operating state, e.g. '0,0,0.1,0' (pi allowed: 'pi,pi,0,0')")
     p.add_argument("--u0", help="operating input, e.g. '0'")
     p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
@@ -29,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "plant",
         metavar="PLANT",
-        help=f"one of: {', '.join(CROSSCHECK_PLANTS)}; an MJCF/URDF model file; or a scenario file (its plant)",
+        help=f"one of: {', '.join(CROSSCHECK_PLANTS)}; an MJCF/URDF file; or a scenario file or name (its plant)",
     )
     p.add_argument("--x0", help="operating state (pi allowed)")
     p.add_argument("--u0", help="operating input")
@@ -43,17 +45,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 # ------------------------------------------------------------------ linearize
 def cmd_linearize(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from shinro_ctrl.linearization import compare
-    from shinro_ctrl.plants import plant_from_name
 
     if args.plot and not args.eps_sweep:
         raise InvalidArgument("--plot goes with --eps-sweep")
     _check_step("--eps", args.eps)
     if args.plot:
         _check_output(args.plot)
-    plant = plant_from_name(args.plant)  # a plant name or an MJCF/URDF model file
-    x0 = None if args.x0 is None else parse_vector(args.x0)
-    u0 = None if args.u0 is None else parse_vector(args.u0)
+    plant = _plant_argument(args.plant)  # a plant name, an MJCF/URDF model file, or a scenario (its plant)
+    x0 = None if args.x0 is None else parse_vector(args.x0, what="--x0")
+    u0 = None if args.u0 is None else parse_vector(args.u0, what="--u0")
     cmp = compare(plant, x0, u0, eps=args.eps)
     xe, ue = plant._operating_point(x0, u0)
     print(f"{type(plant).__name__}: continuous-time Jacobians at")
@@ -91,14 +94,13 @@ def cmd_linearize(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------- crosscheck
 def cmd_crosscheck(args: argparse.Namespace) -> int:
     from shinro_ctrl.crosscheck import crosscheck, format_crosscheck
-    from shinro_ctrl.plants import plant_class
 
     _check_step("--eps", args.eps)
     if args.plot:
         _check_output(args.plot, inputs=[args.plant])
-    plant = _crosscheck_plant(args.plant, plant_class)
-    x0 = None if args.x0 is None else parse_vector(args.x0)
-    u0 = None if args.u0 is None else parse_vector(args.u0)
+    plant = _crosscheck_plant(args.plant)
+    x0 = None if args.x0 is None else parse_vector(args.x0, what="--x0")
+    u0 = None if args.u0 is None else parse_vector(args.u0, what="--u0")
     result = crosscheck(plant, x0, u0, eps=args.eps)
     print(format_crosscheck(result))
     if args.plot:
@@ -132,21 +134,50 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def _crosscheck_plant(name: str, plant_class):
-    """A plant from a short name or class name, or the plant (with its parameters) of a scenario file."""
+def _plant_argument(name: str):
+    """The PLANT argument: a plant class name or alias, an MJCF/URDF model file, or a scenario as ``run`` takes
+    it (a file, or a shipped name such as ``cartpole_lqr``) whose plant, with its parameters, is used.
+
+    Raises:
+        ConfigError: neither a plant nor a scenario (naming both kinds), or an invalid scenario.
+    """
     from pathlib import Path
 
-    from shinro_ctrl.plants import PLANT_ALIASES, MjcfPlant, is_model_file
+    from shinro_ctrl.errors import ConfigError
+    from shinro_ctrl.plants import is_model_file, plant_class, plant_from_name
 
-    if is_model_file(name):  # an MJCF/URDF model file: the plant is the file, the state map the identity
-        return MjcfPlant(name)
-    if name.endswith(".toml") or Path(name).is_file():
-        from shinro_ctrl.config import load_scenario
+    if not name.strip():
+        raise InvalidArgument(
+            "PLANT is empty (an unset shell variable?): give a plant name, a model file or a scenario"
+        )
+    if is_model_file(name):  # an MJCF/URDF model file: the plant is the file
+        return plant_from_name(name)
+    if Path(name).is_file() or name.lower().endswith(".toml"):
+        return _scenario_plant(name, plant_class)
+    try:
+        return plant_from_name(name)
+    except ConfigError as exc:
+        from shinro_ctrl.resources import config_path
 
-        scenario = load_scenario(name)
-        plant = plant_class(scenario.plant.type).from_config(scenario.plant.params)
-    else:
-        plant = plant_class(name)()
+        try:
+            config_path(name)
+        except FileNotFoundError:
+            raise ConfigError(f"{exc}; or give a scenario file or shipped scenario name (shinro-ctrl list)") from None
+        return _scenario_plant(name, plant_class)
+
+
+def _scenario_plant(name: str, plant_class):
+    from shinro_ctrl.config import load_scenario
+
+    scenario = load_scenario(name)
+    return plant_class(scenario.plant.type).from_config(scenario.plant.params)
+
+
+def _crosscheck_plant(name: str):
+    """A plant as :func:`_plant_argument`, one whose MuJoCo model maps onto its state."""
+    from shinro_ctrl.plants import PLANT_ALIASES
+
+    plant = _plant_argument(name)
     supported = {PLANT_ALIASES.get(a, a) for a in CROSSCHECK_PLANTS} | {"MjcfPlant"}
     if type(plant).__name__ not in supported:
         raise InvalidArgument(

@@ -46,44 +46,90 @@ def cmd_run(args: argparse.Namespace) -> int:
     from shinro_ctrl.sim import format_metrics
 
     # The embedded default is the shipped file, never a same-named one in the current directory.
-    config = args.config or shipped_config(DEFAULT_SCENARIO)
+    config = shipped_config(DEFAULT_SCENARIO) if args.config is None else args.config
     if args.engine == "both":
         return _run_both(args, config)
     sim = _build_sim(config, args.plan, args.engine)
+    _check_duration(args.duration, sim.plant.dt)
     _print_plan(sim.controller)
     label = f"{sim.scenario.name} ({sim.loop})"
     print(f"running {label}: {type(sim.plant).__name__} + {type(sim.controller).__name__}, ", end="")
     print(f"{args.duration if args.duration is not None else sim.scenario.sim.duration:g} s at dt = {sim.plant.dt:g} s")
     result = sim.run(args.duration)
     print(format_metrics(result.metrics))
-    print(f"plot: {_save_run(args, sim, result)}")
+    plot, video = _save_run(args, sim, result)
+    print(f"plot: {plot}")
     if args.video:
-        from shinro_ctrl.video import render_rollout
-
-        video = render_rollout(sim, result, args.video)
+        if video is None:
+            video = _render(sim, result, args.video)
         print(
-            f"video: {video.path} ({video.frames} frames at {video.fps:.3g} frames/s, "
+            f"video: {args.video} ({video.frames} frames at {video.fps:.3g} frames/s, "
             f"{video.frames / video.fps:.2f} s of playback; rendered in {video.seconds:.2f} s)"
         )
     return 0
 
 
+def _check_duration(duration: float | None, dt: float) -> None:
+    """``--duration``: a whole number of the plant's steps, at least one (never rounded silently)."""
+    if duration is not None:
+        from shinro_ctrl.config import whole_steps
+
+        whole_steps(duration, dt, "--duration")
+
+
+def _check_config_argument(config: str | None, *, demo: bool = True) -> None:
+    """An empty CONFIG (``run ""``, an unset shell variable) is refused, never taken for the demo."""
+    if config is not None and not config.strip():
+        raise InvalidArgument(
+            "the scenario argument CONFIG is empty (an unset shell variable?): give a scenario file or a shipped "
+            "name" + (", or leave it out for the demo" if demo else "")
+        )
+
+
 def _check_run_args(args: argparse.Namespace) -> None:
-    """Every argument and output path of ``run``, checked before any work (an output never overwrites an input)."""
+    """Every argument and output path of ``run``, checked before any work (an output never overwrites an input).
+
+    A ``--plot`` or ``--video`` directly inside ``--out`` joins the folder's set (``args.plot_in_out`` /
+    ``args.video_in_out`` = its name); one deeper inside, or named like one of the run's own files, is refused
+    (the folder is replaced as a whole); ``--plot`` and ``--video`` must be two files.
+    """
+    from shinro_ctrl.cli.common import _check_output, _inside, _same_path
     from shinro_ctrl.files import check_output_file, check_output_folder
     from shinro_ctrl.resources import config_path
 
+    _check_config_argument(args.config)
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise InvalidArgument(f"--duration must be a positive finite number of seconds, got {args.duration:g}")
+    if args.plan is not None and not args.plan.strip():
+        raise InvalidArgument("--plan is empty: give a plan file (.npz from 'shinro-ctrl plan')")
     inputs = [config_path(args.config) if args.config else None, getattr(args, "plan", None)]
     both = args.engine == "both"
     if both and args.video:
         raise InvalidArgument("--video renders one loop: give --engine standalone or --engine mujoco")
+    if args.plot and args.video and _same_path(args.plot, args.video):
+        raise InvalidArgument(f"--plot and --video name the same file '{args.plot}': give each its own name")
+    args.plot_in_out = args.video_in_out = None
     if args.out:
-        check_output_folder(args.out, RUN_FILES_BOTH if both else RUN_FILES, inputs=inputs)
-    if args.plot:
-        check_output_file(args.plot, inputs=inputs, what="--plot", kind=".png")  # a PNG whatever its name
-    if args.video:
+        names = RUN_FILES_BOTH if both else RUN_FILES
+        for option, value in (("--plot", args.plot), ("--video", args.video)):
+            if not value or not _inside(value, args.out):
+                continue
+            rel = Path(os.path.realpath(value)).relative_to(os.path.realpath(args.out))
+            if len(rel.parts) != 1 or rel.name in names[:-1]:
+                raise InvalidArgument(
+                    f"{option} '{value}' is inside --out '{args.out}', which is replaced as a whole: name a file "
+                    f"directly in it (not one of {', '.join(names[:-1])}), or put it elsewhere"
+                )
+            if option == "--plot":
+                args.plot_in_out = rel.name  # the plot joins the folder's set under this name
+                names = (*names[:-1], rel.name)
+            else:
+                args.video_in_out = rel.name  # so does the video
+                names = (*names, rel.name)
+        check_output_folder(args.out, names, inputs=inputs)
+    if args.plot and args.plot_in_out is None:
+        _check_output(args.plot, inputs)
+    if args.video and args.video_in_out is None:
         check_output_file(args.video, inputs=inputs, what="--video")
     if args.video:  # before mujoco is imported: it reads MUJOCO_GL once
         from shinro_ctrl.video import prepare_video
@@ -96,7 +142,10 @@ def _build_sim(config: Any, plan_file: str | None, engine: str | None) -> Any:
     from shinro_ctrl.sim import RobotSim
 
     if plan_file:
-        return RobotSim(_scenario_with_plan_file(config, plan_file), engine=engine)
+        from shinro_ctrl.config import load_scenario
+        from shinro_ctrl.planning import with_plan_file
+
+        return RobotSim(with_plan_file(load_scenario(config), plan_file), engine=engine)
     return RobotSim.from_config(config, engine=engine)
 
 
@@ -110,26 +159,41 @@ def _print_plan(controller: Any) -> None:
         )
 
 
-def _save_run(args: argparse.Namespace, sim: Any, result: Any) -> Path:
-    """``--out``: the run's files as one set (the plot too, unless ``--plot`` puts it elsewhere); returns the plot."""
+def _render(sim: Any, result: Any, path: str | Path) -> Any:
+    from shinro_ctrl.video import render_rollout
+
+    return render_rollout(sim, result, path)
+
+
+def _save_run(args: argparse.Namespace, sim: Any, result: Any) -> tuple[Path, Any]:
+    """``--out``: the run's files as one set (the plot, and the video, too when they are named inside it).
+
+    Returns:
+        ``(the plot's path, the rendered video or None when it is rendered afterwards)``.
+    """
     if not args.out:
-        return result.plot(args.plot or Path("out") / f"{sim.scenario.name}_{sim.loop}.png")
+        return result.plot(args.plot or Path("out") / f"{sim.scenario.name}_{sim.loop}.png"), None
     from shinro_ctrl.files import atomic_folder
 
     out = Path(args.out)
-    written = RUN_FILES if not args.plot else RUN_FILES[:-1]  # with --plot the plot goes there instead
-    with atomic_folder(out, written) as staging:  # one complete run or the previous one, even if killed
+    in_set = args.plot_in_out or (None if args.plot else RUN_FILES[-1])
+    names = (*RUN_FILES[:-1], *([in_set] if in_set else []), *([args.video_in_out] if args.video_in_out else []))
+    video = None
+    with atomic_folder(out, names) as staging:  # one complete run or the previous one, even if killed
         result.save(staging)
-        if not args.plot:
-            result.plot(staging / "run.png")
-    plot = result.plot(args.plot) if args.plot else out / "run.png"
+        if in_set:
+            result.plot(staging / in_set)
+        if args.video_in_out:
+            video = _render(sim, result, staging / args.video_in_out)
+    plot = out / in_set if in_set else result.plot(args.plot)
     print(f"saved result.npz, metrics.json, scenario.toml to {out}")
-    return plot
+    return plot, video
 
 
 def _run_both(args: argparse.Namespace, config: Any) -> int:
     """``run --engine both``: the standalone and the MuJoCo loop of one scenario, compared and overlaid."""
     a, b = (_build_sim(config, args.plan, loop) for loop in ("standalone", "mujoco"))
+    _check_duration(args.duration, a.plant.dt)
     duration = args.duration if args.duration is not None else a.scenario.sim.duration
     what = f"{type(a.plant).__name__} + {type(a.controller).__name__}"
     print(f"running {a.scenario.name} in both loops: {what}, {duration:g} s at dt = {a.plant.dt:g} s")
@@ -139,12 +203,13 @@ def _run_both(args: argparse.Namespace, config: Any) -> int:
         from shinro_ctrl.files import atomic_folder
 
         out = Path(args.out)
-        with atomic_folder(out, RUN_FILES_BOTH if not args.plot else RUN_FILES_BOTH[:-1]) as staging:
+        in_set = args.plot_in_out or (None if args.plot else RUN_FILES_BOTH[-1])
+        with atomic_folder(out, (*RUN_FILES_BOTH[:-1], *([in_set] if in_set else []))) as staging:
             ra.save(staging / "standalone")
             rb.save(staging / "mujoco")
-            if not args.plot:
-                ra.plot(staging / "run.png", compare=rb)
-        plot = ra.plot(args.plot, compare=rb) if args.plot else out / "run.png"
+            if in_set:
+                ra.plot(staging / in_set, compare=rb)
+        plot = out / in_set if in_set else ra.plot(args.plot, compare=rb)
         print(f"saved standalone/ and mujoco/ (result.npz, metrics.json, scenario.toml each) to {out}")
     else:
         plot = ra.plot(args.plot or Path("out") / f"{a.scenario.name}_both.png", compare=rb)
@@ -165,22 +230,11 @@ def format_metric_comparison(a: dict[str, float], b: dict[str, float], names: tu
     return "\n".join(rows)
 
 
-def _scenario_with_plan_file(config: str, plan_file: str):
-    """The scenario with its plan replaced by a saved one (``run --plan FILE``)."""
-    from shinro_ctrl.config import load_scenario
-
-    scenario = load_scenario(config)
-    if scenario.plan is None:
-        raise InvalidArgument(f"--plan: {scenario.name} has no [plan] table (its controller tracks no plan)")
-    spec = {k: v for k, v in scenario.plan.items() if k in ("start", "bounds")}  # bounds: the saturation
-    spec["file"] = str(plan_file)
-    scenario.plan = scenario.controller.options["plan"] = spec
-    return scenario
-
-
 # ----------------------------------------------------------------------- plan
 def cmd_plan(args: argparse.Namespace) -> int:
     from shinro_ctrl.config import load_scenario
+
+    _check_config_argument(args.config, demo=False)
     from shinro_ctrl.planning.spec import make_plan
     from shinro_ctrl.plants import plant_class
 
@@ -212,9 +266,11 @@ def _check_plan_outputs(args: argparse.Namespace, scenario: Any) -> Path:
     if out.exists() and not out.is_dir():
         raise InvalidArgument(f"--out '{out}' exists and is not a folder")
     inputs = [scenario.path, scenario.plan.get("file")]
-    target = check_output_file(out / f"{scenario.name}_plan.npz", inputs=inputs, what="--out", kind=".npz")
+    target = check_output_file(out / f"{scenario.name}_plan.npz", inputs=inputs, what="--out")
     if args.plot:
-        if os.path.abspath(args.plot) == os.path.abspath(target):
+        from shinro_ctrl.cli.common import _check_output, _same_path
+
+        if _same_path(args.plot, target):
             raise InvalidArgument(f"--plot '{args.plot}' is the plan file written to --out; choose another name")
-        check_output_file(args.plot, inputs=[*inputs, target], what="--plot", kind=".png")
+        _check_output(args.plot, [*inputs, str(target)])
     return target

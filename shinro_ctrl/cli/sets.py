@@ -61,7 +61,7 @@ def cmd_regress(args: argparse.Namespace) -> int:
 def cmd_sweep(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from shinro_ctrl.files import atomic_folder, check_output_folder
+    from shinro_ctrl.files import check_output_folder
     from shinro_ctrl.resources import config_path
     from shinro_ctrl.sweep import parse_params, run_sweep
 
@@ -75,23 +75,20 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     check_output_folder(args.out, SWEEP_FILES, inputs=[config_path(args.config)])
     if args.scheduler:
         _check_scheduler(args.scheduler)
-    out = Path(args.out)
-    with atomic_folder(out, SWEEP_FILES) as staging:  # the three files of one sweep, or the previous ones
-        result = run_sweep(
-            args.config,
-            params,
-            samples=args.samples,
-            grid=args.grid,
-            workers=args.workers,
-            seed=args.seed,
-            out=staging,
-            scheduler=args.scheduler,
-            engine=args.engine,
-            method=args.method,
-            stable_tol=args.stable_tol,
-            metric=args.metric,
-        )
-    result.files = {k: out / Path(v).name for k, v in result.files.items()}
+    result = run_sweep(  # writes the three files of one sweep as one set (or leaves the previous ones)
+        args.config,
+        params,
+        samples=args.samples,
+        grid=args.grid,
+        workers=args.workers,
+        seed=args.seed,
+        out=Path(args.out),
+        scheduler=args.scheduler,
+        engine=args.engine,
+        method=args.method,
+        stable_tol=args.stable_tol,
+        metric=args.metric,
+    )
     print(result.summary())
     if args.workers > 1 and result.workers != args.workers:
         print(

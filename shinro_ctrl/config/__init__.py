@@ -22,7 +22,7 @@ dataclasses), :mod:`~shinro_ctrl.config.parse` (loading; ``[plant]``,
 from ``shinro_ctrl.config``.
 """
 
-from shinro_ctrl.config.context import _Ctx as _Ctx  # private (not in __all__); tests/test_config.py imports it
+from shinro_ctrl.config.context import ConfigContext, whole_steps
 from shinro_ctrl.config.parse import load_scenario, parse_scenario
 from shinro_ctrl.config.schema import (
     ENGINE_KEYS,
@@ -55,6 +55,7 @@ __all__ = [
     "SIM_KEYS",
     "SIZE_LIMITS",
     "TABLES",
+    "ConfigContext",
     "ControllerConfig",
     "DisturbanceTables",
     "EngineConfig",
@@ -68,4 +69,5 @@ __all__ = [
     "signature_annotations",
     "table_annotations",
     "toml_type",
+    "whole_steps",
 ]

@@ -10,11 +10,48 @@ from shinro_ctrl.config.strict import check_value
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.validation import did_you_mean, unknown_keys
 
-__all__: list[str] = []  # _Ctx is the config layer's own
+__all__ = ["ConfigContext", "whole_steps"]
+
+#: Relative tolerance of "a whole number of steps" (``duration / dt`` is rarely an exact integer in floats).
+STEP_RTOL = 1e-9
 
 
-class _Ctx:
-    """Formats errors with the file and table they come from."""
+def whole_steps(duration: float, dt: float, what: str = "duration") -> int:
+    """The number of steps ``duration / dt``, which must be a whole number >= 1.
+
+    A duration that is not a whole number of steps would be rounded silently (``dt = 10``,
+    ``duration = 0.5`` simulated 10 s), so it is refused naming both values and the
+    nearest valid durations.
+
+    Args:
+        duration: Time span [s], positive.
+        dt: Step [s], positive.
+        what: How the message names the duration (``"[sim] duration"``, ``"--duration"``).
+
+    Raises:
+        ConfigError: shorter than one step, or not a whole number of steps.
+    """
+    ratio = duration / dt
+    steps = round(ratio)
+    if ratio < 1 - STEP_RTOL:
+        raise ConfigError(f"{what} = {duration:g} s is shorter than one step (dt = {dt:g} s): give at least {dt:g} s")
+    if abs(ratio - steps) > STEP_RTOL * max(1.0, ratio):
+        lo, hi = math.floor(ratio) * dt, math.ceil(ratio) * dt
+        raise ConfigError(
+            f"{what} = {duration:g} s is not a whole number of steps of dt = {dt:g} s ({ratio:.6g} steps): "
+            f"use {lo:g} s or {hi:g} s"
+        )
+    return int(steps)
+
+
+class ConfigContext:
+    """The parser's error context: formats errors with the file (``source``) and table they come from.
+
+    A new table is parsed through it so its messages name the file, table and key like
+    every other table's: :meth:`check_keys` (unknown keys with the closest valid one),
+    :meth:`check_types` (values strictly against the table dataclass's annotations, see
+    :func:`~shinro_ctrl.config.table_annotations`), :meth:`number` and :meth:`vector`.
+    """
 
     def __init__(self, source: str):
         self.source = source
@@ -64,3 +101,6 @@ class _Ctx:
             problem = check_value(value, annotation, key)
             if problem:
                 raise self.error(table, problem)
+
+
+_Ctx = ConfigContext  # the parser modules' short name

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from shinro_ctrl.config.context import _Ctx
+from shinro_ctrl.config.context import _Ctx, whole_steps
 from shinro_ctrl.config.schema import (
     ENGINE_KEYS,
     TABLES,
@@ -33,15 +33,30 @@ def load_scenario(path: str | Path) -> Scenario:
 
     Raises:
         FileNotFoundError: no such file (listing the shipped scenarios).
-        ConfigError: malformed TOML or an invalid scenario.
+        ConfigError: an empty name, a file that is not UTF-8 (a byte-order mark is named), malformed
+            TOML or an invalid scenario.
     """
     from shinro_ctrl.resources import config_path
 
+    if isinstance(path, str) and not path.strip():
+        raise ConfigError(
+            "the scenario name is empty (an unset shell variable?): give a scenario file or a shipped name"
+        )
     p = config_path(path)
     try:
         text = p.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
+        raw = p.read_bytes()
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+            raise ConfigError(
+                f"{p}: saved as UTF-16 (it starts with a UTF-16 byte-order mark); save it as UTF-8"
+            ) from None
         raise ConfigError(f"{p}: not a UTF-8 text file ({exc.reason})") from None
+    if text.startswith("\ufeff"):
+        raise ConfigError(
+            f"{p}: starts with a UTF-8 byte-order mark (BOM), which TOML does not allow; "
+            "save the file as UTF-8 without BOM"
+        )
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -207,6 +222,11 @@ def _parse_plan(ctx: _Ctx, doc: Mapping[str, Any], controller: ControllerConfig,
         plan = check_plan(spec, probe.state_dim, probe.input_dim)
     except InvalidArgument as exc:
         raise ctx.error(table, str(exc)) from None
+    if isinstance(plan.get("duration"), float):  # a fixed horizon is tracked step by step: whole steps of dt
+        try:
+            whole_steps(plan["duration"], probe.dt, "'duration'")
+        except ConfigError as exc:
+            raise ctx.error(table, str(exc)) from None
     if "start" in plan:
         lo, hi = probe.state_limits()
         for i, v in enumerate(plan["start"]):

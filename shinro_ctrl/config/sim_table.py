@@ -6,7 +6,7 @@ import inspect
 from collections.abc import Mapping
 from typing import Any
 
-from shinro_ctrl.config.context import _Ctx
+from shinro_ctrl.config.context import _Ctx, whole_steps
 from shinro_ctrl.config.schema import REFERENCE_KINDS, SIM_KEYS, EstimatorConfig, SimConfig
 from shinro_ctrl.config.strict import signature_annotations, table_annotations, toml_type
 from shinro_ctrl.errors import ConfigError
@@ -24,6 +24,10 @@ def _parse_sim(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> SimConfig:
     sim = SimConfig()
     if "duration" in st:
         sim.duration = ctx.number("sim", "duration", st["duration"], positive=True)
+    try:  # a duration is run step by step: never rounded silently
+        whole_steps(sim.duration, probe.dt, "'duration'" if "duration" in st else "'duration' (the default)")
+    except ConfigError as exc:
+        raise ctx.error("sim", str(exc)) from None
     if "initial_state" in st:
         sim.initial_state = ctx.vector("sim", "initial_state", st["initial_state"], n)
         lo, hi = probe.state_limits()

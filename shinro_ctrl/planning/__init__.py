@@ -6,6 +6,7 @@ its transcription implies. See ``docs/planning.md``.
 """
 
 from shinro_ctrl.planning.collocation import COSTS, TrajectoryOptimizer
+from shinro_ctrl.planning.spec import check_origin, plan_origin, with_plan_file
 from shinro_ctrl.planning.trajectory import METHODS, Trajectory
 
-__all__ = ["COSTS", "METHODS", "Trajectory", "TrajectoryOptimizer"]
+__all__ = ["COSTS", "METHODS", "Trajectory", "TrajectoryOptimizer", "check_origin", "plan_origin", "with_plan_file"]

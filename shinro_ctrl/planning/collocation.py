@@ -40,7 +40,7 @@ import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument, PlanningFailed
 from shinro_ctrl.planning._capture import _captured
-from shinro_ctrl.planning.trajectory import METHODS, Trajectory
+from shinro_ctrl.planning.trajectory import METHODS, Trajectory, check_transcription_size
 from shinro_ctrl.validation import as_vector, bound_pair, did_you_mean
 
 __all__ = ["COSTS", "TrajectoryOptimizer"]
@@ -58,7 +58,7 @@ class TrajectoryOptimizer:
 
     Args:
         plant: Any plant (its ``symbolic()`` dynamics and ``dynamics()`` are used).
-        knots: Number of knots ``N`` (>= 3).
+        knots: Number of knots ``N`` (3 to :data:`~shinro_ctrl.planning.trajectory.MAX_KNOTS`).
         method: ``"hermite_simpson"`` (default), ``"trapezoid"`` or ``"multiple_shooting"``.
         u_min, u_max: Input bounds ``(m,)`` (±inf allowed; default unbounded).
         x_min, x_max: State bounds ``(n,)`` applied at every knot (±inf allowed).
@@ -96,10 +96,7 @@ class TrajectoryOptimizer:
     ):
         if method not in METHODS:
             raise InvalidArgument(f"method: unknown transcription {method!r}{did_you_mean(method, METHODS)}")
-        if isinstance(knots, bool) or not isinstance(knots, int | np.integer) or knots < 3:
-            raise InvalidArgument(f"knots: expected an integer >= 3 but found {knots!r}")
-        if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) or substeps < 1:
-            raise InvalidArgument(f"substeps: expected a positive integer but found {substeps!r}")
+        knots, substeps = check_transcription_size(knots, substeps, method)
         self.plant = plant
         self.n, self.m = plant.state_dim, plant.input_dim
         self.knots, self.method, self.substeps = int(knots), method, int(substeps)

@@ -31,10 +31,19 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument, PlanningFailed
-from shinro_ctrl.planning.trajectory import METHODS, Trajectory
+from shinro_ctrl.planning.trajectory import METHODS, Trajectory, check_transcription_size
 from shinro_ctrl.validation import did_you_mean
 
-__all__ = ["BOUND_KEYS", "PLAN_KEYS", "check_plan", "equilibrium_input", "make_plan"]
+__all__ = [
+    "BOUND_KEYS",
+    "PLAN_KEYS",
+    "check_origin",
+    "check_plan",
+    "equilibrium_input",
+    "make_plan",
+    "plan_origin",
+    "with_plan_file",
+]
 
 _CACHE: dict[str, Trajectory] = {}
 _CACHE_SIZE = 8
@@ -81,16 +90,17 @@ def check_plan(spec: Any, n: int, m: int) -> dict[str, Any]:
         out["start"] = _vector("start", spec["start"], n)
     if "goal" in spec:
         out["goal"] = _vector("goal", spec["goal"], n, allow_nan=True)
+    if "method" in spec:
+        meth = spec["method"]
+        if meth not in METHODS:
+            raise InvalidArgument(f"'method': unknown transcription {meth!r}{did_you_mean(str(meth), METHODS)}")
+    knots, substeps = check_transcription_size(
+        spec.get("knots", 61), spec.get("substeps", 1), spec.get("method", "hermite_simpson")
+    )
     if "knots" in spec:
-        k = spec["knots"]
-        if isinstance(k, bool) or not isinstance(k, int) or k < 3:
-            raise InvalidArgument(f"'knots' must be an integer >= 3, got {k!r}")
-        out["knots"] = k
+        out["knots"] = knots
     if "substeps" in spec:
-        k = spec["substeps"]
-        if isinstance(k, bool) or not isinstance(k, int) or k < 1:
-            raise InvalidArgument(f"'substeps' must be a positive integer, got {k!r}")
-        out["substeps"] = k
+        out["substeps"] = substeps
     if "method" in spec:
         meth = spec["method"]
         if meth not in METHODS:
@@ -201,6 +211,7 @@ def make_plan(plant: Any, spec: Mapping[str, Any]) -> Trajectory:
                 f"plan file {spec['file']}: expected a plan with {n} states and {m} inputs but found "
                 f"{traj.state_dim} and {traj.input_dim}"
             )
+        check_origin(traj, plan_origin(plant, spec), spec["file"])
         return traj
     key = repr((type(plant).__name__, sorted(plant.params().items()), plant.dt, sorted(spec.items())))
     if key in _CACHE:
@@ -223,7 +234,118 @@ def make_plan(plant: Any, spec: Mapping[str, Any]) -> Trajectory:
                 "is outside u_min/u_max"
             )
     traj = opt.solve(spec["start"], goal, duration=spec.get("duration"), cost=spec.get("cost", "effort"), u_goal=u_goal)
+    traj.origin = plan_origin(plant, spec)
     if len(_CACHE) >= _CACHE_SIZE:
         _CACHE.pop(next(iter(_CACHE)))
     _CACHE[key] = traj
     return traj
+
+
+# ------------------------------------------------------------ plan origin
+def plan_origin(plant: Any, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """What a plan is solved for: the plant's class, parameters and ``dt``, and the plan's ``bounds`` table."""
+    return {
+        "plant": type(plant).__name__,
+        "params": _plain(plant.params()),
+        "dt": float(plant.dt),
+        "bounds": _plain(dict(spec.get("bounds", {}))),
+    }
+
+
+def _plain(value: Any) -> Any:
+    """JSON-ready: arrays as lists, numpy scalars as Python numbers, ±inf as strings (as saved)."""
+    import json
+
+    from shinro_ctrl._text_formats import _json_safe
+
+    def conv(v: Any) -> Any:
+        if isinstance(v, np.ndarray):
+            return conv(v.tolist())
+        if isinstance(v, np.generic):
+            return v.item()
+        if isinstance(v, Mapping):
+            return {str(k): conv(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [conv(x) for x in v]
+        if isinstance(v, Path):
+            return str(v)
+        return v
+
+    return json.loads(json.dumps(_json_safe(conv(value)), sort_keys=True))
+
+
+def _differences(saved: Any, now: Any, where: str) -> list[str]:
+    """``key: saved → now`` for every leaf that differs (floats to a relative 1e-9)."""
+    if isinstance(saved, dict) and isinstance(now, dict):
+        out = []
+        for k in sorted(set(saved) | set(now)):
+            key = f"{where}.{k}" if where else k
+            if k not in saved or k not in now:
+                out.append(f"{key} = {saved.get(k, '(none)')} in the plan, {now.get(k, '(none)')} in the scenario")
+            else:
+                out.extend(_differences(saved[k], now[k], key))
+        return out
+    if isinstance(saved, list) and isinstance(now, list) and len(saved) == len(now):
+        if all(not _differences(a, b, where) for a, b in zip(saved, now, strict=True)):
+            return []
+        return [f"{where} = {saved} in the plan, {now} in the scenario"]
+    numbers = (int, float)
+    if isinstance(saved, numbers) and isinstance(now, numbers) and not isinstance(saved, bool):
+        if math.isclose(float(saved), float(now), rel_tol=1e-9, abs_tol=1e-12):
+            return []
+    elif saved == now:
+        return []
+    return [f"{where} = {saved} in the plan, {now} in the scenario"]
+
+
+def check_origin(traj: Trajectory, origin: Mapping[str, Any], source: str | Path = "plan") -> None:
+    """Refuse a loaded plan solved for another plant, parameters, ``dt`` or bounds than ``origin``.
+
+    Raises:
+        InvalidArgument: naming the first mismatches (plan value, scenario value), or a plan
+            without its origin (written before plans recorded it).
+    """
+    if traj.origin is None:
+        raise InvalidArgument(
+            f"plan file {source} does not record the plant, parameters, dt and bounds it was solved for "
+            "(written by an older version): solve it again with 'shinro-ctrl plan CONFIG'"
+        )
+    saved = _plain(traj.origin)
+    now = _plain(dict(origin))
+    if saved.get("plant") != now.get("plant"):
+        raise InvalidArgument(
+            f"plan file {source} was solved for a {saved.get('plant')}, the scenario's plant is a {now.get('plant')}"
+        )
+    keys = ("params", "dt", "bounds")
+    diffs = _differences({k: saved.get(k) for k in keys}, {k: now.get(k) for k in keys}, "")
+    if diffs:
+        more = f" (and {len(diffs) - 2} more)" if len(diffs) > 2 else ""
+        raise InvalidArgument(
+            f"plan file {source} was solved for another {now['plant']}: {'; '.join(diffs[:2])}{more}; "
+            "solve the plan for this scenario with 'shinro-ctrl plan CONFIG'"
+        )
+
+
+def with_plan_file(scenario: Any, plan_file: str | Path) -> Any:
+    """The scenario with its ``[plan]`` replaced by a saved plan (what ``run --plan FILE`` runs).
+
+    The plan's ``start`` and ``bounds`` (the controller's saturation) are kept; the plan file
+    is checked against the scenario's plant, parameters, ``dt`` and bounds when the
+    controller is built (:func:`check_origin`).
+
+    Args:
+        scenario: A :class:`~shinro_ctrl.config.Scenario` whose controller tracks a plan.
+        plan_file: A ``.npz`` written by ``shinro-ctrl plan`` (:meth:`Trajectory.save`).
+
+    Returns:
+        The same scenario object, changed in place.
+
+    Raises:
+        InvalidArgument: the scenario has no ``[plan]`` table.
+    """
+    if scenario.plan is None:
+        raise InvalidArgument(f"--plan: {scenario.name} has no [plan] table (its controller tracks no plan)")
+    spec = {k: v for k, v in scenario.plan.items() if k in ("start", "bounds")}  # bounds: the saturation
+    spec["file"] = str(plan_file)
+    scenario.plan = scenario.controller.options["plan"] = spec
+    return scenario

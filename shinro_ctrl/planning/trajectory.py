@@ -18,6 +18,9 @@ Outside ``[t_0, t_N]`` both interpolants hold their end values.
 
 from __future__ import annotations
 
+import json
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,9 +29,50 @@ import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
 
-__all__ = ["METHODS", "Trajectory"]
+__all__ = ["MAX_KNOTS", "MAX_SHOOTING_STEPS", "MAX_SUBSTEPS", "METHODS", "Trajectory", "check_transcription_size"]
 
 METHODS = ("hermite_simpson", "trapezoid", "multiple_shooting")
+MAX_KNOTS = 1_000  # knots of a transcription (20,000 hung building the NLP; 1,000 builds in ~15 s)
+MAX_SUBSTEPS = 100  # RK4 steps per interval (multiple_shooting)
+MAX_SHOOTING_STEPS = 1_000  # knots x substeps of a multiple-shooting NLP (5,000 take ~100 s to build)
+
+
+def _count(key: str, value: Any, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or not low <= value <= high:
+        raise InvalidArgument(f"'{key}' must be an integer in [{low}, {high:,}] (the limit), got {value!r}")
+    return int(value)
+
+
+def check_transcription_size(knots: Any, substeps: Any = 1, method: str = "hermite_simpson") -> tuple[int, int]:
+    """``(knots, substeps)`` checked against the limits that keep a plan's NLP buildable in seconds.
+
+    Raises:
+        InvalidArgument: a count that is not an integer, below its minimum or above its limit (named).
+    """
+    k = _count("knots", knots, 3, MAX_KNOTS)
+    s = _count("substeps", substeps, 1, MAX_SUBSTEPS)
+    if method == "multiple_shooting" and k * s > MAX_SHOOTING_STEPS:
+        raise InvalidArgument(
+            f"'knots' x 'substeps' = {k * s:,} exceeds the limit of {MAX_SHOOTING_STEPS:,} RK4 steps of a "
+            "multiple-shooting plan (it would take minutes to build); use fewer knots or substeps"
+        )
+    return k, s
+
+
+_REQUIRED = ("t", "x", "u", "xdot", "method", "stats", "status", "state_names", "input_names")
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _float_array(z: Any, key: str, ndim: int) -> np.ndarray:
+    """Array ``key`` of the archive as floats with ``ndim`` dimensions."""
+    a = np.asarray(z[key])
+    if a.ndim != ndim or a.dtype.kind not in "fiub":
+        raise ValueError(f"'{key}' must be a {ndim}-D numeric array, found shape {a.shape} of {a.dtype}")
+    return a.astype(float)
 
 
 @dataclass
@@ -52,6 +96,9 @@ class Trajectory:
         state_names, input_names: Labels.
         xdot_right: ``(N - 1, n)`` right-end derivatives for ``multiple_shooting``
             (None otherwise).
+        origin: What the plan was solved for: ``{"plant": class name, "params": {...},
+            "dt": step [s], "bounds": the plan's bounds table}`` (None for a hand-made
+            trajectory). Saved with the plan; a loaded plan is refused on another plant.
     """
 
     t: np.ndarray
@@ -67,6 +114,7 @@ class Trajectory:
     state_names: tuple[str, ...] = ()
     input_names: tuple[str, ...] = ()
     xdot_right: np.ndarray | None = None
+    origin: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float)
@@ -81,8 +129,12 @@ class Trajectory:
                 f"Trajectory: expected t (N,), x (N, n), u (N, m), xdot (N, n) with N >= 2 but found "
                 f"{self.t.shape}, {self.x.shape}, {self.u.shape}, {self.xdot.shape}"
             )
-        if np.any(np.diff(self.t) <= 0):
-            raise InvalidArgument("Trajectory: knot times t must be strictly increasing")
+        if not np.all(np.isfinite(self.t)) or np.any(np.diff(self.t) <= 0):
+            raise InvalidArgument("Trajectory: knot times t must be finite and strictly increasing")
+        sizes = (("state", self.state_names, self.x.shape[1]), ("input", self.input_names, self.u.shape[1]))
+        for what, names, size in sizes:
+            if names and len(names) != size:
+                raise InvalidArgument(f"Trajectory: {len(names)} {what} names for {size} {what}s")
         if self.method == "multiple_shooting":
             if self.xdot_right is None or np.shape(self.xdot_right) != (N - 1, self.x.shape[1]):
                 raise InvalidArgument(f"Trajectory: multiple_shooting needs xdot_right of shape ({N - 1}, n)")
@@ -169,11 +221,18 @@ class Trajectory:
 
     # ------------------------------------------------------------------ files
     def save(self, path: str | Path) -> Path:
-        """Write the trajectory to an ``.npz`` file (atomically) and return its path."""
-        from shinro_ctrl.files import atomic_write
+        """Write the trajectory (and :attr:`origin`) to an ``.npz`` file atomically and return its path.
+
+        The file carries our marker, so a later save may replace it; an existing file that
+        shinro-ctrl did not write, or a symbolic link, is refused.
+
+        Raises:
+            InvalidArgument: ``path`` is a file shinro-ctrl did not write, a link or a folder.
+        """
+        from shinro_ctrl._text_formats import _json_safe
+        from shinro_ctrl.files import GENERATOR, NPZ_MARKER, write_output
 
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         arrays: dict[str, Any] = {
             "t": self.t,
             "x": self.x,
@@ -184,10 +243,14 @@ class Trajectory:
             "status": np.array(self.status),
             "state_names": np.array(self.state_names, dtype=str),
             "input_names": np.array(self.input_names, dtype=str),
+            NPZ_MARKER: np.array(GENERATOR),
         }
         if self.xdot_right is not None:
             arrays["xdot_right"] = self.xdot_right
-        atomic_write(path, lambda f: np.savez(f, **arrays), binary=True)
+        if self.origin is not None:
+            arrays["origin"] = np.array(json.dumps(_json_safe(self.origin), sort_keys=True))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_output(path, lambda f: np.savez(f, **arrays), binary=True, what="plan file", kind="NPZ")
         return path
 
     @classmethod
@@ -196,42 +259,70 @@ class Trajectory:
 
         Raises:
             FileNotFoundError: no such file.
-            InvalidArgument: the file is not a saved trajectory.
+            InvalidArgument: the file is not a saved trajectory (not an ``.npz``, truncated,
+                missing arrays, wrong shapes or types), one line naming the file.
         """
         path = Path(path)
         if not path.is_file():
             where = " (it is a directory)" if path.is_dir() else ""
             raise FileNotFoundError(f"plan file not found: '{path}'{where}")
+
+        def bad(why: str) -> InvalidArgument:
+            return InvalidArgument(f"plan file '{path}' is not a saved plan ({why}); write one with 'shinro-ctrl plan'")
+
+        with open(path, "rb") as f:
+            head = f.read(6)
+        if head.startswith(b"\x93NUMPY"):
+            raise bad("a single .npy array, not an .npz archive")
+        if not head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
+            raise bad("not an .npz archive" if head else "an empty file")
         try:
-            with np.load(path, allow_pickle=False) as z:
-                stats = z["stats"]
+            z = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            raise bad(f"cannot be read as .npz: {_first_line(exc)}") from None
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise bad("a single .npy array, not an .npz archive")
+        with z:
+            missing = [k for k in _REQUIRED if k not in z.files]
+            if missing:
+                raise bad(f"missing {', '.join(missing)}")
+            try:
+                stats = np.asarray(z["stats"], dtype=float).ravel()
+                if stats.shape != (4,):
+                    raise ValueError(f"stats has {stats.size} entries, expected 4")
+                origin = json.loads(str(z["origin"])) if "origin" in z.files else None
+                if origin is not None and not isinstance(origin, dict):
+                    raise ValueError("origin is not a table")
                 return cls(
-                    t=z["t"],
-                    x=z["x"],
-                    u=z["u"],
-                    xdot=z["xdot"],
+                    t=_float_array(z, "t", 1),
+                    x=_float_array(z, "x", 2),
+                    u=_float_array(z, "u", 2),
+                    xdot=_float_array(z, "xdot", 2),
                     method=str(z["method"]),
                     solve_time=float(stats[0]),
-                    iterations=int(stats[1]),
+                    iterations=int(stats[1]) if np.isfinite(stats[1]) else 0,
                     objective=float(stats[2]),
                     max_defect=float(stats[3]),
                     status=str(z["status"]),
-                    state_names=tuple(str(s) for s in z["state_names"]),
-                    input_names=tuple(str(s) for s in z["input_names"]),
-                    xdot_right=z["xdot_right"] if "xdot_right" in z.files else None,
+                    state_names=tuple(str(s) for s in np.atleast_1d(z["state_names"])),
+                    input_names=tuple(str(s) for s in np.atleast_1d(z["input_names"])),
+                    xdot_right=_float_array(z, "xdot_right", 2) if "xdot_right" in z.files else None,
+                    origin=origin,
                 )
-        except FileNotFoundError:
-            raise
-        except (KeyError, ValueError, OSError) as exc:
-            raise InvalidArgument(f"{path}: not a saved Trajectory ({exc})") from None
+            except InvalidArgument as exc:
+                raise bad(str(exc).removeprefix("Trajectory: ")) from None
+            except (KeyError, ValueError, TypeError, IndexError, OSError, EOFError, zipfile.BadZipFile) as exc:
+                raise bad(_first_line(exc)) from None
+            except zlib.error as exc:
+                raise bad(f"corrupt data: {_first_line(exc)}") from None
 
     # ------------------------------------------------------------------- plot
     def plot(self, path: str | Path, *, samples: int = 400) -> Path:
-        """Plot the states and inputs (interpolants as lines, knots as dots) to a PNG."""
+        """Plot the states and inputs (interpolants as lines, knots as dots) to a PNG or PDF (by the suffix)."""
         import matplotlib.pyplot as plt
 
-        from shinro_ctrl.files import atomic_write
-        from shinro_ctrl.plots import axis_label  # units as on run plots: "theta [rad]", "force [N]"
+        from shinro_ctrl.plots import axis_label
+        from shinro_ctrl.plots._figure import save_figure
 
         n, m = self.state_dim, self.input_dim
         ts = np.linspace(self.t[0], self.t[-1], samples)
@@ -258,11 +349,10 @@ class Trajectory:
             fontsize=10,
         )
         fig.tight_layout(rect=(0, 0, 1, 0.97))
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
-        plt.close(fig)
-        return path
+        try:
+            return save_figure(fig, path, dpi=110)
+        finally:
+            plt.close(fig)
 
     def summary(self) -> str:
         """Solve statistics on a few lines."""

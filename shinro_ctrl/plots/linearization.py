@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.files import atomic_write
 from shinro_ctrl.linearization import complex_step_jacobians
+from shinro_ctrl.plots._figure import save_figure
 
 __all__ = ["EpsSweep", "crosscheck_figure", "eps_sweep", "plot_crosscheck", "plot_eps_sweep"]
 
@@ -60,8 +60,7 @@ def _figure(nrows: int, ncols: int, size: tuple[float, float]):
 def _save(plt: Any, fig: Any, path: str | Path) -> Path:
     path = Path(path)
     fig.tight_layout()
-    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110, bbox_inches="tight"), binary=True)
-    return path
+    return save_figure(fig, path, dpi=110, bbox_inches="tight")
 
 
 def plot_eps_sweep(sweep: EpsSweep, path: str | Path, *, title: str = "") -> Path:
@@ -135,5 +134,4 @@ def plot_crosscheck(result: Any, path: str | Path) -> Path:
     """Write :func:`crosscheck_figure` to the PNG ``path`` (atomically) and return ``path``."""
     path = Path(path)
     fig = crosscheck_figure(result)
-    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110, bbox_inches="tight"), binary=True)
-    return path
+    return save_figure(fig, path, dpi=110, bbox_inches="tight")

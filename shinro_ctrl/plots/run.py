@@ -240,9 +240,21 @@ def _data_limits(ax: Any, result: Any, members: list[tuple[str, int]]) -> None:
     ax.set_ylim(lo, hi)
 
 
+def scenario_label(result: Any) -> str:
+    """The scenario's name, or for a scenario given as a dict (``"<dict>"``) its plant and controller."""
+    name = str(result.scenario)
+    config = getattr(result, "config", None) or {}
+    if name.startswith("<") and isinstance(config, dict):
+        plant = (config.get("plant") or {}).get("type")
+        controller = (config.get("controller") or {}).get("type")
+        if plant:
+            return f"{plant} + {controller}" if controller else str(plant)
+    return name
+
+
 def _title(result: Any, compare: Any) -> str:
     m = result.metrics
-    head = f"{result.scenario}"
+    head = scenario_label(result)
     if compare is None:
         return (
             f"{head} ({result.loop})   rms error {_fmt_metric(m['rms_error'])}   "

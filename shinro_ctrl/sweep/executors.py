@@ -8,6 +8,7 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -207,10 +208,38 @@ def run_pool(base: SweepJob, values: np.ndarray, workers: int, bar: Progress) ->
                 signal.signal(signal.SIGINT, previous)
         if held:
             raise KeyboardInterrupt
+        broken: list[SweepJob] = []
+        by_future = dict(zip(futures, jobs, strict=True))
         for fut in as_completed(futures):
-            out.extend(fut.result())
+            try:
+                out.extend(fut.result())
+            except BrokenProcessPool:  # a worker died (OOM killer, a signal): this chunk is run again below
+                broken.append(by_future[fut])
             bar.update(len(out))
+        pool.shutdown(wait=True)
+        for job in broken:  # one sample at a time, each in a fresh worker: the one that kills it is named
+            for i, row in zip(job.indices, job.rows, strict=True):
+                one = SweepJob(job.doc, job.source, job.engine, job.names, (i,), (row,), job.stable_tol)
+                out.extend(_isolated(ctx, one))
+                bar.update(len(out))
     except BaseException:  # Ctrl-C (or an error): stop the workers now, not after their queued chunks
+        _stop_pool(pool)
+        raise
+    return out
+
+
+#: The error recorded for a sample whose worker process died while running it.
+WORKER_DIED = "WorkerDied: the worker process died while running this sample (killed, e.g. by the out-of-memory killer)"
+
+
+def _isolated(ctx: Any, job: SweepJob) -> list[Outcome]:
+    """One sample in a fresh one-worker pool: its outcome, or :data:`WORKER_DIED` if it kills the worker."""
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_ignore_sigint)
+    try:
+        out = pool.submit(_run_job, job).result()
+    except BrokenProcessPool:
+        out = [(job.indices[0], _nan_metrics(), False, WORKER_DIED, _nan_timing())]
+    except BaseException:
         _stop_pool(pool)
         raise
     pool.shutdown(wait=True)

@@ -194,14 +194,25 @@ class SweepResult:
         return plot_sweep(self, path, metric)
 
     def save(self, directory: str | Path) -> dict[str, Path]:
-        """Write ``sweep.csv``, ``sweep.json`` and ``sweep.png`` into ``directory``."""
+        """Write ``sweep.csv``, ``sweep.json`` and ``sweep.png`` into ``directory`` as one set.
+
+        The files are built in a hidden folder swapped into place in one step
+        (:func:`~shinro_ctrl.files.atomic_folder`): a kill leaves the previous
+        sweep or the new one. Only a new or empty folder, or one an earlier save
+        wrote (it carries the manifest), is replaced.
+
+        Raises:
+            InvalidArgument: ``directory`` is a folder shinro-ctrl did not write or a symbolic link.
+        """
+        from shinro_ctrl.files import atomic_folder
+
         d = Path(directory)
-        d.mkdir(parents=True, exist_ok=True)
-        self.files = {
-            "csv": self.to_csv(d / "sweep.csv"),
-            "json": self.to_json(d / "sweep.json"),
-            "png": self.plot(d / "sweep.png"),
-        }
+        names = ("sweep.csv", "sweep.json", "sweep.png")
+        with atomic_folder(d, names) as staging:
+            self.to_csv(staging / names[0])
+            self.to_json(staging / names[1])
+            self.plot(staging / names[2])
+        self.files = {"csv": d / names[0], "json": d / names[1], "png": d / names[2]}
         return self.files
 
     def summary(self) -> str:

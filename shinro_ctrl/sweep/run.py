@@ -94,7 +94,7 @@ def run_sweep(
 
     rows = _rows(outcomes, values, ranges, timings)
     result = SweepResult(
-        scenario=scenario.name,
+        scenario=scenario.name if scenario.path is not None else f"{scenario.plant.type} + {scenario.controller.type}",
         loop=nominal.loop,
         ranges=ranges,
         rows=rows,
