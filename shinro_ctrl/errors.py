@@ -10,6 +10,7 @@ boundary and re-raised as one of these, with context.
 from __future__ import annotations
 
 __all__ = [
+    "ConcurrentUse",
     "ConfigError",
     "InvalidArgument",
     "MPCInfeasible",
@@ -55,6 +56,10 @@ class MPCInfeasible(ShinroError, RuntimeError):
 
 class SimulationDiverged(ShinroError, RuntimeError):
     """A simulation produced non-finite values or a physics-engine warning."""
+
+
+class ConcurrentUse(ShinroError, RuntimeError):
+    """A call entered an object that another thread is using; use one object per thread."""
 
 
 class PlanningFailed(ShinroError, RuntimeError):

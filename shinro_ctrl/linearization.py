@@ -202,7 +202,7 @@ def complex_step_jacobians(plant, x0: np.ndarray, u0: np.ndarray, h: float = 1e-
     k = n + m
     Z = np.repeat(np.concatenate([x0, u0]).astype(complex)[None, :], k, axis=0)
     Z[np.arange(k), np.arange(k)] += 1j * h
-    F = np.asarray(plant._f(NumpyBackend(), Z[:, :n], Z[:, n:], plant._params))
+    F = np.asarray(plant.equations(NumpyBackend(), Z[:, :n], Z[:, n:], plant.dynamics_params()))
     J = (F.imag / h).T
     return J[:, :n].copy(), J[:, n:].copy()
 

@@ -340,7 +340,7 @@ def test_mujoco_model_matches_parameters(quad, rng):
     for _ in range(5):
         x, u = random_state(rng), quad.hover_input() + rng.normal(size=4) * [1, 0.05, 0.05, 0.05]
         quad.set_state(x)
-        quad._engine_apply(engine, u)
+        quad.engine_apply(engine, u)
         engine.forward()
         np.testing.assert_allclose(quad.get_state(), x, atol=1e-12)
         np.testing.assert_allclose(engine.data.qacc, quad.dynamics(x, u)[6:], rtol=1e-10, atol=1e-10)
@@ -367,7 +367,7 @@ def test_hover_linearization_matches_mjd_transition_fd(yaw):
     x0, u0 = q.equilibrium()
     x0[[0, 1, 2, 5]] = [0.3, -0.2, 1.0, yaw]
     q.set_state(x0)
-    q._engine_apply(engine, u0)
+    q.engine_apply(engine, u0)
     A_mj, B_mj = engine.transition_jacobians(eps=1e-6, centered=True)
     T, perm = q.engine_state_map()
     np.testing.assert_array_equal(T, np.eye(12))

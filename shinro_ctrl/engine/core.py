@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
-from shinro_ctrl.backend import NumpyBackend
 from shinro_ctrl.engine.access import _FREE, _HINGE, _SLIDE, NamedAccess
 from shinro_ctrl.engine.mjcf import _apply_patch, _check_substeps, _compile, _load_spec
 from shinro_ctrl.engine.render import OffscreenRenderer
@@ -22,6 +21,9 @@ from shinro_ctrl.engine.warnings import (
     take_warning_messages,
 )
 from shinro_ctrl.errors import InvalidArgument, SimulationDiverged
+
+if TYPE_CHECKING:
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["MujocoEngine"]
 
@@ -38,8 +40,6 @@ class MujocoEngine(NamedAccess):
     Attributes:
         model: The ``mujoco.MjModel``.
         data: The ``mujoco.MjData``.
-        backend: A :class:`~shinro_ctrl.backend.NumpyBackend` (for plants that
-            inherit the engine's backend).
         substeps: ``mj_step`` calls per :meth:`step`.
         source: Where the model came from (a path or ``"<xml string>"``).
         joint_names, actuator_names, body_names, site_names: Names in id
@@ -65,7 +65,7 @@ class MujocoEngine(NamedAccess):
         return engine
 
     @classmethod
-    def for_plant(cls, plant: Any, *, substeps: int = 1, model: str | Path | None = None) -> MujocoEngine:
+    def for_plant(cls, plant: Plant, *, substeps: int = 1, model: str | Path | None = None) -> MujocoEngine:
         """Load a plant's MJCF asset and match it to the plant's parameters.
 
         Every field of ``plant.mjcf_patch()`` is written through ``MjSpec``:
@@ -114,7 +114,6 @@ class MujocoEngine(NamedAccess):
         self.data = mujoco.MjData(model)
         self.substeps = _check_substeps(substeps)
         self.source = source
-        self.backend = NumpyBackend()
         m = model
         # Views into MjData (stable for the data's lifetime; cached for speed).
         self._qpos = self.data.qpos
@@ -172,6 +171,36 @@ class MujocoEngine(NamedAccess):
         return (
             f"MujocoEngine({self.source!r}, nq={m.nq}, nv={m.nv}, nu={m.nu}, dt={self.dt:g}, substeps={self.substeps})"
         )
+
+    # ------------------------------------------- the plant contract (plants.standalone.Engine)
+    def apply(self, plant: Plant, u: np.ndarray) -> None:
+        """Set the actuators from the plant input ``u (m,)`` (the plant's ``engine_apply``)."""
+        plant.engine_apply(self, u)
+
+    def read(self, plant: Plant) -> np.ndarray:
+        """The plant's state ``(n,)`` from MuJoCo's (the plant's ``engine_read``)."""
+        return plant.engine_read(self)
+
+    def write(self, plant: Plant, x: np.ndarray) -> None:
+        """Set MuJoCo's state from the plant's ``x (n,)`` (the plant's ``engine_write``)."""
+        plant.engine_write(self, x)
+
+    def joint_limit_depth(self, joints: list[str]) -> float:
+        """Deepest penetration [m or rad] of an active joint-limit constraint on ``joints`` (0: none active).
+
+        Read from the constraints of the last step (``efc_*``): a row of type
+        ``mjCNSTR_LIMIT_JOINT`` on one of the joints, its distance ``efc_pos`` (negative inside).
+        """
+        d = self.data
+        if d.nefc == 0:
+            return 0.0
+        ids = {self._joint_id(name) for name in joints}
+        depth = 0.0
+        limit = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT)
+        for row in np.flatnonzero(d.efc_type[: d.nefc] == limit).tolist():
+            if int(d.efc_id[row]) in ids:
+                depth = max(depth, -float(d.efc_pos[row]), 1e-12)
+        return depth
 
     # ------------------------------------------------------------- simulation
     def forward(self) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, is_dataclass
 from typing import Any
 
 import numpy as np
@@ -44,10 +43,3 @@ def with_engine_limits(cfg: dict, engine: Any) -> dict:
             )
     cfg["joint_limits"] = limits if limits.size else cfg.get("joint_limits")
     return cfg
-
-
-def _as_dict(config: Any) -> dict:
-    """A config mapping or dataclass as a plain dict without its ``type`` key."""
-    if is_dataclass(config) and not isinstance(config, type):
-        config = asdict(config)
-    return {k: v for k, v in dict(config).items() if k != "type"}

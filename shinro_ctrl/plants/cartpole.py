@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.backend import ArrayBackend
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
@@ -45,9 +47,13 @@ class CartPole(Plant):
         damping: Hinge damping ``b`` [N m s/rad], >= 0.
         gravity: ``g`` [m/s²], >= 0.
         dt: Step [s], > 0.
-        track_limits: Optional ``(min, max)`` cart position [m]; the
-            standalone cart position is clipped to it after each step.
-        backend: Array backend kept for API compatibility (numpy).
+        track_limits: Optional ``(min, max)`` cart position [m], ``min < max``:
+            inelastic stops at the ends of the track. Standalone, a step that
+            carries the cart past an end puts it on the end and zeroes its
+            velocity into the stop (:meth:`Plant.stop`); in MuJoCo the slider
+            gets the same ``range`` (``limited="true"``). Every step in contact
+            with a stop counts in ``constraint_violations`` (:meth:`limit_violation`).
+        backend: The seed's array backend keyword; accepted, not used (numpy).
     """
 
     aliases = ("cartpole",)
@@ -66,8 +72,8 @@ class CartPole(Plant):
         damping: float = 0.0,
         gravity: float = 9.81,
         dt: float = 0.01,
-        track_limits: Any = None,
-        backend: Any = None,
+        track_limits: tuple[float, float] | None = None,
+        backend: ArrayBackend | None = None,
     ):
         self.M = check_positive("cart_mass", cart_mass)
         self.m = check_positive("pole_mass", pole_mass)
@@ -75,6 +81,9 @@ class CartPole(Plant):
         self.b = check_nonnegative("damping", damping)
         self.g = check_nonnegative("gravity", gravity)
         self.track_limits = _track_limits(track_limits)
+        if self.track_limits is not None:
+            self._track_lo = np.array([self.track_limits[0], -np.inf, -np.inf, -np.inf])
+            self._track_hi = np.array([self.track_limits[1], np.inf, np.inf, np.inf])
         self._init(
             dt=dt,
             params={
@@ -100,14 +109,14 @@ class CartPole(Plant):
         return bk.stack([x_dot, x_ddot, theta_dot, theta_ddot])
 
     def clip_state(self, x: np.ndarray) -> np.ndarray:
-        """Clip the cart position to ``track_limits`` (one state ``(4,)`` or a batch ``(N, 4)``, in place)."""
-        if self.track_limits is not None:
-            lo, hi = self.track_limits
-            if x.ndim == 1:
-                x[0] = min(max(x[0], lo), hi)
-            else:
-                x[:, 0] = np.minimum(np.maximum(x[:, 0], lo), hi)
-        return x
+        """The track's ends as inelastic stops (one state ``(4,)`` or a batch ``(N, 4)``, in place).
+
+        The cart position is put on the end it passed and its velocity into the end is zeroed
+        (see :meth:`Plant.stop`).
+        """
+        if self.track_limits is None:
+            return x
+        return self.stop(x, self._track_lo, self._track_hi)
 
     def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = super().state_limits()
@@ -124,6 +133,7 @@ class CartPole(Plant):
             inertials={"cart": (self.M, (0.0, 0.0, 0.0)), "pole": (self.m, (0.0, 0.0, self.l))},
             joint_damping={"hinge": self.b},
             geom_fromto={"pole_rod": (0.0, 0.0, 0.0, 0.0, 0.0, self.l)},
+            joint_range={} if self.track_limits is None else {"slider": self.track_limits},
         )
 
     def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
@@ -155,13 +165,19 @@ class CartPole(Plant):
         engine.set_joint_ctrl("slider", u[0])
 
 
-def _track_limits(value: Any) -> tuple[float, float] | None:
+def _track_limits(value: object) -> tuple[float, float] | None:
+    """``track_limits`` as a ``(min, max)`` pair of finite numbers with ``min < max``, or None."""
     if value is None:
         return None
     try:
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
         raise InvalidArgument(f"track_limits must be a (min, max) pair, got {value!r}") from None
-    if not lo <= hi:
-        raise InvalidArgument(f"track_limits: min must be <= max, got ({lo}, {hi})")
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise InvalidArgument(f"track_limits must be finite, got ({lo}, {hi}); omit it for an endless track")
+    if not lo < hi:
+        raise InvalidArgument(
+            f"track_limits: min must be < max (a track of zero or negative length leaves the cart no room), "
+            f"got ({lo:g}, {hi:g})"
+        )
     return lo, hi

@@ -7,7 +7,6 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.plants._bounds import StateBoundsMixin
 from shinro_ctrl.plants._bounds import state_bounds as _parse_bounds
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
@@ -15,7 +14,7 @@ from shinro_ctrl.validation import check_nonnegative, check_positive
 __all__ = ["DoublePendulum"]
 
 
-class DoublePendulum(StateBoundsMixin, Plant):
+class DoublePendulum(Plant):
     r"""Double pendulum in absolute rod angles, driven by hinge motors.
 
     State ``[theta_1, theta_2, omega_1, omega_2]``: each rod's angle from the
@@ -113,6 +112,18 @@ class DoublePendulum(StateBoundsMixin, Plant):
         kin = kin + m2 * l1 * l2 * w1 * w2 * np.cos(th1 - th2)
         pot = -(m1 + m2) * g * l1 * np.cos(th1) - m2 * g * l2 * np.cos(th2)
         return kin + pot
+
+    def clip_state(self, x: np.ndarray) -> np.ndarray:
+        """``state_bounds`` as inelastic stops (see :meth:`Plant.stop`): ``(n,)`` or ``(N, n)``, in place."""
+        if self.state_bounds is None:
+            return x
+        return self.stop(x, *self.state_bounds)
+
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """``state_bounds`` (±inf without)."""
+        if self.state_bounds is None:
+            return super().state_limits()
+        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
 
     # engine mode: hinges "hinge_1" (absolute) and "hinge_2" (relative), motors "torque_1"/"torque_2"
     def mjcf_patch(self) -> MjcfPatch:

@@ -6,7 +6,6 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.plants._bounds import StateBoundsMixin
 from shinro_ctrl.plants._bounds import state_bounds as _parse_bounds
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
@@ -14,7 +13,7 @@ from shinro_ctrl.validation import check_nonnegative, check_positive
 __all__ = ["InvertedPendulum"]
 
 
-class InvertedPendulum(StateBoundsMixin, Plant):
+class InvertedPendulum(Plant):
     r"""Point-mass pendulum with the angle measured from upright.
 
     State ``[theta, theta_dot]`` (rad, rad/s), input ``[tau]`` (N m at the
@@ -74,6 +73,18 @@ class InvertedPendulum(StateBoundsMixin, Plant):
         ml2 = p["mass"] * p["length"] ** 2
         theta_ddot = p["gravity"] / p["length"] * bk.sin(theta) + (tau - p["damping"] * theta_dot) / ml2
         return bk.stack([theta_dot, theta_ddot])
+
+    def clip_state(self, x: np.ndarray) -> np.ndarray:
+        """``state_bounds`` as inelastic stops (see :meth:`Plant.stop`): ``(n,)`` or ``(N, n)``, in place."""
+        if self.state_bounds is None:
+            return x
+        return self.stop(x, *self.state_bounds)
+
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """``state_bounds`` (±inf without)."""
+        if self.state_bounds is None:
+            return super().state_limits()
+        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
 
     # engine mode: hinge "hinge", motor actuator "hinge"
     def mjcf_patch(self) -> MjcfPatch:

@@ -231,7 +231,7 @@ class MjcfPlant(Plant):
         self._eval()
         return self._yb.copy()
 
-    def _f(self, bk: Any, x: Any, u: Any, p: Any) -> Any:
+    def equations(self, bk: Any, x: Any, u: Any, p: Any) -> Any:
         """``ẋ``: the model's SX expression for the CasADi backend, the compiled function otherwise."""
         if isinstance(bk, CasadiBackend):
             return self._fun(x, u)
@@ -271,7 +271,7 @@ class MjcfPlant(Plant):
                 self._symbolic[True] = cs.Function("f", [x, u, p], [self._fun(x, u)], ["x", "u", "p"], ["xdot"])
         return self._symbolic[params]
 
-    def _integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """One semi-implicit Euler step: ``q̇⁺ = q̇ + dt q̈``, ``q⁺ = q + dt q̇⁺`` (MuJoCo's Euler)."""
         nq = self.tree.nq
         xd = self._eval_one(x, u)
@@ -295,13 +295,13 @@ class MjcfPlant(Plant):
         n = self.state_dim
         return np.eye(n), np.arange(n)
 
-    def _engine_read(self, engine: Any) -> np.ndarray:
+    def engine_read(self, engine: Any) -> np.ndarray:
         return engine.get_state_vector()
 
-    def _engine_write(self, engine: Any, x: np.ndarray) -> None:
+    def engine_write(self, engine: Any, x: np.ndarray) -> None:
         engine.set_state_vector(x)
 
-    def _engine_apply(self, engine: Any, u: np.ndarray) -> None:
+    def engine_apply(self, engine: Any, u: np.ndarray) -> None:
         if len(self.active_actuators) == self.tree.nu and self.active_actuators == tuple(range(self.tree.nu)):
             engine.set_ctrl(u)
             return

@@ -5,18 +5,25 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import casadi as cs
 import numpy as np
 
-from shinro_ctrl.backend import ScalarBackend
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.backend import ArrayBackend, CasadiBackend, ScalarBackend
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_nonnegative, check_positive
 
-__all__ = ["ROTOR_LAYOUTS", "Quadrotor", "quat_to_zyx_euler", "zyx_euler_to_quat"]
+__all__ = ["GIMBAL_COS_MIN", "ROTOR_LAYOUTS", "Quadrotor", "quat_to_zyx_euler", "zyx_euler_to_quat"]
 
 _SCALAR = ScalarBackend()
+_CASADI = CasadiBackend()
 
 ROTOR_LAYOUTS = ("+", "x")
+
+#: The model is refused where ``|cos(pitch)| <`` this (pitch within about 0.057° of ±90°): the Euler-rate
+#: map ``W`` has ``1/cos(pitch)`` entries (> 1e3 there) and its Jacobian ``1/cos²`` entries (> 1e6), so the
+#: dynamics, their linearization and the standalone step lose every meaningful digit at the singularity.
+GIMBAL_COS_MIN = 1e-3
 
 
 def zyx_euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -88,7 +95,10 @@ class Quadrotor(Plant):
         \dot{\mathbf v} = \frac{T}{m} R(\phi, \theta, \psi)\, e_z - g\, e_z, \qquad
         \dot\omega = I^{-1}\left(\tau - \omega \times I \omega\right).
 
-    The Euler-rate map is singular at ``|pitch| = π/2``; the model is meant for
+    The Euler-rate map is singular at ``|pitch| = π/2`` (gimbal lock): :meth:`dynamics`,
+    :meth:`linearize` (and every model built on it) and the standalone :meth:`step` raise
+    :class:`~shinro_ctrl.errors.NonFiniteError` where ``|cos(pitch)| <``
+    :data:`GIMBAL_COS_MIN` (1e-3, within about 0.057° of ±90°); the model is meant for
     flight well inside that. Hover (zero state, ``u0 = [m g, 0, 0, 0]``) is the
     default operating point. The standalone step is semi-implicit Euler
     (velocities first, then positions and angles from the new velocities),
@@ -144,7 +154,7 @@ class Quadrotor(Plant):
         dt: float = 0.01,
         rotor_layout: str = "x",
         yaw_moment_coefficient: float = 0.016,
-        backend: Any = None,
+        backend: ArrayBackend | None = None,
     ):
         self.m = check_positive("mass", mass)
         self.inertia = _inertia(inertia)
@@ -208,12 +218,38 @@ class Quadrotor(Plant):
         wz_dot = (tau_z + (Ixx - Iyy) * wx * wy) / Izz
         return bk.stack([vx, vy, vz, phi_dot, theta_dot, psi_dot, ax, ay, az, wx_dot, wy_dot, wz_dot])
 
+    def check_model_domain(self, x: np.ndarray) -> None:
+        """Refuse a state at the Euler-angle singularity: ``|cos(pitch)| <`` :data:`GIMBAL_COS_MIN`.
+
+        Raises:
+            NonFiniteError: naming the pitch and the limit.
+        """
+        pitch = float(x[4])
+        if abs(math.cos(pitch)) < GIMBAL_COS_MIN:
+            raise NonFiniteError(
+                f"Quadrotor: pitch = {pitch:.9g} rad is at the Euler-angle singularity (gimbal lock, "
+                f"|cos(pitch)| = {abs(math.cos(pitch)):.3g} < {GIMBAL_COS_MIN:g}): the ZYX Euler-rate map is "
+                "undefined there; keep |pitch| below pi/2 - 1e-3 or use MuJoCo (quaternions) for such attitudes"
+            )
+
+    def symbolic_step(self) -> cs.Function:
+        """The two-stage semi-implicit Euler step of :meth:`integrate` as CasADi ``F(x, u, p)``."""
+        x = cs.SX.sym("x", 12)
+        u = cs.SX.sym("u", 4)
+        p = cs.SX.sym("p", len(self.param_names))
+        pmap = {k: p[i] for i, k in enumerate(self.param_names)}
+        f1 = self.equations(_CASADI, x, u, pmap)
+        new = cs.vertcat(x[:6], x[6:] + self.dt * f1[6:])
+        f2 = self.equations(_CASADI, new, u, pmap)
+        new = cs.vertcat(x[:6] + self.dt * f2[:6], new[6:])
+        return cs.Function("F", [x, u, p], [new], ["x", "u", "p"], ["x_next"])
+
     def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Semi-implicit Euler: velocities first; then position and angles with the new velocities.
 
         ``v⁺ = v + dt v̇(x, u)``, ``ω⁺ = ω + dt ω̇(x, u)``, ``p⁺ = p + dt v⁺``,
         ``η⁺ = η + dt W(φ, θ) ω⁺`` (``η`` the Euler angles, ``W`` at the old
-        angles). Both stages evaluate the one :meth:`_f`.
+        angles). Both stages evaluate the one :meth:`equations`.
         """
         dt = self.dt
         new = x.copy()
@@ -308,6 +344,7 @@ class Quadrotor(Plant):
         """
         T = np.eye(12)
         if x0 is not None:
+            self.check_model_domain(np.asarray(x0, dtype=float))
             roll, pitch = float(x0[3]), float(x0[4])
             sr, cr, tp, cp = math.sin(roll), math.cos(roll), math.tan(pitch), math.cos(pitch)
             T[3:6, 3:6] = [[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]]

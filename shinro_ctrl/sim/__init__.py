@@ -17,7 +17,7 @@ The package's modules: :mod:`~shinro_ctrl.sim.robot` (the loop),
 from shinro_ctrl.sim.metrics import NEVER_METRICS, bound_excess, compute_metrics, format_metrics, response_metrics
 from shinro_ctrl.sim.reference import Reference
 from shinro_ctrl.sim.result import SimResult
-from shinro_ctrl.sim.robot import MAX_STEPS, RobotSim, _install_ik
+from shinro_ctrl.sim.robot import MAX_STEPS, RobotSim
 
 __all__ = [
     "MAX_STEPS",
@@ -25,7 +25,6 @@ __all__ = [
     "Reference",
     "RobotSim",
     "SimResult",
-    "_install_ik",
     "bound_excess",
     "compute_metrics",
     "format_metrics",
