@@ -437,7 +437,8 @@ class ArmRobot(Plant):
         if self.ik is not None:
             q = self.ik.track(self._q_cmd, T)
         else:
-            q = self.inverse_kinematics(T, q_init=self._q_cmd)
+            # a tolerance well below one step's motion (the default 1e-4 would ignore a twist below 1e-4 / dt)
+            q = self.inverse_kinematics(T, q_init=self._q_cmd, tol=1e-9)
         q = self._clamp(q)
         self._q = q
         self._q_cmd = q.copy()
