@@ -35,6 +35,7 @@ from shinro_ctrl.errors import InvalidArgument
 
 __all__ = [
     "DISCRETIZATIONS",
+    "MODEL_DISCRETIZATIONS",
     "ExactJacobian",
     "LinearModel",
     "LinearizationComparison",
@@ -45,6 +46,9 @@ __all__ = [
 ]
 
 DISCRETIZATIONS = ("euler", "zoh", "rk4")
+#: Every discrete model a plant builds: the discretizations of its continuous Jacobians, and ``"step"``,
+#: the exact Jacobians of the discrete step its standalone loop takes (``Plant.step_jacobians``).
+MODEL_DISCRETIZATIONS = (*DISCRETIZATIONS, "step")
 
 
 @dataclass(frozen=True)
@@ -62,7 +66,8 @@ class LinearModel:
         A_c: Continuous state matrix ``(n, n)``.
         B_c: Continuous input matrix ``(n, m)``.
         method: ``"exact"`` or ``"fd"``.
-        discretization: ``"euler"``, ``"zoh"`` or ``"rk4"``.
+        discretization: ``"euler"``, ``"zoh"``, ``"rk4"`` (of ``A_c, B_c``) or ``"step"`` (the exact
+            Jacobians of the plant's standalone step).
     """
 
     A: np.ndarray
@@ -74,6 +79,15 @@ class LinearModel:
     B_c: np.ndarray
     method: str
     discretization: str
+
+    def describe(self) -> str:
+        """One line naming the model: which discretization of which linearization, and ``dt``."""
+        if self.discretization == "step":
+            how = "discretization 'step' (the exact Jacobians of the plant's own standalone step"
+            how += ")" if self.method == "exact" else f", by {self.method})"
+        else:
+            how = f"{self.discretization} discretization of the {self.method} linearization"
+        return f"{how}, dt = {self.dt:g} s"
 
     def to_statespace(
         self,

@@ -67,7 +67,7 @@ def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
         method = model.method if model is not None else "exact"
         print(f"model: continuous-time {method} linearization (continuous design: K and the poles are continuous)")
     elif model is not None:
-        print(f"model: {model.discretization} discretization of the {model.method} linearization, dt = {model.dt:g} s")
+        print(f"model: {model.describe()}")
     print("K =")
     print(ctrl.K)
     print("closed-loop poles:")
@@ -80,6 +80,8 @@ def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
 def _print_mpc(sim: Any) -> None:
     """The MPC problem and the solve statistics of a short closed-loop run (at most 2 s)."""
     ctrl = sim.controller
+    if getattr(ctrl, "model", None) is not None:
+        print(f"model: {ctrl.model.describe()}")
     print(ctrl.describe())
     result = sim.run(min(sim.scenario.sim.duration, 2.0))
     solve = result.solve_times

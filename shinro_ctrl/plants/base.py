@@ -35,7 +35,7 @@ import numpy as np
 
 from shinro_ctrl.backend import ArrayBackend, BackendArray, CasadiBackend, ListBackend, NumpyBackend, ScalarBackend
 from shinro_ctrl.errors import ConcurrentUse, ConfigError, InvalidArgument, NonFiniteError
-from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd_jacobians
+from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, ExactJacobian, LinearModel, discretize, fd_jacobians
 from shinro_ctrl.plants.standalone import Engine, StandaloneEngine
 from shinro_ctrl.validation import all_finite, as_vector, check_positive, did_you_mean, unknown_keys
 
@@ -456,6 +456,10 @@ class Plant:
         """
         x0, u0 = self.operating_point(x0, u0)
         A_c, B_c = self.linearize(x0, u0, method=method, eps=eps)
+        if discretization not in MODEL_DISCRETIZATIONS:
+            raise InvalidArgument(
+                f"unknown discretization {discretization!r}; valid: {', '.join(MODEL_DISCRETIZATIONS)}"
+            )
         if discretization == "step":
             if method == "exact":
                 A, B = self.step_jacobians(x0, u0)
@@ -467,6 +471,18 @@ class Plant:
         if not all_finite(A, B):
             self._check_finite_model(A, B, f"{type(self).__name__} {discretization} model at dt = {self.dt:g} s")
         return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization)
+
+    def discrete_offset(self, model: LinearModel) -> np.ndarray:
+        """The affine term ``c (n,)`` of ``model``: ``x⁺ ≈ x0 + A (x − x0) + B (u − u0) + c``.
+
+        Zero at an equilibrium. For ``discretization="step"`` it is the standalone step's own
+        ``F(x0, u0) − x0``; otherwise the drift ``f(x0, u0)`` discretized as ``B`` is.
+        """
+        if model.discretization == "step":
+            F = self.symbolic_step()
+            return np.asarray(F(model.x0, model.u0, self._pvec), dtype=float).reshape(-1) - model.x0
+        drift = np.asarray(self.dynamics(model.x0, model.u0), dtype=float).reshape(-1, 1)
+        return discretize(model.A_c, drift, model.dt, model.discretization)[1][:, 0]
 
     def _integrate_batch(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """:meth:`integrate` row by row on ``(N, n)``, ``(N, m)`` (the finite-difference reference of the step)."""
