@@ -425,7 +425,7 @@ class ArmRobot(Plant):
                 # A tolerance well below one step's motion (the seed's 1e-3 m would ignore a
                 # twist of less than 1e-3 / dt m/s).
                 q_cmd = self.engine_ik(target[:3], target_euler=target[3:], tol=1e-7)
-            q_cmd = self._clamp(q_cmd)
+            q_cmd = self._clamp(q_cmd, target)
             for name, v in zip(self.joint_names, q_cmd.tolist(), strict=True):
                 self._engine.set_joint_ctrl(name, v)
             self._engine.step()
@@ -439,16 +439,28 @@ class ArmRobot(Plant):
         else:
             # a tolerance well below one step's motion (the default 1e-4 would ignore a twist below 1e-4 / dt)
             q = self.inverse_kinematics(T, q_init=self._q_cmd, tol=1e-9)
-        q = self._clamp(q)
+        q = self._clamp(q, target)
         self._q = q
         self._q_cmd = q.copy()
         self.state = self._pose_of(q)
         return q.copy()
 
-    def _clamp(self, q: np.ndarray) -> np.ndarray:
-        """``q`` clipped to the joint limits; the depth of the clip is kept for :meth:`limit_violation`."""
-        self._contact = float(max(0.0, np.max(self._lo - q), np.max(q - self._hi)))
-        return np.clip(q, self._lo, self._hi)
+    def _clamp(self, q: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """``q`` clipped to the joint limits, and the step's contact with a limit kept for :meth:`limit_violation`.
+
+        A contact is a step whose joints end on a limit short of the target pose (the IK clips
+        inside its iterations): its depth is the distance [m + rad] to the target pose
+        ``(6,)`` left by the limit (or how far ``q`` was outside, when larger).
+        """
+        outside = float(max(0.0, np.max(self._lo - q), np.max(q - self._hi)))
+        q = np.clip(q, self._lo, self._hi)
+        self._contact = outside
+        if np.any((q <= self._lo) | (q >= self._hi)):
+            e = target - self._pose_of(q)
+            e[3:] = np.angle(np.exp(1j * e[3:]))  # Euler angles wrap
+            short = float(np.linalg.norm(e))
+            self._contact = max(outside, short if short > 1e-9 else 0.0)
+        return q
 
     def get_state(self) -> np.ndarray:
         """End-effector pose ``[x, y, z, roll, pitch, yaw]`` (6,) (read from MuJoCo in engine mode)."""

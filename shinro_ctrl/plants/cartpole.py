@@ -112,11 +112,17 @@ class CartPole(Plant):
         """The track's ends as inelastic stops (one state ``(4,)`` or a batch ``(N, 4)``, in place).
 
         The cart position is put on the end it passed and its velocity into the end is zeroed
-        (see :meth:`Plant.stop`).
+        (see :meth:`Plant.stop`); the stop's impulse, which acts on the cart alone, changes the
+        pole's rate by ``Δθ̇ = −(cos θ / l) Δẋ`` (the mass matrix's coupling), as in MuJoCo.
         """
         if self.track_limits is None:
             return x
-        return self.stop(x, self._track_lo, self._track_hi)
+        v_before = x[..., 1].copy()
+        x = self.stop(x, self._track_lo, self._track_hi)
+        # The stop's impulse acts on the cart only: M Δv = [J, 0] gives the pole Δθ̇ = −(cos θ / l) Δẋ.
+        dv = x[..., 1] - v_before
+        x[..., 3] -= np.cos(x[..., 2]) / self.l * dv
+        return x
 
     def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = super().state_limits()

@@ -42,7 +42,10 @@ class DoublePendulum(Plant):
         length_top, length_bottom: Rod lengths [m], > 0.
         dt: Step [s], > 0.
         g: Gravitational acceleration [m/s²], >= 0.
-        state_bounds: Optional ``(min (4,), max (4,))`` or ``{min, max}``.
+        state_bounds: Optional ``(min (4,), max (4,))`` or ``{min, max}``, ``min < max``:
+            inelastic stops in the standalone loop (:meth:`Plant.stop`), counted in
+            ``constraint_violations``. MuJoCo's second hinge measures the relative angle, so the
+            absolute-angle bounds have no MuJoCo joint range: they act standalone only.
         backend: Array backend kept for API compatibility (numpy).
     """
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from typing import Any
 
 import numpy as np
@@ -33,8 +35,11 @@ class InvertedPendulum(Plant):
         damping: Hinge damping [N m s/rad], >= 0.
         gravity: Gravitational acceleration [m/s²], >= 0.
         dt: Step [s], > 0.
-        state_bounds: Optional ``(min (2,), max (2,))`` or ``{min, max}``;
-            the standalone state is clipped to it after each step.
+        state_bounds: Optional ``(min (2,), max (2,))`` or ``{min, max}``, ``min < max``:
+            inelastic stops (:meth:`Plant.stop`: an angle past a bound is put on it and its rate
+            into the bound zeroed; a rate past a bound is clipped). In MuJoCo the hinge gets the
+            angle range (the rate bounds act standalone only). Contacts count in
+            ``constraint_violations``.
         backend: Array backend kept for API compatibility (numpy).
     """
 
@@ -95,7 +100,15 @@ class InvertedPendulum(Plant):
             inertials={"pole": (self.m, (0.0, 0.0, self.l))},
             joint_damping={"hinge": self.b},
             geom_fromto={"rod": (0.0, 0.0, 0.0, 0.0, 0.0, self.l)},
+            joint_range=self._hinge_range(),
         )
+
+    def _hinge_range(self) -> dict[str, tuple[float, float]]:
+        """The angle bounds as the MuJoCo hinge's range (the same stop in both loops)."""
+        if self.state_bounds is None:
+            return {}
+        lo, hi = float(self.state_bounds[0][0]), float(self.state_bounds[1][0])
+        return {"hinge": (lo, hi)} if math.isfinite(lo) and math.isfinite(hi) else {}
 
     def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [hinge, hinge_dot]``.
