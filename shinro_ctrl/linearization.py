@@ -23,6 +23,7 @@ Discretizations at step ``dt``:
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -230,7 +231,8 @@ class ExactJacobian:
 
     Calling the instance with ``(x0, u0)`` returns fresh ``(A_c, B_c)`` arrays.
     The CasADi buffer is bound to arrays this object owns, so the evaluation
-    itself allocates nothing. CasADi writes column-major nonzeros; the
+    itself allocates nothing. Threads: a lock serializes the buffer's use (its cost,
+    about 0.1 µs, is a few percent of the call), so concurrent calls are correct. CasADi writes column-major nonzeros; the
     function returns the *transposed* Jacobians, whose column-major layout is
     the row-major layout of ``A_c`` and ``B_c``, so reading back is a plain copy.
     """
@@ -260,17 +262,20 @@ class ExactJacobian:
         self._buf.set_arg(2, memoryview(self._p))
         self._buf.set_res(0, memoryview(self._A.reshape(-1)))
         self._buf.set_res(1, memoryview(self._B.reshape(-1)))
+        self._lock = threading.Lock()
         self.set_params(p)
 
     def set_params(self, p: np.ndarray) -> None:
         """Bind new parameter values ``(n_p,)``."""
-        self._p[:] = p
+        with self._lock:
+            self._p[:] = p
 
     def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        self._x[:] = x0
-        self._u[:] = u0
-        self._eval()
-        return self._A.copy(), self._B.copy()
+        with self._lock:
+            self._x[:] = x0
+            self._u[:] = u0
+            self._eval()
+            return self._A.copy(), self._B.copy()
 
 
 @dataclass(frozen=True)

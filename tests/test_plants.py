@@ -296,3 +296,112 @@ def test_physics_engine_rejects_what_is_not_an_engine():
 
     with pytest.raises(InvalidArgument, match="expects a MujocoEngine"):
         CartPole().physics_engine("x")
+
+
+# ------------------------------------------------------------------ non-finite input, threads
+def _built_in_plants():
+    from shinro_ctrl.plants import ArmRobot, HolonomicMobileRobot, Quadrotor
+
+    return [CartPole(), InvertedPendulum(), DoublePendulum(), Quadrotor(), HolonomicMobileRobot(), ArmRobot()]
+
+
+@pytest.mark.parametrize(
+    "plant", [*_built_in_plants(), "mjcf"], ids=lambda p: p if isinstance(p, str) else type(p).__name__
+)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("where", ["x", "u", "batch"])
+def test_dynamics_with_nan_or_inf_raises_non_finite_error_like_step(plant, bad, where):
+    if plant == "mjcf":
+        from shinro_ctrl.plants import MjcfPlant
+
+        plant = MjcfPlant("furuta_pendulum.xml")
+    x, u = plant.equilibrium()
+    x, u = x.copy(), u.copy()
+    if where == "x":
+        x[0] = bad  # x[0] is a position that several models' equations never read (the cart's x)
+    elif where == "u":
+        u[-1] = bad
+    else:
+        X = np.stack([x, x])
+        X[1, -1] = bad
+        with pytest.raises(NonFiniteError, match="NaN or inf"):
+            plant.dynamics(X, np.stack([u, u]))
+        return
+    with pytest.raises(NonFiniteError, match="NaN or inf"):
+        plant.dynamics(x, u)
+    if where == "u":
+        with pytest.raises(NonFiniteError):
+            plant.step(u)
+
+
+def _run_threads(fn, args_per_thread):
+    import threading
+
+    out: list = [None] * len(args_per_thread)
+    errors: list = []
+
+    def work(i):
+        try:
+            out[i] = fn(*args_per_thread[i])
+        except Exception as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(len(args_per_thread))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    return out
+
+
+@pytest.mark.parametrize("plant", _built_in_plants(), ids=lambda p: type(p).__name__)
+def test_dynamics_and_linearize_from_4_threads_equal_the_serial_results(plant):
+    rng = np.random.default_rng(11)
+    xe, ue = plant.equilibrium()
+    pts = [
+        (
+            xe + 0.3 * rng.standard_normal((1000, plant.state_dim)),
+            ue + 0.3 * rng.standard_normal((1000, plant.input_dim)),
+        )
+        for _ in range(4)
+    ]
+
+    def calls(X, U):
+        return [(plant.dynamics(x, u), *plant.linearize(x, u)) for x, u in zip(X, U, strict=True)]
+
+    serial = [calls(X, U) for X, U in pts]
+    threaded = _run_threads(calls, pts)
+    for s_run, t_run in zip(serial, threaded, strict=True):
+        for s, t in zip(s_run, t_run, strict=True):
+            for a, b in zip(s, t, strict=True):
+                np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("plant", _built_in_plants()[:5], ids=lambda p: type(p).__name__)
+def test_a_plant_stepped_from_4_threads_is_correct_or_refuses_with_concurrent_use(plant):
+    from shinro_ctrl.errors import ConcurrentUse
+
+    x0, u0 = plant.equilibrium()
+    x0 = x0 + 0.01
+    plant.set_state(x0)
+    u = u0 + 0.01
+
+    def steps():
+        done = refused = 0
+        for _ in range(1000):
+            try:
+                plant.step(u)
+                done += 1
+            except ConcurrentUse:
+                refused += 1
+        return done, refused
+
+    results = _run_threads(steps, [()] * 4)
+    total = sum(d for d, _ in results)
+    assert total + sum(r for _, r in results) == 4000
+    ref = type(plant)()  # the same number of steps, serially: every successful step is F(x, u)
+    ref.set_state(x0)
+    for _ in range(total):
+        ref.step(u)
+    np.testing.assert_array_equal(plant.get_state(), ref.get_state())

@@ -9,6 +9,8 @@ it reuses the plant's closed-form ``W(φ, θ)``.
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 import pytest
@@ -435,3 +437,44 @@ def test_hover_lqr_recovers_from_offset(engine):
         x = q.step(ctrl(x))
     assert np.abs(x[0:6]).max() < 1e-2, x
     assert np.abs(x[6:12]).max() < 1e-2, x
+
+
+# ------------------------------------------------------------------ gimbal lock
+@pytest.mark.parametrize("pitch", [math.pi / 2, -math.pi / 2, math.pi / 2 - 5e-4, 3 * math.pi / 2, -math.pi / 2 + 1e-9])
+def test_gimbal_lock_is_refused_in_dynamics_linearize_and_step(pitch):
+    q = Quadrotor()
+    x = np.zeros(12)
+    x[4] = pitch
+    u = q.hover_input()
+    for call in (
+        lambda: q.dynamics(x, u),
+        lambda: q.dynamics(np.stack([np.zeros(12), x]), np.stack([u, u])),
+        lambda: q.linearize(x, u),
+        lambda: q.linearize(x, u, method="fd"),
+        lambda: q.get_model(x, u),
+        lambda: q.get_model(x, u, discretization="step"),
+        lambda: q.engine_state_map(x),
+    ):
+        with pytest.raises(NonFiniteError, match="gimbal lock"):
+            call()
+    q.state = x
+    with pytest.raises(NonFiniteError, match="gimbal lock"):
+        q.step(u)
+
+
+def test_just_outside_the_gimbal_lock_margin_the_model_is_finite():
+    q = Quadrotor()
+    x = np.zeros(12)
+    x[4] = math.pi / 2 - 2e-3  # |cos| = 2e-3 > GIMBAL_COS_MIN
+    A, B = q.linearize(x, q.hover_input())
+    assert np.all(np.isfinite(A)) and np.all(np.isfinite(B)) and np.all(np.isfinite(q.dynamics(x, q.hover_input())))
+
+
+def test_gimbal_lock_on_the_command_line_is_one_line_exit_2(capsys):
+    from shinro_ctrl.cli import main
+
+    x0 = ",".join(["0"] * 4 + [repr(math.pi / 2)] + ["0"] * 7)
+    for cmd in ("linearize", "crosscheck"):
+        assert main([cmd, "quadrotor", "--x0", x0]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "gimbal lock" in err[0]

@@ -414,8 +414,17 @@ class ArmRobot(Plant):
         Raises:
             InvalidArgument: ``u`` has the wrong shape.
             NonFiniteError: ``u`` holds NaN or inf.
+            ConcurrentUse: another thread is stepping this arm.
         """
         u = self._input(u)
+        if not self._step_lock.acquire(False):
+            self._concurrent()
+        try:
+            return self._step(u)
+        finally:
+            self._step_lock.release()
+
+    def _step(self, u: np.ndarray) -> np.ndarray:
         x = self.get_state()
         target = x + self.dt * u
         if self._engine is not None:

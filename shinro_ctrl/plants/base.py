@@ -634,7 +634,7 @@ class Plant:
         u = self._input(u)
         lock = self._step_lock
         if not lock.acquire(False):
-            raise ConcurrentUse(f"{type(self).__name__}.step entered from two threads; use one plant per thread")
+            self._concurrent()
         try:
             sim = self._sim
             sim.apply(self, u)
@@ -643,6 +643,14 @@ class Plant:
         finally:
             lock.release()
         return x.copy()
+
+    def _concurrent(self) -> None:
+        """Raise :class:`ConcurrentUse` for a step entered while another thread steps this plant.
+
+        A subclass with its own ``step`` guards it the same way: ``if not self._step_lock.acquire(False):
+        self._concurrent()`` then release in ``finally``.
+        """
+        raise ConcurrentUse(f"{type(self).__name__}.step entered from two threads; use one plant per thread")
 
     def get_state(self) -> np.ndarray:
         """The current state ``(n,)`` (read from the engine when one is attached)."""

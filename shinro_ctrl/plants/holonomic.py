@@ -194,6 +194,14 @@ class HolonomicMobileRobot(Plant):
             NonFiniteError: ``u_world`` holds NaN or inf.
         """
         u = self._input(u_world)
+        if not self._step_lock.acquire(False):
+            self._concurrent()
+        try:
+            return self._step(u)
+        finally:
+            self._step_lock.release()
+
+    def _step(self, u: np.ndarray) -> np.ndarray:
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below, not warned about
             speeds = self.A_kinematics @ self._world_to_body(u, float(self._x[2])) / self.r
         if not np.isfinite(speeds).all():
