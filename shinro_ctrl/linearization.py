@@ -232,8 +232,8 @@ class ExactJacobian:
     Calling the instance with ``(x0, u0)`` returns fresh ``(A_c, B_c)`` arrays.
     The CasADi buffer is bound to arrays this object owns, so the evaluation
     itself allocates nothing. Threads: a lock serializes the buffer's use (its cost,
-    about 0.1 µs, is a few percent of the call), so concurrent calls are correct. CasADi writes column-major nonzeros; the
-    function returns the *transposed* Jacobians, whose column-major layout is
+    about 0.1 µs, is a few percent of the call), so concurrent calls are correct.
+    CasADi writes column-major nonzeros; the function returns the *transposed* Jacobians, whose column-major layout is
     the row-major layout of ``A_c`` and ``B_c``, so reading back is a plain copy.
     """
 
