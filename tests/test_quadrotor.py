@@ -415,7 +415,7 @@ def hover_lqr(q):
     Q = np.diag([10, 10, 10, 2, 2, 2, 1, 1, 1, 0.1, 0.1, 0.1])
     R = np.diag([0.5, 200.0, 200.0, 200.0])
     ctrl = LQR.from_plant(q, Q, R)
-    A, B = q.get_model()
+    A, B = q.get_model(discretization="step")  # from_plant's default model
     P = scipy.linalg.solve_discrete_are(A, B, Q, R)
     K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
     np.testing.assert_allclose(ctrl.K, K, rtol=1e-8, atol=1e-10)

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
 
 from shinro_ctrl.engine.mjcf import _euler_zyx_from_quat, _real, _unknown
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = ["NamedAccess"]
 
@@ -29,8 +32,8 @@ class NamedAccess:
     ``model``, ``data`` and the name tables this class reads.
     """
 
-    model: Any
-    data: Any
+    model: mujoco.MjModel
+    data: mujoco.MjData
 
     def get_joint_qpos(self, name: str) -> float | np.ndarray:
         """Position of a joint: a float for hinge [rad] / slide [m] joints.
@@ -58,7 +61,7 @@ class NamedAccess:
             a = int(self.model.jnt_dofadr[j])
             return self._qvel[a : a + _NV[int(self.model.jnt_type[j])]].copy()
 
-    def set_joint_qpos(self, name: str, value: Any) -> None:
+    def set_joint_qpos(self, name: str, value: ArrayLike) -> None:
         """Set a joint position (a float, or the ``qpos`` block of a ball/free joint).
 
         Derived quantities are not recomputed: call :meth:`forward` (pose and
@@ -81,7 +84,7 @@ class NamedAccess:
             self._qpos[adr] = v
         self._kin_stale = True
 
-    def set_joint_vel(self, name: str, value: Any) -> None:
+    def set_joint_vel(self, name: str, value: ArrayLike) -> None:
         """Set a joint velocity (a float, or the ``qvel`` block of a ball/free joint).
 
         Raises:
@@ -127,7 +130,7 @@ class NamedAccess:
             raise NonFiniteError(f"control of actuator '{actuator_name}' must be finite, got {v}")
         self._ctrl[i] = v
 
-    def set_body_force(self, name: str, force: Any) -> None:
+    def set_body_force(self, name: str, force: ArrayLike) -> None:
         """Apply a world-frame force ``(3,)`` [N] at a body's centre of mass (``xfrc_applied``) until changed.
 
         Raises:
@@ -144,7 +147,7 @@ class NamedAccess:
         """Remove every applied body force and torque (``xfrc_applied = 0``)."""
         self.data.xfrc_applied[:] = 0.0
 
-    def set_ctrl(self, u: Any) -> None:
+    def set_ctrl(self, u: ArrayLike) -> None:
         """Set every actuator's control at once, ``u`` of shape ``(nu,)`` in actuator order.
 
         Raises:
@@ -171,7 +174,7 @@ class NamedAccess:
         ``mjd_transitionFD`` when ``nq == nv``)."""
         return np.concatenate([self._qpos, self._qvel])
 
-    def set_state_vector(self, z: Any) -> None:
+    def set_state_vector(self, z: ArrayLike) -> None:
         """Set ``qpos`` and ``qvel`` from ``z = [qpos, qvel]`` ``(nq + nv,)`` and run :meth:`forward`.
 
         Raises:
@@ -251,7 +254,7 @@ class NamedAccess:
         a, v = int(self.model.jnt_qposadr[j]), int(self.model.jnt_dofadr[j])
         return self._qpos[a : a + 7].copy(), self._qvel[v : v + 6].copy()
 
-    def set_free_joint(self, name: str, qpos: Any, qvel: Any) -> None:
+    def set_free_joint(self, name: str, qpos: ArrayLike, qvel: ArrayLike) -> None:
         """Set a free joint's ``qpos (7,)`` and ``qvel (6,)`` (see :meth:`get_free_joint`).
 
         Raises:

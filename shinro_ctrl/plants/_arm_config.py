@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 
@@ -10,7 +10,13 @@ from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.plants._arm6 import ARM6_JOINTS, shipped_arm6
 
 
-def with_engine_limits(cfg: dict, engine: Any) -> dict:
+class JointLimits(Protocol):
+    """What :func:`with_engine_limits` reads from an engine: a joint's ``(min, max)`` range."""
+
+    def get_joint_limits(self, name: str) -> tuple[float, float]: ...
+
+
+def with_engine_limits(cfg: dict, engine: JointLimits) -> dict:
     """``cfg`` completed for an engine (see :meth:`ArmRobot.from_config`): shipped geometry, MJCF joint limits.
 
     An incomplete custom geometry comes back unchanged (the constructor says what is missing).

@@ -2,15 +2,23 @@
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+
+#: ``state_bounds`` as a plant accepts it: a ``(lo, hi)`` pair or the TOML ``{min = [...], max = [...]}``.
+StateBounds: TypeAlias = "tuple[ArrayLike, ArrayLike] | Mapping[str, ArrayLike]"
+
 
 def state_bounds(
-    value: Any, n: int, default_lo: list[float], default_hi: list[float]
+    value: StateBounds | None, n: int, default_lo: list[float], default_hi: list[float]
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Normalize ``state_bounds`` to a ``(lo (n,), hi (n,))`` pair of arrays, or None.
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import casadi as cs
 import numpy as np
@@ -218,7 +218,7 @@ class ArmRobot(Plant):
         return self._pose_of(np.clip(np.zeros(self.num_dof), self._lo, self._hi)), np.zeros(6)
 
     # ---------------------------------------------------------- kinematics
-    def _joints(self, q: Any, name: str = "q") -> np.ndarray:
+    def _joints(self, q: ArrayLike, name: str = "q") -> np.ndarray:
         return as_vector(name, q, self.num_dof)
 
     def forward_kinematics(self, joint_angles: ArrayLike) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
@@ -233,7 +233,7 @@ class ArmRobot(Plant):
         """
         return self.chain.fk(self._joints(joint_angles, "joint_angles"))
 
-    def ee_pose(self, q: Any) -> np.ndarray:
+    def ee_pose(self, q: ArrayLike) -> np.ndarray:
         """End-effector pose ``[x, y, z, roll, pitch, yaw]`` (6,) at joints ``q (n,)``."""
         return self._pose_of(self._joints(q))
 
@@ -241,7 +241,7 @@ class ArmRobot(Plant):
         p, R, _ = self._kinematics()(q)
         return np.concatenate([p, euler_zyx_from_matrix(R)])
 
-    def jacobian(self, q: Any, method: str = "geometric", eps: float = 1e-6) -> np.ndarray:
+    def jacobian(self, q: ArrayLike, method: str = "geometric", eps: float = 1e-6) -> np.ndarray:
         r"""World-frame end-effector Jacobian ``J (6, n)``, position rows first.
 
         ``[v; ω] = J q̇`` with ``v`` the EE linear velocity [m/s] and ``ω`` the world angular
@@ -364,7 +364,7 @@ class ArmRobot(Plant):
         q = self.q
         return float(max(self._contact, np.max(self._lo - q), np.max(q - self._hi)))
 
-    def set_joint_positions(self, q: Any) -> None:
+    def set_joint_positions(self, q: ArrayLike) -> None:
         """Place the arm at joints ``q (n,)`` [rad] (engine: at rest, actuators holding ``q``).
 
         Raises:
@@ -390,7 +390,7 @@ class ArmRobot(Plant):
             self.state = self._pose_of(q)
 
     # ---------------------------------------------------------------- step
-    def step(self, u: Any) -> np.ndarray:
+    def step(self, u: ArrayLike) -> np.ndarray:
         """Move the end effector by the twist ``u`` for one step ``dt``.
 
         The twist is integrated into a target pose ``x + dt u`` from the current (in engine
@@ -477,7 +477,7 @@ class ArmRobot(Plant):
             self._x = self._engine_pose()
         return self._x.copy()
 
-    def set_state(self, x: Any) -> None:
+    def set_state(self, x: ArrayLike) -> None:
         """Move the arm to the end-effector pose ``x (6,)`` by IK (from the current joints).
 
         Uses :attr:`ik` (its ``solve`` with restarts) when set, else the damped

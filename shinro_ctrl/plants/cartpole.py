@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -11,6 +11,9 @@ from shinro_ctrl.backend import ArrayBackend
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = ["CartPole"]
 
@@ -142,7 +145,7 @@ class CartPole(Plant):
             joint_range={} if self.track_limits is None else {"slider": self.track_limits},
         )
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [slider, hinge, slider_dot, hinge_dot]``.
 
         See :meth:`Plant.engine_state_map`.

@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from shinro_ctrl.backend import ArrayBackend
+from shinro_ctrl.plants._bounds import StateBounds
 from shinro_ctrl.plants._bounds import state_bounds as _parse_bounds
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = ["DoublePendulum"]
 
@@ -65,8 +70,8 @@ class DoublePendulum(Plant):
         length_bottom: float = 0.5,
         dt: float = 0.01,
         g: float = 9.81,
-        state_bounds: Any = None,
-        backend: Any = None,
+        state_bounds: StateBounds | None = None,
+        backend: ArrayBackend | None = None,
     ):
         self.m1 = check_positive("mass_top", mass_top)
         self.m2 = check_positive("mass_bottom", mass_bottom)
@@ -106,7 +111,7 @@ class DoublePendulum(Plant):
         a2 = (M11 * r2 - M12 * r1) / det
         return bk.stack([w1, w2, a1, a2])
 
-    def energy(self, x: Any) -> Any:
+    def energy(self, x: ArrayLike) -> float | np.ndarray:
         """Total mechanical energy [J] of state(s) ``x`` ``(n,)`` or ``(N, n)``; zero potential at the hinge."""
         x = np.asarray(x, dtype=float)
         th1, th2, w1, w2 = (x[..., i] for i in range(4))
@@ -142,7 +147,7 @@ class DoublePendulum(Plant):
             },
         )
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [hinge_1, hinge_2, hinge_1_dot, hinge_2_dot]``.
 
         See :meth:`Plant.engine_state_map`.

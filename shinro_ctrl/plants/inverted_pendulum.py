@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from shinro_ctrl.backend import ArrayBackend
+from shinro_ctrl.plants._bounds import StateBounds
 from shinro_ctrl.plants._bounds import state_bounds as _parse_bounds
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = ["InvertedPendulum"]
 
@@ -57,8 +62,8 @@ class InvertedPendulum(Plant):
         damping: float = 0.0,
         gravity: float = 9.81,
         dt: float = 0.01,
-        state_bounds: Any = None,
-        backend: Any = None,
+        state_bounds: StateBounds | None = None,
+        backend: ArrayBackend | None = None,
     ):
         self.m = check_positive("mass", mass)
         self.l = check_positive("length", length)
@@ -109,7 +114,7 @@ class InvertedPendulum(Plant):
         lo, hi = float(self.state_bounds[0][0]), float(self.state_bounds[1][0])
         return {"hinge": (lo, hi)} if math.isfinite(lo) and math.isfinite(hi) else {}
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [hinge, hinge_dot]``.
 
         See :meth:`Plant.engine_state_map`.

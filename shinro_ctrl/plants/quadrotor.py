@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import casadi as cs
 import numpy as np
@@ -12,6 +12,9 @@ from shinro_ctrl.backend import ArrayBackend, CasadiBackend, ScalarBackend
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_nonnegative, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = ["GIMBAL_COS_MIN", "ROTOR_LAYOUTS", "Quadrotor", "quat_to_zyx_euler", "zyx_euler_to_quat"]
 
@@ -52,7 +55,7 @@ def zyx_euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
     )
 
 
-def quat_to_zyx_euler(quat: Any) -> np.ndarray:
+def quat_to_zyx_euler(quat: ArrayLike) -> np.ndarray:
     r"""ZYX Euler angles ``[roll, pitch, yaw]`` of a quaternion ``(w, x, y, z)``.
 
     The inverse of :func:`zyx_euler_to_quat` on ``roll, yaw ∈ (−π, π]`` and
@@ -148,7 +151,7 @@ class Quadrotor(Plant):
     def __init__(
         self,
         mass: float = 0.5,
-        inertia: Any = (3.0e-3, 3.0e-3, 5.0e-3),
+        inertia: ArrayLike = (3.0e-3, 3.0e-3, 5.0e-3),
         arm_length: float = 0.17,
         gravity: float = 9.81,
         dt: float = 0.01,
@@ -173,7 +176,7 @@ class Quadrotor(Plant):
         self._mixer = self._build_mixer()
         self._mixer_inv = np.linalg.inv(self._mixer) if self.yaw_moment_coefficient > 0.0 else None
 
-    def params(self) -> dict[str, Any]:
+    def params(self) -> dict[str, float | list[float]]:
         """The physical constructor arguments (a ``[plant]`` table can hold them as they are).
 
         ``mass``, ``inertia`` (a list ``[Ixx, Iyy, Izz]``), ``arm_length``,
@@ -302,11 +305,11 @@ class Quadrotor(Plant):
         """
         return self._mixer.copy()
 
-    def rotor_thrusts_to_input(self, f: Any) -> np.ndarray:
+    def rotor_thrusts_to_input(self, f: ArrayLike) -> np.ndarray:
         """Plant input ``[T, τx, τy, τz]`` ``(4,)`` from rotor thrusts ``f`` ``(4,)`` [N]."""
         return self._mixer @ as_vector("rotor thrusts f", f, 4)
 
-    def input_to_rotor_thrusts(self, u: Any) -> np.ndarray:
+    def input_to_rotor_thrusts(self, u: ArrayLike) -> np.ndarray:
         """Rotor thrusts ``f`` ``(4,)`` [N] that produce the input ``u`` ``(4,)`` (inverse mixer).
 
         Raises:
@@ -332,7 +335,7 @@ class Quadrotor(Plant):
             geom_fromto=fromto,
         )
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``δx = T @ δz`` at ``x0``, with MuJoCo's tangent ``z = [pos, rotation tangent, v, ω]``.
 
         ``mjd_transitionFD`` differentiates the free joint's orientation in
@@ -369,7 +372,7 @@ class Quadrotor(Plant):
             engine.set_joint_ctrl(name, value)
 
 
-def _inertia(value: Any) -> tuple[float, float, float]:
+def _inertia(value: ArrayLike) -> tuple[float, float, float]:
     """Validate ``inertia`` as three positive principal moments of a physical body."""
     try:
         arr = np.asarray(value, dtype=float)
