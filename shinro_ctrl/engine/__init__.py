@@ -44,8 +44,7 @@ never import this package) keeps the same ``apply / step / read / write``
 contract as :class:`MujocoEngine` for the plant's own integrator.
 
 Modules: :mod:`~shinro_ctrl.engine.core` (:class:`MujocoEngine`: set-up,
-stepping, divergence checks), :mod:`~shinro_ctrl.engine.access` (named joint,
-body and site access), :mod:`~shinro_ctrl.engine.mjcf` (loading and patching
+stepping, divergence checks, named joint, body and site access), :mod:`~shinro_ctrl.engine.mjcf` (loading and patching
 MJCF), :mod:`~shinro_ctrl.engine.render` (offscreen rendering),
 :mod:`~shinro_ctrl.engine.warnings` (MuJoCo's warning text) and
 :mod:`~shinro_ctrl.engine.model_tree` (the model reader of ``MjcfPlant``).
