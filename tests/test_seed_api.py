@@ -213,6 +213,9 @@ def test_holonomic_documented_kinematics_and_model():
     cfg = {"num_wheels": 3, "radius_robots": 0.15, "gamma": 0.0, "radius_wheels": 0.04, "dt": 0.01}
     r2 = HolonomicMobileRobot.from_config(cfg, backend=NumpyBackend())
     assert r2.n == 3 and r2.dt == 0.01
+    wheels = ["w_a", "w_b", "w_c"]  # the seed: drive joints from the runtime joint_groups
+    r3 = HolonomicMobileRobot.from_config({**cfg, "joint_groups": {"drive_joints": wheels}}, backend=None)
+    assert r3.drive_joints == wheels
 
 
 def test_holonomic_engine_and_post_engine_step():

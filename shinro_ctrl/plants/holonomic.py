@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from shinro_ctrl.backend import ArrayBackend
 from shinro_ctrl.errors import InvalidArgument, SimulationDiverged
-from shinro_ctrl.plants.base import MjcfPatch, Plant
+from shinro_ctrl.plants.base import MjcfPatch, Plant, split_config
 from shinro_ctrl.validation import as_vector, check_positive
 
 if TYPE_CHECKING:
@@ -278,6 +278,25 @@ class HolonomicMobileRobot(Plant):
         if engine.has_free_joint:
             x, y, theta = self._x.tolist()
             engine.pin_free_base(x, y, self.base_height, yaw=theta)
+
+    @classmethod
+    def from_config(
+        cls,
+        config: Mapping[str, object] | object,
+        backend: ArrayBackend | None = None,
+        *,
+        engine: Engine | None = None,
+        **extra: object,
+    ) -> HolonomicMobileRobot:
+        """:meth:`Plant.from_config`; without ``drive_joints``, a runtime ``joint_groups["drive_joints"]`` names them.
+
+        (The seed's contract: the config may carry the model's joint groups and an engine.)
+        """
+        kwargs, runtime = split_config(config)
+        groups = runtime.get("joint_groups") or {}
+        if kwargs.get("drive_joints") is None and isinstance(groups, Mapping) and groups.get("drive_joints"):
+            kwargs["drive_joints"] = list(groups["drive_joints"])
+        return super().from_config(kwargs, engine=runtime.get("engine", engine), **extra)
 
     def mjcf_patch(self) -> MjcfPatch:
         """Step and, for the shipped 3-wheel asset, wheel placement and size.
