@@ -465,10 +465,12 @@ class ArmRobot(Plant):
         q = np.clip(q, self._lo, self._hi)
         self._contact = outside
         if np.any((q <= self._lo) | (q >= self._hi)):
-            e = target - self._pose_of(q)
-            e[3:] = np.angle(np.exp(1j * e[3:]))  # Euler angles wrap
-            short = float(np.linalg.norm(e))
-            self._contact = max(outside, short if short > 1e-9 else 0.0)
+            with np.errstate(all="ignore"):  # a target far out of range: no numpy warning
+                e = target - self._pose_of(q)
+                e[3:] = np.angle(np.exp(1j * e[3:]))  # Euler angles wrap
+            short = math.hypot(*e.tolist())  # hypot: no overflow
+            if math.isfinite(short) and short > 1e-9:
+                self._contact = max(outside, short)
         return q
 
     def get_state(self) -> np.ndarray:
