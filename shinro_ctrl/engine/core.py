@@ -203,6 +203,12 @@ class MujocoEngine:
         """The plant's state ``(n,)`` from MuJoCo's (the plant's ``engine_read``)."""
         return plant.engine_read(self)
 
+    def advance(self, plant: Plant, u: np.ndarray) -> np.ndarray:
+        """:meth:`apply`, :meth:`step`, then :meth:`read`: one step of the plant."""
+        plant.engine_apply(self, u)
+        self.step()
+        return plant.engine_read(self)
+
     def write(self, plant: Plant, x: np.ndarray) -> None:
         """Set MuJoCo's state from the plant's ``x (n,)`` (the plant's ``engine_write``)."""
         plant.engine_write(self, x)

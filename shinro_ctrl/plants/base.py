@@ -636,10 +636,7 @@ class Plant:
         if not lock.acquire(False):
             self._concurrent()
         try:
-            sim = self._sim
-            sim.apply(self, u)
-            sim.step()
-            self._x = x = sim.read(self)
+            self._x = x = self._sim.advance(self, u)  # apply, step, read
         finally:
             lock.release()
         return x.copy()
@@ -762,7 +759,17 @@ class Plant:
 
     def _check_engine(self, engine: Engine | None) -> None:
         """Raise InvalidArgument unless ``engine`` is None or behaves like a MujocoEngine."""
-        needed = ("step", "forward", "get_joint_qpos", "get_joint_vel", "set_joint_ctrl", "read", "write", "apply")
+        needed = (
+            "step",
+            "forward",
+            "get_joint_qpos",
+            "get_joint_vel",
+            "set_joint_ctrl",
+            "read",
+            "write",
+            "apply",
+            "advance",
+        )
         if engine is not None and not all(callable(getattr(engine, a, None)) for a in needed):
             raise InvalidArgument(
                 f"{type(self).__name__}.physics_engine expects a MujocoEngine (or None), got {type(engine).__name__}"
