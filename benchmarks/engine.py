@@ -112,7 +112,7 @@ def main() -> None:
         "mj_step": lambda: mujoco.mj_step(m, d),
         "engine.step (mj_step + checks)": engine.step,
         "engine.set_joint_ctrl": lambda: engine.set_joint_ctrl("slider", 0.0),
-        "plant._engine_read (4 named reads)": lambda: simulated._engine_read(engine),
+        "plant.engine_read (4 named reads)": lambda: simulated.engine_read(engine),
         "plant.step (engine attached)": lambda: simulated.step(u),
         "standalone plant.step": lambda: standalone.step(u),
         "lqr(x) (LQR.__call__)": lambda: lqr(x),

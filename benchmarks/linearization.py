@@ -80,7 +80,7 @@ def complex_step(plant, x0, u0, h: float = 1e-30):
     n, m = plant.state_dim, plant.input_dim
     Z = np.repeat(np.concatenate([x0, u0])[None, :].astype(complex), n + m, axis=0)
     Z[np.arange(n + m), np.arange(n + m)] += 1j * h
-    F = plant._f(_ComplexBackend(), Z[:, :n], Z[:, n:], plant.dynamics_params())
+    F = plant.equations(_ComplexBackend(), Z[:, :n], Z[:, n:], plant.dynamics_params())
     return (F.imag / h).T
 
 

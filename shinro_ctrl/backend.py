@@ -24,29 +24,61 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Protocol, TypeAlias, runtime_checkable
 
 import casadi as cs
 import numpy as np
 
-__all__ = ["ArrayBackend", "CasadiBackend", "ListBackend", "NumpyBackend", "ScalarBackend"]
+__all__ = ["ArrayBackend", "BackendArray", "CasadiBackend", "ListBackend", "NumpyBackend", "ScalarBackend"]
 
 
-class ArrayBackend:
-    """Interface shared by the backends (documentation and ``isinstance``)."""
+#: What the backends compute on: numpy arrays (numbers, batches), Python floats/lists, or CasADi symbols.
+BackendArray: TypeAlias = "np.ndarray | cs.SX | list[float] | float"
 
-    name = "abstract"
 
-    def unpack(self, v: Any, n: int) -> tuple:
+@runtime_checkable
+class ArrayBackend(Protocol):
+    """The operations a plant's ``equations(bk, x, u, p)`` may use (every backend provides them).
+
+    Elementwise math on components, ``unpack`` (a vector into ``n``
+    components) and ``stack`` (components into a vector), and the matrix
+    helpers ``array``, ``zeros``, ``eye``, ``solve``, ``clip``.
+    """
+
+    name: str
+
+    def sin(self, a: BackendArray, /) -> BackendArray: ...
+
+    def cos(self, a: BackendArray, /) -> BackendArray: ...
+
+    def tan(self, a: BackendArray, /) -> BackendArray: ...
+
+    def sqrt(self, a: BackendArray, /) -> BackendArray: ...
+
+    def arccos(self, a: BackendArray, /) -> BackendArray: ...
+
+    def arctan2(self, a: BackendArray, b: BackendArray, /) -> BackendArray: ...
+
+    def unpack(self, v: BackendArray, n: int) -> tuple[BackendArray, ...]:
         """Split the last axis of ``v`` into ``n`` components."""
-        raise NotImplementedError
+        ...
 
-    def stack(self, items: Sequence[Any]) -> Any:
+    def stack(self, items: Sequence[BackendArray]) -> BackendArray:
         """Join components into a vector along the last axis."""
-        raise NotImplementedError
+        ...
+
+    def array(self, v: BackendArray) -> BackendArray: ...
+
+    def zeros(self, n: int | tuple[int, ...]) -> BackendArray: ...
+
+    def eye(self, n: int) -> BackendArray: ...
+
+    def solve(self, A: BackendArray, b: BackendArray) -> BackendArray: ...
+
+    def clip(self, v: BackendArray, lo: BackendArray, hi: BackendArray) -> BackendArray: ...
 
 
-class NumpyBackend(ArrayBackend):
+class NumpyBackend:
     """Numeric, batch-aware backend on numpy arrays.
 
     Components are views ``v[..., i]``, so every expression broadcasts over
@@ -62,18 +94,18 @@ class NumpyBackend(ArrayBackend):
     arccos = staticmethod(np.arccos)
     arctan2 = staticmethod(np.arctan2)
 
-    def unpack(self, v: Any, n: int) -> tuple:
+    def unpack(self, v: BackendArray, n: int) -> tuple:
         v = np.asarray(v)  # float, or complex for complex-step differentiation
         return tuple(v[..., i] for i in range(n))
 
-    def stack(self, items: Sequence[Any]) -> np.ndarray:
+    def stack(self, items: Sequence[BackendArray]) -> np.ndarray:
         return np.stack(np.broadcast_arrays(*[np.asarray(i) for i in items]), axis=-1).astype(
             np.result_type(float, *items), copy=False
         )
 
     # Matrix helpers (single instance).
     @staticmethod
-    def array(v: Any) -> np.ndarray:
+    def array(v: BackendArray) -> np.ndarray:
         return np.asarray(v, dtype=float)
 
     @staticmethod
@@ -89,15 +121,15 @@ class NumpyBackend(ArrayBackend):
         return np.linalg.solve(A, b)
 
     @staticmethod
-    def clip(v: Any, lo: Any, hi: Any) -> np.ndarray:
+    def clip(v: BackendArray, lo: BackendArray, hi: BackendArray) -> np.ndarray:
         return np.clip(v, lo, hi)
 
     @staticmethod
-    def to_numpy(v: Any) -> np.ndarray:
+    def to_numpy(v: BackendArray) -> np.ndarray:
         return np.asarray(v, dtype=float)
 
     @staticmethod
-    def from_numpy(v: Any) -> np.ndarray:
+    def from_numpy(v: BackendArray) -> np.ndarray:
         return np.asarray(v, dtype=float)
 
 
@@ -116,10 +148,10 @@ class ScalarBackend(NumpyBackend):
     arccos = staticmethod(math.acos)
     arctan2 = staticmethod(math.atan2)
 
-    def unpack(self, v: Any, n: int) -> tuple:
+    def unpack(self, v: BackendArray, n: int) -> tuple:
         return tuple(v.tolist()) if isinstance(v, np.ndarray) else tuple(float(c) for c in v)
 
-    def stack(self, items: Sequence[Any]) -> np.ndarray:
+    def stack(self, items: Sequence[BackendArray]) -> np.ndarray:
         return np.array(items, dtype=float)
 
 
@@ -132,11 +164,11 @@ class ListBackend(ScalarBackend):
 
     name = "list"
 
-    def stack(self, items: Sequence[Any]) -> list:
+    def stack(self, items: Sequence[BackendArray]) -> list:
         return list(items)
 
 
-class CasadiBackend(ArrayBackend):
+class CasadiBackend:
     """Symbolic backend on ``casadi.SX`` column vectors."""
 
     name = "casadi"
@@ -147,14 +179,14 @@ class CasadiBackend(ArrayBackend):
     arccos = staticmethod(cs.acos)
     arctan2 = staticmethod(cs.atan2)
 
-    def unpack(self, v: Any, n: int) -> tuple:
+    def unpack(self, v: BackendArray, n: int) -> tuple:
         return tuple(v[i] for i in range(n))
 
-    def stack(self, items: Sequence[Any]) -> cs.SX:
+    def stack(self, items: Sequence[BackendArray]) -> cs.SX:
         return cs.vertcat(*items)
 
     @staticmethod
-    def array(v: Any) -> cs.SX:
+    def array(v: BackendArray) -> cs.SX:
         return cs.SX(np.asarray(v, dtype=float)) if not isinstance(v, cs.SX) else v
 
     @staticmethod
@@ -166,9 +198,9 @@ class CasadiBackend(ArrayBackend):
         return cs.SX.eye(n)
 
     @staticmethod
-    def solve(A: Any, b: Any) -> cs.SX:
+    def solve(A: BackendArray, b: BackendArray) -> cs.SX:
         return cs.solve(A, b)
 
     @staticmethod
-    def clip(v: Any, lo: Any, hi: Any) -> cs.SX:
+    def clip(v: BackendArray, lo: BackendArray, hi: BackendArray) -> cs.SX:
         return cs.fmin(cs.fmax(v, lo), hi)

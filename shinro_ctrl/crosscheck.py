@@ -171,7 +171,7 @@ def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6)
     t0 = time.perf_counter()
     engine = MujocoEngine.for_plant(plant)
     t_build = time.perf_counter() - t0
-    plant._engine_write(engine, x0)  # the plant's own conversion (quaternions, relative hinges)
+    plant.engine_write(engine, x0)  # the plant's own conversion (quaternions, relative hinges)
     T_inv = np.linalg.inv(T)
 
     def mujoco_jacobians() -> tuple[np.ndarray, np.ndarray]:

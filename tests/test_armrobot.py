@@ -408,3 +408,15 @@ def test_engine_step_moves_through_the_actuators(engine_arm):
     np.testing.assert_allclose(x[[0, 2]], x0[[0, 2]], atol=1e-3)
     np.testing.assert_allclose(q, engine_arm.q)
     np.testing.assert_allclose(x, engine_arm.ee_pose(q), atol=1e-9)
+
+
+def test_a_joint_clamp_in_the_step_is_counted_as_a_limit_contact():
+    arm = ArmRobot(
+        num_dof=1, dt=0.01, joint_limits=[[-0.1, 0.1]], joint_offsets=[[0, 0, 0]], rot_axes=["z"], ee_offset=[1, 0, 0]
+    )
+    arm.set_joint_positions([0.095])
+    assert arm.limit_violation() == 0.0
+    q = arm.step([0.0, 1.0, 0.0, 0.0, 0.0, 1.0])  # 1 rad/s about z: the IK target is past the 0.1 rad limit
+    assert q[0] == 0.1 and arm.limit_violation() > 0.0
+    arm.step([0.0, -0.5, 0.0, 0.0, 0.0, -0.5])  # back inside: no contact
+    assert arm.limit_violation() == 0.0

@@ -63,7 +63,7 @@ def _complex_rk4(plant, x, u, h=1e-30):
     bk, dt, n, m = NumpyBackend(), plant.dt, plant.state_dim, plant.input_dim
 
     def f(X, U):
-        return np.asarray(plant._f(bk, X, U, plant._params))
+        return np.asarray(plant.equations(bk, X, U, plant._params))
 
     def step(X, U):
         k1 = f(X, U)

@@ -147,3 +147,90 @@ def test_compare_reports_small_errors():
 
 def _fact(k: int) -> int:
     return math.factorial(k)
+
+
+# ------------------------------------------------------------ discretization="step"
+def _step_plants():
+    from shinro_ctrl.plants import DoublePendulum, HolonomicMobileRobot, MjcfPlant, Quadrotor
+
+    return [
+        CartPole(cart_mass=0.7, pole_mass=0.2, pole_length=0.4, damping=0.03, dt=0.02),
+        InvertedPendulum(mass=0.3, length=0.6, damping=0.02, dt=0.01),
+        DoublePendulum(mass_top=0.2, mass_bottom=0.1, dt=0.005),
+        Quadrotor(dt=0.01),
+        HolonomicMobileRobot(dt=0.05),
+        MjcfPlant("furuta_pendulum.xml"),
+    ]
+
+
+def _central_step_jacobians(plant, x0, u0, eps=1e-6):
+    """Independent central differences of the plant's own standalone step ``plant.integrate``."""
+    n, m = len(x0), len(u0)
+    A, B = np.zeros((n, n)), np.zeros((n, m))
+    for i in range(n):
+        d = np.zeros(n)
+        d[i] = eps
+        A[:, i] = (plant.integrate(x0 + d, u0.copy()) - plant.integrate(x0 - d, u0.copy())) / (2 * eps)
+    for j in range(m):
+        d = np.zeros(m)
+        d[j] = eps
+        B[:, j] = (plant.integrate(x0.copy(), u0 + d) - plant.integrate(x0.copy(), u0 - d)) / (2 * eps)
+    return A, B
+
+
+@pytest.mark.parametrize("plant", _step_plants(), ids=lambda p: type(p).__name__)
+def test_step_model_is_the_jacobian_of_the_plants_own_step_at_random_points(plant):
+    rng = np.random.default_rng(7)
+    xe, ue = plant.equilibrium()
+    for _ in range(4):
+        x0 = xe + 0.4 * rng.standard_normal(plant.state_dim)
+        u0 = ue + 0.3 * rng.standard_normal(plant.input_dim)
+        A, B = plant.get_model(x0, u0, discretization="step")
+        A_ref, B_ref = _central_step_jacobians(plant, x0, u0)
+        np.testing.assert_allclose(A, A_ref, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(B, B_ref, rtol=1e-6, atol=1e-7)
+        # the affine term of the step model is the step itself
+        lm = plant.linear_model(x0, u0, discretization="step")
+        np.testing.assert_allclose(x0 + plant.discrete_offset(lm), plant.integrate(x0.copy(), u0.copy()), atol=1e-12)
+
+
+def test_step_model_of_semi_implicit_euler_in_closed_form():
+    """v⁺ = v + dt f_v, q⁺ = q + dt v⁺ gives, per position/velocity block,
+
+    A = [[I + dt² F_q, dt I + dt² F_v], [dt F_q, I + dt F_v]], B = [dt² F_u; dt F_u].
+    """
+    plant = CartPole(dt=0.02)
+    dt = 0.02
+    A_c, B_c = plant.linearize([0.1, 0.2, 0.3, -0.1], [0.5])
+    q, v = [0, 2], [1, 3]
+    Fq, Fv, Fu = A_c[np.ix_(v, q)], A_c[np.ix_(v, v)], B_c[v]
+    A_ref = np.zeros((4, 4))
+    A_ref[np.ix_(v, q)] = dt * Fq
+    A_ref[np.ix_(v, v)] = np.eye(2) + dt * Fv
+    A_ref[np.ix_(q, q)] = np.eye(2) + dt**2 * Fq
+    A_ref[np.ix_(q, v)] = dt * np.eye(2) + dt**2 * Fv
+    B_ref = np.zeros((4, 1))
+    B_ref[v], B_ref[q] = dt * Fu, dt**2 * Fu
+    A, B = plant.get_model([0.1, 0.2, 0.3, -0.1], [0.5], discretization="step")
+    np.testing.assert_allclose(A, A_ref, atol=1e-14)
+    np.testing.assert_allclose(B, B_ref, atol=1e-14)
+    assert np.all(B[q] != 0.0)  # the first predicted position depends on the input (Euler's does not)
+
+
+def test_controllers_from_a_plant_default_to_the_step_model_get_model_to_euler():
+    from shinro_ctrl.controllers import LQR, LinearMPC
+
+    plant = CartPole()
+    A_e, B_e = plant.get_model()
+    A_c, B_c = plant.linearize()
+    np.testing.assert_allclose(A_e, np.eye(4) + plant.dt * A_c, atol=1e-15)  # the seed's documented default
+    np.testing.assert_allclose(B_e, plant.dt * B_c, atol=1e-15)
+    lqr = LQR.from_plant(plant, [10, 1, 100, 1], [0.1])
+    mpc = LinearMPC.from_plant(plant, [10, 1, 100, 1], [0.1], horizon=10)
+    A_s, B_s = plant.get_model(discretization="step")
+    for ctrl in (lqr, mpc):
+        assert ctrl.model.discretization == "step"
+        np.testing.assert_allclose(ctrl.model.A, A_s, atol=0)
+        np.testing.assert_allclose(ctrl.model.B, B_s, atol=0)
+    with pytest.raises(ValueError, match="valid: euler, zoh, rk4, step"):
+        plant.get_model(discretization="tustin")

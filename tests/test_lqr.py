@@ -15,7 +15,7 @@ def test_discrete_gain_equals_scipy_dare():
     plant = CartPole(dt=0.01)
     Q, R = np.diag([10.0, 1.0, 100.0, 1.0]), np.array([[0.1]])
     ctrl = LQR.from_plant(plant, Q, R)
-    A, B = plant.get_model()
+    A, B = plant.get_model(discretization="step")  # from_plant's default model
     P = scipy.linalg.solve_discrete_are(A, B, Q, R)
     K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
     np.testing.assert_allclose(ctrl.K, K, rtol=1e-9)
@@ -62,7 +62,7 @@ def test_measured_cost_matches_prediction_on_the_linear_model():
     # Simulate the *linear* discrete model: the realised cost must equal ½ x0ᵀ S x0.
     plant = CartPole(dt=0.01)
     ctrl = LQR.from_plant(plant, [10, 1, 100, 1], [0.1])
-    A, B = plant.get_model()
+    A, B = plant.get_model(discretization="step")  # from_plant's default model
     x = np.array([0.1, 0.0, 0.05, 0.0])
     predicted = ctrl.cost_to_go(x)
     cost = 0.0

@@ -237,7 +237,9 @@ def test_soft_state_bound_becomes_active_standalone(record_property):
 # ---------------------------------------------------------------- infeasibility
 def test_infeasible_hard_state_bound_raises(cartpole):
     plant, _, _ = cartpole
-    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=50, u_min=-3.0, u_max=3.0, **cart_bounds(0.6))
+    mpc = LinearMPC.from_plant(
+        plant, Q_CP, R_CP, horizon=50, u_min=-3.0, u_max=3.0, discretization="euler", **cart_bounds(0.6)
+    )
     with pytest.raises(MPCInfeasible) as info:
         mpc([0.59, 3.0, 0.0, 0.0])  # 3 m/s towards the bound, 1 cm away, 3 N of braking
     msg = str(info.value)
@@ -408,8 +410,11 @@ def test_from_plant_off_equilibrium_has_the_drift_offset():
     plant = CartPole(dt=0.02)
     x0 = np.array([0.0, 0.0, 0.1, 0.0])  # not an equilibrium: the pole falls
     mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=5, x0=x0, terminal_cost="Q")
-    np.testing.assert_allclose(mpc.offset, 0.02 * plant.dynamics(x0, [0.0]), rtol=1e-12)
-    assert mpc.model is not None and mpc.model.discretization == "euler"
+    # the default model is the plant's own step: the affine term is that step from (x0, u0) minus x0
+    np.testing.assert_allclose(mpc.offset, plant.integrate(x0.copy(), np.zeros(1)) - x0, rtol=1e-12, atol=1e-15)
+    assert mpc.model is not None and mpc.model.discretization == "step"
+    euler = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=5, x0=x0, terminal_cost="Q", discretization="euler")
+    np.testing.assert_allclose(euler.offset, 0.02 * plant.dynamics(x0, [0.0]), rtol=1e-12)
     mpc(x0)
     # one predicted step from x0 with input u: x0 + A·0 + B (u - u0) + d
     u = mpc.last.inputs[0]

@@ -27,7 +27,7 @@ def complex_step_rk4_jacobians(plant, x, u, h):
     p = plant._params
 
     def f(x_, u_):
-        return np.asarray(plant._f(bk, x_, u_, p))
+        return np.asarray(plant.equations(bk, x_, u_, p))
 
     def F(x_, u_):
         k1 = f(x_, u_)

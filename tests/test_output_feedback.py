@@ -112,7 +112,7 @@ def test_lqi_design_matches_the_augmented_dare():
 
     plant = CartPole()
     ctrl = LQR.from_plant(plant, [10, 1, 100, 1, 50], [0.1], integral=["x"])
-    A, B = plant.get_model()
+    A, B = plant.get_model(discretization="step")  # from_plant's default model
     Aa = np.block([[A, np.zeros((4, 1))], [plant.dt * np.eye(4)[[0]], np.eye(1)]])
     Ba = np.vstack([B, [[0.0]]])
     Q, R = np.diag([10, 1, 100, 1, 50.0]), np.array([[0.1]])

@@ -9,6 +9,8 @@ it reuses the plant's closed-form ``W(φ, θ)``.
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 import pytest
@@ -340,7 +342,7 @@ def test_mujoco_model_matches_parameters(quad, rng):
     for _ in range(5):
         x, u = random_state(rng), quad.hover_input() + rng.normal(size=4) * [1, 0.05, 0.05, 0.05]
         quad.set_state(x)
-        quad._engine_apply(engine, u)
+        quad.engine_apply(engine, u)
         engine.forward()
         np.testing.assert_allclose(quad.get_state(), x, atol=1e-12)
         np.testing.assert_allclose(engine.data.qacc, quad.dynamics(x, u)[6:], rtol=1e-10, atol=1e-10)
@@ -367,7 +369,7 @@ def test_hover_linearization_matches_mjd_transition_fd(yaw):
     x0, u0 = q.equilibrium()
     x0[[0, 1, 2, 5]] = [0.3, -0.2, 1.0, yaw]
     q.set_state(x0)
-    q._engine_apply(engine, u0)
+    q.engine_apply(engine, u0)
     A_mj, B_mj = engine.transition_jacobians(eps=1e-6, centered=True)
     T, perm = q.engine_state_map()
     np.testing.assert_array_equal(T, np.eye(12))
@@ -413,7 +415,7 @@ def hover_lqr(q):
     Q = np.diag([10, 10, 10, 2, 2, 2, 1, 1, 1, 0.1, 0.1, 0.1])
     R = np.diag([0.5, 200.0, 200.0, 200.0])
     ctrl = LQR.from_plant(q, Q, R)
-    A, B = q.get_model()
+    A, B = q.get_model(discretization="step")  # from_plant's default model
     P = scipy.linalg.solve_discrete_are(A, B, Q, R)
     K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
     np.testing.assert_allclose(ctrl.K, K, rtol=1e-8, atol=1e-10)
@@ -435,3 +437,44 @@ def test_hover_lqr_recovers_from_offset(engine):
         x = q.step(ctrl(x))
     assert np.abs(x[0:6]).max() < 1e-2, x
     assert np.abs(x[6:12]).max() < 1e-2, x
+
+
+# ------------------------------------------------------------------ gimbal lock
+@pytest.mark.parametrize("pitch", [math.pi / 2, -math.pi / 2, math.pi / 2 - 5e-4, 3 * math.pi / 2, -math.pi / 2 + 1e-9])
+def test_gimbal_lock_is_refused_in_dynamics_linearize_and_step(pitch):
+    q = Quadrotor()
+    x = np.zeros(12)
+    x[4] = pitch
+    u = q.hover_input()
+    for call in (
+        lambda: q.dynamics(x, u),
+        lambda: q.dynamics(np.stack([np.zeros(12), x]), np.stack([u, u])),
+        lambda: q.linearize(x, u),
+        lambda: q.linearize(x, u, method="fd"),
+        lambda: q.get_model(x, u),
+        lambda: q.get_model(x, u, discretization="step"),
+        lambda: q.engine_state_map(x),
+    ):
+        with pytest.raises(NonFiniteError, match="gimbal lock"):
+            call()
+    q.state = x
+    with pytest.raises(NonFiniteError, match="gimbal lock"):
+        q.step(u)
+
+
+def test_just_outside_the_gimbal_lock_margin_the_model_is_finite():
+    q = Quadrotor()
+    x = np.zeros(12)
+    x[4] = math.pi / 2 - 2e-3  # |cos| = 2e-3 > GIMBAL_COS_MIN
+    A, B = q.linearize(x, q.hover_input())
+    assert np.all(np.isfinite(A)) and np.all(np.isfinite(B)) and np.all(np.isfinite(q.dynamics(x, q.hover_input())))
+
+
+def test_gimbal_lock_on_the_command_line_is_one_line_exit_2(capsys):
+    from shinro_ctrl.cli import main
+
+    x0 = ",".join(["0"] * 4 + [repr(math.pi / 2)] + ["0"] * 7)
+    for cmd in ("linearize", "crosscheck"):
+        assert main([cmd, "quadrotor", "--x0", x0]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "gimbal lock" in err[0]

@@ -296,7 +296,8 @@ URDF_OK = URDF_LINK.format(inertial=INERTIAL.format(mass="0.1", ixx="1e-4", ixy=
 
 
 @pytest.mark.parametrize("name", ["f.mjcf", "F.XML", "f.Xml", "f.MJCF", "furuta_model"])
-def test_mjcf_under_any_name_works_in_every_command(tmp_path, capsys, name):
+def test_mjcf_under_any_name_works_in_every_command(tmp_path, capsys, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)  # `run` writes its default plot under ./out
     path = tmp_path / name
     shutil.copy(FURUTA, path)
     assert model_kind(path) == "mjcf" and plant_class(str(path)) is MjcfPlant

@@ -61,6 +61,11 @@ def assert_tables_close(a, b, *, rtol: float) -> None:
             assert ra.error == rb.error
         assert (ra.error is None) == (rb.error is None), (ra.error, rb.error)
         assert set(ra.metrics) == set(rb.metrics) == set(TABLE_METRICS)
+        if rtol and not ra.stable and min(ra.metrics["max_error"], rb.metrics["max_error"]) > 1e3:
+            # A run growing without bound (error > 1e3): the batch (numpy arrays) and the per-sample loop
+            # (Python floats) round differently in the last bit, and the unstable loop amplifies that into
+            # another trajectory (seen: rms 2e8 vs 2e55); only the verdict (compared above) is defined.
+            continue
         for m in TABLE_METRICS:
             assert _same(ra.metrics[m], rb.metrics[m], rtol), (ra.index, m, ra.metrics[m], rb.metrics[m])
 

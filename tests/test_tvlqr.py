@@ -74,7 +74,13 @@ def test_jacobians_equal_complex_step_at_random_knots(plant, tvlqr, rng):
         A_cs, B_cs = complex_step_jacobians(plant, tvlqr.x_ref[k], tvlqr.u_ref[k])
         np.testing.assert_allclose(tvlqr.A_c[k], A_cs, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(tvlqr.B_c[k], B_cs, rtol=1e-12, atol=1e-12)
-        A_d, B_d = discretize(A_cs, B_cs, plant.dt, "euler")
+        # the default model is the plant's semi-implicit Euler step: v⁺ = v + dt f_v, q⁺ = q + dt v⁺
+        dt, q, v = plant.dt, list(plant.position_indices), list(plant.velocity_indices)
+        A_d, B_d = np.eye(plant.state_dim), np.zeros_like(B_cs)
+        A_d[v] += dt * A_cs[v]
+        B_d[v] = dt * B_cs[v]
+        A_d[q] += dt * A_d[v]
+        B_d[q] = dt * B_d[v]
         np.testing.assert_allclose(tvlqr.A[k], A_d, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(tvlqr.B[k], B_d, rtol=1e-12, atol=1e-12)
 

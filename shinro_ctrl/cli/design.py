@@ -98,7 +98,7 @@ def _print_lqr(ctrl: Any, x_init: np.ndarray) -> None:
         method = model.method if model is not None else "exact"
         print(f"model: continuous-time {method} linearization (continuous design: K and the poles are continuous)")
     elif model is not None:
-        print(f"model: {model.discretization} discretization of the {model.method} linearization, dt = {model.dt:g} s")
+        print(f"model: {model.describe()}")
     print("K =")
     print(ctrl.K)
     print("closed-loop poles:")
@@ -113,6 +113,8 @@ def _print_mpc(sim: Any) -> None:
     import numpy as np
 
     ctrl = sim.controller
+    if getattr(ctrl, "model", None) is not None:
+        print(f"model: {ctrl.model.describe()}")
     print(ctrl.describe())
     dt = sim.plant.dt
     result = sim.run(dt * min(round(sim.scenario.sim.duration / dt), max(1, int(2.0 / dt))))  # <= 2 s, whole steps

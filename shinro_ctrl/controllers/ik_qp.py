@@ -91,8 +91,8 @@ class IKQP(IKLoops, Controller):
     commanded joints (``arm.q_cmd``) towards ``ref`` — joint limits and velocity limits
     respected — and returns the twist ``u (6,)`` [m/s, ZYX Euler rates rad/s] that carries
     the pose from ``x`` to the FK pose of those joint targets in one step. ``arm.step(u)``
-    turns it back into the same joint targets when ``arm.ik`` is this object (set
-    ``arm.ik = ik``; with the arm's default damped pseudoinverse it is close). The
+    turns it back into the same joint targets when ``arm.ik`` is this object (build the
+    arm with it: ``ArmRobot(ik=IKQP)``; with the arm's default damped pseudoinverse it is close). The
     returned twist is therefore always one the arm can execute, ``x`` lags ``ref`` only
     where the limits bind, and the joint targets of the last call are in :attr:`last`.
 
@@ -232,9 +232,9 @@ class IKQP(IKLoops, Controller):
         """Build the controller of a scenario for an arm (same options as the constructor).
 
         The controller never changes the plant. To make ``plant.step(u)`` turn the twist
-        this controller returns back into exactly the joint targets it computed, the
-        caller installs it as the arm's IK (``plant.ik = ik``); :class:`~shinro_ctrl.sim.RobotSim`
-        does so for a scenario.
+        this controller returns back into exactly the joint targets it computed, the arm
+        is built with it as its IK (``ArmRobot(ik=lambda arm: IKQP.from_plant(arm, ...))``);
+        :class:`~shinro_ctrl.sim.RobotSim` builds a scenario's arm that way.
         """
         ik = cls(
             plant,

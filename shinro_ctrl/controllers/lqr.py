@@ -258,7 +258,7 @@ class LQR(Controller):
         x0: Any = None,
         u0: Any = None,
         discrete: bool = True,
-        discretization: str = "euler",
+        discretization: str = "step",
         method: str = "exact",
         u_min: Any = None,
         u_max: Any = None,
@@ -277,8 +277,8 @@ class LQR(Controller):
             x0, u0: Operating point; defaults to ``plant.equilibrium()``.
             discrete: Use the discrete model at ``plant.dt`` (default) or the
                 continuous Jacobians.
-            discretization: ``euler`` (default, matches the plants'
-                semi-implicit step to first order), ``zoh`` or ``rk4``.
+            discretization: ``step`` (default: the exact linearization of the
+                plant's own discrete step), ``euler``, ``zoh`` or ``rk4``.
             method: Linearization method, ``exact`` or ``fd``.
             u_min, u_max: Optional saturation bounds.
             feedforward: Use reference feed-forward (see the class docstring).

@@ -81,7 +81,6 @@ from shinro_ctrl.controllers.qp.options import DEFAULT_OSQP_SETTINGS, PLANT_GIVE
 from shinro_ctrl.controllers.qp.solution import MPCSolution
 from shinro_ctrl.controllers.qp.sparse import MAX_QP_SIZE, QP, RowGroup, qp_size
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
-from shinro_ctrl.linearization import discretize
 from shinro_ctrl.validation import as_vector, state_space, weight_matrix
 
 __all__ = [
@@ -300,7 +299,7 @@ class LinearMPC(MPCSolve, Controller):
         horizon: int,
         x0: Any = None,
         u0: Any = None,
-        discretization: str = "euler",
+        discretization: str = "step",
         method: str = "exact",
         **options: Any,
     ) -> LinearMPC:
@@ -313,7 +312,8 @@ class LinearMPC(MPCSolve, Controller):
             horizon: Prediction horizon ``N`` (steps of ``plant.dt``).
             x0: Operating state ``(n,)``; default ``plant.equilibrium()``.
             u0: Operating input ``(m,)``; default ``plant.equilibrium()``.
-            discretization: ``"euler"``, ``"zoh"`` or ``"rk4"``.
+            discretization: ``"step"`` (default: the exact linearization of the plant's own
+                discrete step), ``"euler"``, ``"zoh"`` or ``"rk4"``.
             method: Linearization method, ``"exact"`` or ``"fd"``.
             **options: The other fields of :class:`MPCOptions` (u_min, u_max,
                 x_min, x_max, du_max, soft, soft_weight_l1, soft_weight_quad,
@@ -334,7 +334,7 @@ class LinearMPC(MPCSolve, Controller):
         drift = np.asarray(plant.dynamics(lm.x0, lm.u0), dtype=float)
         offset = None
         if np.any(drift != 0.0):
-            offset = discretize(lm.A_c, drift.reshape(-1, 1), lm.dt, discretization)[1][:, 0]
+            offset = plant.discrete_offset(lm)
         opts = MPCOptions(**options)  # TypeError names a misspelt option
         opts = dataclasses.replace(
             opts,

@@ -42,7 +42,7 @@ import numpy as np
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqr import LQR
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.linearization import DISCRETIZATIONS, discretize
+from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, discretize
 from shinro_ctrl.validation import as_vector, bound_pair, check_positive, weight_matrix
 
 if TYPE_CHECKING:
@@ -181,7 +181,7 @@ class TVLQR(Controller):
         Qf: Any = None,
         *,
         dt: float | None = None,
-        discretization: str = "euler",
+        discretization: str = "step",
         u_min: Any = None,
         u_max: Any = None,
     ) -> TVLQR:
@@ -194,7 +194,8 @@ class TVLQR(Controller):
             R: ``(m, m)`` or diagonal ``(m,)`` input weight.
             Qf: Terminal weight ``(n, n)``/``(n,)``; default the goal LQR's ``S``.
             dt: Control step [s]; default ``plant.dt``.
-            discretization: ``euler`` (default, as LQR), ``zoh`` or ``rk4``.
+            discretization: ``step`` (default, as LQR: the exact Jacobians of the plant's own
+                discrete step at each knot; needs ``dt == plant.dt``), ``euler``, ``zoh`` or ``rk4``.
             u_min, u_max: Optional saturation ``(m,)``.
 
         Raises:
@@ -208,8 +209,15 @@ class TVLQR(Controller):
                 f"{traj.state_dim} and {traj.input_dim}"
             )
         dt = plant.dt if dt is None else check_positive("dt", dt)
-        if discretization not in DISCRETIZATIONS:
-            raise InvalidArgument(f"unknown discretization {discretization!r}; valid: {', '.join(DISCRETIZATIONS)}")
+        if discretization not in MODEL_DISCRETIZATIONS:
+            raise InvalidArgument(
+                f"unknown discretization {discretization!r}; valid: {', '.join(MODEL_DISCRETIZATIONS)}"
+            )
+        if discretization == "step" and dt != plant.dt:
+            raise InvalidArgument(
+                f"discretization 'step' is the plant's own step at dt = {plant.dt:g} s, not dt = {dt:g} s; "
+                "use discretization 'zoh' or 'rk4' for another control rate"
+            )
         Qm = weight_matrix("Q", Q, n)
         Rm = weight_matrix("R", R, m, definite=True)
         steps = max(1, int(np.ceil(traj.duration / dt - 1e-9)))
@@ -221,7 +229,11 @@ class TVLQR(Controller):
         )
         Qf_m = final.S if Qf is None else weight_matrix("Qf", Qf, n)
         A_c, B_c = trajectory_jacobians(plant, x_ref, u_ref)
-        A, B = _discretize_all(A_c, B_c, dt, discretization)
+        if discretization == "step":
+            jac = [plant.step_jacobians(x, u) for x, u in zip(x_ref, u_ref, strict=True)]
+            A, B = np.array([j[0] for j in jac]), np.array([j[1] for j in jac])
+        else:
+            A, B = _discretize_all(A_c, B_c, dt, discretization)
         ctrl = cls(traj, A, B, Qm, Rm, final, dt=dt, x_ref=x_ref, u_ref=u_ref, Qf=Qf_m, u_min=u_min, u_max=u_max)
         ctrl.A_c, ctrl.B_c = A_c, B_c
         return ctrl
@@ -235,7 +247,7 @@ class TVLQR(Controller):
         Qf: Any = None,
         *,
         plan: Mapping[str, Any] | Trajectory | None = None,
-        discretization: str = "euler",
+        discretization: str = "step",
     ) -> TVLQR:
         """Plan with ``plan`` (a ``[plan]`` table, or a Trajectory) on ``plant``, then design along it.
 

@@ -38,9 +38,13 @@ joint read such as :meth:`MujocoEngine.get_joint_qpos` costs one dict lookup
 and one array read (about 0.2 µs), and :meth:`MujocoEngine.step` adds about
 1 µs of checks to ``mj_step``.
 
+:class:`StandaloneEngine` (defined with the plants, in
+:mod:`shinro_ctrl.plants.standalone`, since every plant builds one and the plants
+never import this package) keeps the same ``apply / step / read / write``
+contract as :class:`MujocoEngine` for the plant's own integrator.
+
 Modules: :mod:`~shinro_ctrl.engine.core` (:class:`MujocoEngine`: set-up,
-stepping, divergence checks), :mod:`~shinro_ctrl.engine.access` (named joint,
-body and site access), :mod:`~shinro_ctrl.engine.mjcf` (loading and patching
+stepping, divergence checks, named joint, body and site access), :mod:`~shinro_ctrl.engine.mjcf` (loading and patching
 MJCF), :mod:`~shinro_ctrl.engine.render` (offscreen rendering),
 :mod:`~shinro_ctrl.engine.warnings` (MuJoCo's warning text) and
 :mod:`~shinro_ctrl.engine.model_tree` (the model reader of ``MjcfPlant``).
@@ -52,5 +56,14 @@ from shinro_ctrl.engine.core import MujocoEngine
 from shinro_ctrl.engine.mjcf import TINY_INERTIA
 from shinro_ctrl.engine.render import OffscreenRenderer
 from shinro_ctrl.engine.warnings import _record_warning, install_warning_handler, take_warning_messages  # noqa: F401
+from shinro_ctrl.plants.standalone import Engine, StandaloneEngine
 
-__all__ = ["TINY_INERTIA", "MujocoEngine", "OffscreenRenderer", "install_warning_handler", "take_warning_messages"]
+__all__ = [
+    "TINY_INERTIA",
+    "Engine",
+    "MujocoEngine",
+    "OffscreenRenderer",
+    "StandaloneEngine",
+    "install_warning_handler",
+    "take_warning_messages",
+]

@@ -151,6 +151,12 @@ def _apply_patch(spec: mujoco.MjSpec, patch: Any, substeps: int) -> None:
         coeffs = np.array(joint.damping, dtype=float)
         coeffs[0] = float(damping)
         joint.damping = coeffs
+    for name, (lo, hi) in getattr(patch, "joint_range", {}).items():
+        joint = _find(spec, "joint", name)
+        joint.limited = int(mujoco.mjtLimited.mjLIMITED_TRUE)
+        joint.range = np.array([lo, hi], dtype=float)
+        joint.solref_limit = np.array([2.0 * opt.timestep, 1.0])  # the stiffest stable stop: nearly inelastic
+        joint.solimp_limit = np.array([0.99, 0.999, 1e-4, 0.5, 2.0])
     for name, fromto in patch.geom_fromto.items():
         fromto = np.asarray(fromto, dtype=float)
         if fromto.shape != (6,):

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, is_dataclass
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 
@@ -11,7 +10,13 @@ from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.plants._arm6 import ARM6_JOINTS, shipped_arm6
 
 
-def with_engine_limits(cfg: dict, engine: Any) -> dict:
+class JointLimits(Protocol):
+    """What :func:`with_engine_limits` reads from an engine: a joint's ``(min, max)`` range."""
+
+    def get_joint_limits(self, name: str) -> tuple[float, float]: ...
+
+
+def with_engine_limits(cfg: dict, engine: JointLimits) -> dict:
     """``cfg`` completed for an engine (see :meth:`ArmRobot.from_config`): shipped geometry, MJCF joint limits.
 
     An incomplete custom geometry comes back unchanged (the constructor says what is missing).
@@ -44,10 +49,3 @@ def with_engine_limits(cfg: dict, engine: Any) -> dict:
             )
     cfg["joint_limits"] = limits if limits.size else cfg.get("joint_limits")
     return cfg
-
-
-def _as_dict(config: Any) -> dict:
-    """A config mapping or dataclass as a plain dict without its ``type`` key."""
-    if is_dataclass(config) and not isinstance(config, type):
-        config = asdict(config)
-    return {k: v for k, v in dict(config).items() if k != "type"}

@@ -1,15 +1,25 @@
-"""Parsing of the optional clipping bounds that some plants accept."""
+"""Parsing of the optional state bounds (inelastic stops) that some plants accept."""
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
-def state_bounds(value: Any, n: int, default_lo: list[float], default_hi: list[float]):
+
+#: ``state_bounds`` as a plant accepts it: a ``(lo, hi)`` pair or the TOML ``{min = [...], max = [...]}``.
+StateBounds: TypeAlias = "tuple[ArrayLike, ArrayLike] | Mapping[str, ArrayLike]"
+
+
+def state_bounds(
+    value: StateBounds | None, n: int, default_lo: list[float], default_hi: list[float]
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Normalize ``state_bounds`` to a ``(lo (n,), hi (n,))`` pair of arrays, or None.
 
     Accepts ``None``, a ``(lo, hi)`` pair of length-``n`` sequences, or a
@@ -32,22 +42,10 @@ def state_bounds(value: Any, n: int, default_lo: list[float], default_hi: list[f
     hi = np.asarray(hi, dtype=float)
     if lo.shape != (n,) or hi.shape != (n,):
         raise InvalidArgument(f"state_bounds: expected min and max of shape ({n},) but found {lo.shape} and {hi.shape}")
-    if np.any(np.isnan(lo)) or np.any(np.isnan(hi)) or np.any(lo > hi):
-        raise InvalidArgument("state_bounds: every min must be <= its max")
+    if np.any(np.isnan(lo)) or np.any(np.isnan(hi)) or np.any(lo >= hi):
+        i = int(np.flatnonzero(~(lo < hi))[0])
+        raise InvalidArgument(
+            f"state_bounds: every min must be < its max (an empty range leaves no state), "
+            f"got min[{i}] = {lo[i]:g}, max[{i}] = {hi[i]:g}"
+        )
     return lo, hi
-
-
-class StateBoundsMixin:
-    """For plants with an optional ``state_bounds = (lo (n,), hi (n,))``: clip to it and declare it as limits."""
-
-    state_bounds: tuple[np.ndarray, np.ndarray] | None
-
-    def clip_state(self, x: np.ndarray) -> np.ndarray:
-        if self.state_bounds is None:
-            return x
-        return np.clip(x, *self.state_bounds)
-
-    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        if self.state_bounds is None:
-            return super().state_limits()  # type: ignore[misc]
-        return self.state_bounds[0].copy(), self.state_bounds[1].copy()

@@ -16,34 +16,55 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Protocol
 
 import casadi as cs
 import numpy as np
 
-from shinro_ctrl.errors import InvalidArgument, SimulationDiverged
+from shinro_ctrl.backend import ArrayBackend
+from shinro_ctrl.errors import ConfigError, InvalidArgument, SimulationDiverged
 from shinro_ctrl.kinematics import (
     IKResult,
     KinematicsBuffer,
     SerialChain,
     damped_least_squares,
     euler_zyx_from_matrix,
+    euler_zyx_to_matrix,
     pose_to_transform,
+    so3_log,
     so3_log_flat,
 )
 from shinro_ctrl.plants._arm6 import ARM6, ARM6_AXES, ARM6_BODIES, ARM6_JOINTS, shipped_arm6
-from shinro_ctrl.plants._arm_config import _as_dict, with_engine_limits
-from shinro_ctrl.plants._arm_engine import ArmEngineMode
-from shinro_ctrl.plants.base import MjcfPatch, Plant
+from shinro_ctrl.plants._arm_config import with_engine_limits
+from shinro_ctrl.plants.base import MjcfPatch, Plant, split_config
 from shinro_ctrl.validation import as_matrix, as_vector, check_positive
 
-__all__ = ["ARM6", "ARM6_JOINTS", "ArmRobot", "shipped_arm6"]
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping
+
+    from numpy.typing import ArrayLike
+
+    from shinro_ctrl.plants.standalone import Engine
+
+__all__ = ["ARM6", "ARM6_JOINTS", "ARM6_SITE", "ArmIK", "ArmRobot", "shipped_arm6"]
 
 _AXES = ("x", "y", "z")
+ARM6_SITE = "ee_site"
+
+
+class ArmIK(Protocol):
+    """An IK solver an arm can step with (e.g. :class:`~shinro_ctrl.controllers.ik_qp.IKQP`).
+
+    ``track(q, T) -> q⁺`` moves the joints ``q (n,)`` towards the pose ``T (4, 4)`` within one
+    control step; an optional ``solve(T, q, tol=, restarts=, seed=)`` returns an
+    :class:`~shinro_ctrl.kinematics.IKResult` (used by :meth:`ArmRobot.set_state`).
+    """
+
+    def track(self, q: np.ndarray, target: np.ndarray) -> np.ndarray: ...
 
 
 #: The shipped MJCF arm (``assets/arm6.xml``): its joints, axes and the body of each joint.
-class ArmRobot(ArmEngineMode, Plant):
+class ArmRobot(Plant):
     """Serial-link arm with forward kinematics, Jacobians and inverse kinematics.
 
     Standalone, :meth:`step` solves IK on the analytic kinematics and sets the
@@ -70,8 +91,12 @@ class ArmRobot(ArmEngineMode, Plant):
             names); in engine mode they name the MJCF joints (and their position actuators).
         ee_body_name: In engine mode, the MJCF body whose frame is the end effector. Default:
             the site ``ee_site`` when the model has one, else the last body.
-        backend: Accepted for API compatibility (numbers are numpy arrays).
+        backend: The seed's array backend keyword; accepted, not used (numbers are numpy arrays).
         ee_offset: ``(3,)`` end-effector offset [m] in the last joint's frame (default zero).
+        ik: The IK :meth:`step` uses, given at construction: None (the damped
+            pseudoinverse), an :class:`ArmIK` (anything with ``track(q, T)``), or a
+            factory ``arm -> ArmIK`` called with this arm once it is built (how a
+            scenario gives the arm its ``IKQP`` controller: ``ArmRobot(ik=IKQP)``).
 
     Attributes:
         num_dof: ``n``.
@@ -82,9 +107,8 @@ class ArmRobot(ArmEngineMode, Plant):
         ee_offset: ``(3,)`` array [m].
         chain: The :class:`~shinro_ctrl.kinematics.SerialChain` (FK, Jacobians).
         dt: Control step [s].
-        ik: Optional IK solver used by :meth:`step` (anything with ``track(q, T) -> q``,
-            such as an ``IKQP`` built for this arm; the scenario layer sets it, never the
-            controller); None selects the damped pseudoinverse.
+        ik: The IK solver :meth:`step` uses (see the ``ik`` argument), or None for the
+            damped pseudoinverse.
 
     Raises:
         InvalidArgument: a wrong shape (the message names the argument), ``dt <= 0``, a limit
@@ -99,18 +123,20 @@ class ArmRobot(ArmEngineMode, Plant):
     asset = "arm6.xml"
     #: Scenario metrics track the end-effector position [m] (Euler angles wrap and mix units).
     tracked_states = ("x", "y", "z")
+    takes_ik = True
 
     def __init__(
         self,
         num_dof: int = 6,
         dt: float = 0.002,
-        joint_limits: Any = None,
-        joint_offsets: Any = None,
+        joint_limits: ArrayLike | None = None,
+        joint_offsets: ArrayLike | None = None,
         rot_axes: Sequence[str] | None = None,
         joint_names: Sequence[str] | None = None,
         ee_body_name: str | None = None,
-        backend: Any = None,
-        ee_offset: Any = None,
+        backend: ArrayBackend | None = None,
+        ee_offset: ArrayLike | None = None,
+        ik: ArmIK | Callable[[ArmRobot], ArmIK] | None = None,
     ):
         if isinstance(num_dof, bool) or not isinstance(num_dof, int | np.integer) or num_dof < 1:
             raise InvalidArgument(f"num_dof must be a positive integer, got {num_dof!r}")
@@ -168,12 +194,19 @@ class ArmRobot(ArmEngineMode, Plant):
         self._hi = self.joint_limits[:, 1].copy()
         self.chain = SerialChain(self.joint_offsets, self.axes, self.ee_offset)
         self._offsets = self.chain.offsets
-        self.ik: Any = None
         self._q = np.clip(np.zeros(n), self._lo, self._hi)  # home pose (q = 0 where the limits allow)
         self._q_cmd = self._q.copy()
         self._ee_frame: tuple[str, str] | None = None
         self._dofs: list[int] = []
         self.state = self._pose_of(self._q)
+        if ik is None or callable(getattr(ik, "track", None)):
+            self.ik: ArmIK | None = ik
+        elif callable(ik):
+            self.ik = ik(self)
+            if not callable(getattr(self.ik, "track", None)):
+                raise InvalidArgument(f"ik: the factory returned {type(self.ik).__name__}, which has no track(q, T)")
+        else:
+            raise InvalidArgument(f"ik must be None, an IK solver with track(q, T) or a factory, got {ik!r}")
 
     # ------------------------------------------------------------ dynamics
     def equations(self, bk, x, u, p):
@@ -185,22 +218,22 @@ class ArmRobot(ArmEngineMode, Plant):
         return self._pose_of(np.clip(np.zeros(self.num_dof), self._lo, self._hi)), np.zeros(6)
 
     # ---------------------------------------------------------- kinematics
-    def _joints(self, q: Any, name: str = "q") -> np.ndarray:
+    def _joints(self, q: ArrayLike, name: str = "q") -> np.ndarray:
         return as_vector(name, q, self.num_dof)
 
-    def forward_kinematics(self, q: Any) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+    def forward_kinematics(self, joint_angles: ArrayLike) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
         """End-effector transform and the joints' world positions and axes.
 
         Args:
-            q: Joint angles ``(n,)`` [rad].
+            joint_angles: Joint angles ``(n,)`` [rad].
 
         Returns:
             ``(T_ee, positions, axes)``: ``T_ee (4, 4)``; ``positions``, a list of ``n``
             joint origins ``(3,)`` [m]; ``axes``, a list of ``n`` unit world axes ``(3,)``.
         """
-        return self.chain.fk(self._joints(q))
+        return self.chain.fk(self._joints(joint_angles, "joint_angles"))
 
-    def ee_pose(self, q: Any) -> np.ndarray:
+    def ee_pose(self, q: ArrayLike) -> np.ndarray:
         """End-effector pose ``[x, y, z, roll, pitch, yaw]`` (6,) at joints ``q (n,)``."""
         return self._pose_of(self._joints(q))
 
@@ -208,7 +241,7 @@ class ArmRobot(ArmEngineMode, Plant):
         p, R, _ = self._kinematics()(q)
         return np.concatenate([p, euler_zyx_from_matrix(R)])
 
-    def jacobian(self, q: Any, method: str = "geometric", eps: float = 1e-6) -> np.ndarray:
+    def jacobian(self, q: ArrayLike, method: str = "geometric", eps: float = 1e-6) -> np.ndarray:
         r"""World-frame end-effector Jacobian ``J (6, n)``, position rows first.
 
         ``[v; ω] = J q̇`` with ``v`` the EE linear velocity [m/s] and ``ω`` the world angular
@@ -247,9 +280,9 @@ class ArmRobot(ArmEngineMode, Plant):
     # ------------------------------------------------------------------ IK
     def inverse_kinematics(
         self,
-        target_T: Any,
+        target_pose: ArrayLike,
         max_iters: int = 100,
-        q_init: Any = None,
+        q_init: ArrayLike | None = None,
         tol: float = 1e-4,
         max_step: float = 0.2,
         *,
@@ -264,7 +297,7 @@ class ArmRobot(ArmEngineMode, Plant):
         the joint limits. It stops when both errors are below ``tol``.
 
         Args:
-            target_T: Target end-effector transform ``(4, 4)``.
+            target_pose: Target end-effector transform ``(4, 4)``.
             max_iters: Maximum iterations.
             q_init: Start ``(n,)`` [rad]; default the current joints.
             tol: Convergence tolerance on the position [m] and orientation [rad] errors.
@@ -276,7 +309,7 @@ class ArmRobot(ArmEngineMode, Plant):
             Joint angles ``(n,)`` inside the limits (the last iterate, converged or not), or the
             :class:`IKResult` when ``full_output``.
         """
-        Tt = as_matrix("target_T", target_T, (4, 4))
+        Tt = as_matrix("target_pose", target_pose, (4, 4))
         q = self._q.copy() if q_init is None else np.clip(self._joints(q_init, "q_init"), self._lo, self._hi)
         check_positive("max_step", max_step)
         kin = self._kinematics()
@@ -323,11 +356,15 @@ class ArmRobot(ArmEngineMode, Plant):
         return self._q_cmd.copy()
 
     def limit_violation(self) -> float:
-        """How far [rad] the current joints are outside their limits (0 when inside)."""
-        q = self.q
-        return float(max(0.0, np.max(self._lo - q), np.max(q - self._hi)))
+        """Depth [rad] of the last step's contact with a joint limit (0 when none).
 
-    def set_joint_positions(self, q: Any) -> None:
+        The larger of how far the last IK solution was past a limit before it was clipped
+        (the clamp of :meth:`step`) and how far the current joints are outside their limits.
+        """
+        q = self.q
+        return float(max(self._contact, np.max(self._lo - q), np.max(q - self._hi)))
+
+    def set_joint_positions(self, q: ArrayLike) -> None:
         """Place the arm at joints ``q (n,)`` [rad] (engine: at rest, actuators holding ``q``).
 
         Raises:
@@ -348,12 +385,12 @@ class ArmRobot(ArmEngineMode, Plant):
                 self._engine.set_joint_vel(name, 0.0)
                 self._engine.set_joint_ctrl(name, v)
             self._engine.forward()
-            self.state = self._engine_pose()
+            self._x = self._engine_pose()
         else:
             self.state = self._pose_of(q)
 
     # ---------------------------------------------------------------- step
-    def step(self, u: Any) -> np.ndarray:
+    def step(self, u: ArrayLike) -> np.ndarray:
         """Move the end effector by the twist ``u`` for one step ``dt``.
 
         The twist is integrated into a target pose ``x + dt u`` from the current (in engine
@@ -377,8 +414,17 @@ class ArmRobot(ArmEngineMode, Plant):
         Raises:
             InvalidArgument: ``u`` has the wrong shape.
             NonFiniteError: ``u`` holds NaN or inf.
+            ConcurrentUse: another thread is stepping this arm.
         """
         u = self._input(u)
+        if not self._step_lock.acquire(False):
+            self._concurrent()
+        try:
+            return self._step(u)
+        finally:
+            self._step_lock.release()
+
+    def _step(self, u: np.ndarray) -> np.ndarray:
         x = self.get_state()
         target = x + self.dt * u
         if self._engine is not None:
@@ -388,32 +434,52 @@ class ArmRobot(ArmEngineMode, Plant):
                 # A tolerance well below one step's motion (the seed's 1e-3 m would ignore a
                 # twist of less than 1e-3 / dt m/s).
                 q_cmd = self.engine_ik(target[:3], target_euler=target[3:], tol=1e-7)
-            q_cmd = np.clip(q_cmd, self._lo, self._hi)
+            q_cmd = self._clamp(q_cmd, target)
             for name, v in zip(self.joint_names, q_cmd.tolist(), strict=True):
                 self._engine.set_joint_ctrl(name, v)
             self._engine.step()
             self._q_cmd = q_cmd
             self._q = self._read_joints()
-            self.state = self._engine_pose()
+            self._x = self._engine_pose()
             return self._q.copy()
         T = pose_to_transform(target)
         if self.ik is not None:
             q = self.ik.track(self._q_cmd, T)
         else:
-            q = self.inverse_kinematics(T, q_init=self._q_cmd)
-        q = np.clip(q, self._lo, self._hi)
+            # a tolerance well below one step's motion (the default 1e-4 would ignore a twist below 1e-4 / dt)
+            q = self.inverse_kinematics(T, q_init=self._q_cmd, tol=1e-9)
+        q = self._clamp(q, target)
         self._q = q
         self._q_cmd = q.copy()
         self.state = self._pose_of(q)
         return q.copy()
 
+    def _clamp(self, q: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """``q`` clipped to the joint limits, and the step's contact with a limit kept for :meth:`limit_violation`.
+
+        A contact is a step whose joints end on a limit short of the target pose (the IK clips
+        inside its iterations): its depth is the distance [m + rad] to the target pose
+        ``(6,)`` left by the limit (or how far ``q`` was outside, when larger).
+        """
+        outside = float(max(0.0, np.max(self._lo - q), np.max(q - self._hi)))
+        q = np.clip(q, self._lo, self._hi)
+        self._contact = outside
+        if np.any((q <= self._lo) | (q >= self._hi)):
+            with np.errstate(all="ignore"):  # a target far out of range: no numpy warning
+                e = target - self._pose_of(q)
+                e[3:] = np.angle(np.exp(1j * e[3:]))  # Euler angles wrap
+            short = math.hypot(*e.tolist())  # hypot: no overflow
+            if math.isfinite(short) and short > 1e-9:
+                self._contact = max(outside, short)
+        return q
+
     def get_state(self) -> np.ndarray:
         """End-effector pose ``[x, y, z, roll, pitch, yaw]`` (6,) (read from MuJoCo in engine mode)."""
         if self._engine is not None:
-            self.state = self._engine_pose()
-        return self.state.copy()
+            self._x = self._engine_pose()
+        return self._x.copy()
 
-    def set_state(self, x: Any) -> None:
+    def set_state(self, x: ArrayLike) -> None:
         """Move the arm to the end-effector pose ``x (6,)`` by IK (from the current joints).
 
         Uses :attr:`ik` (its ``solve`` with restarts) when set, else the damped
@@ -452,9 +518,155 @@ class ArmRobot(ArmEngineMode, Plant):
         fromto = {f"{b}_geom": (0.0, 0.0, 0.0, *self._offsets[i + 1]) for i, b in enumerate(ARM6_BODIES[:-1])}
         return MjcfPatch(asset=self.asset, timestep=self.dt, body_pos=body_pos, geom_fromto=fromto)
 
+    # -------------------------------------------------------------- engine
+    def engine_ik(
+        self,
+        target_ee: ArrayLike,
+        target_euler: ArrayLike | None = None,
+        max_iters: int = 20,
+        lam: float = 0.01,
+        max_dq: float = 0.5,
+        *,
+        tol: float = 1e-3,
+    ) -> np.ndarray:
+        r"""Damped-least-squares IK on the MuJoCo engine's end-effector Jacobian.
+
+        Iterates :math:`\Delta q = J^\top (J J^\top + \lambda^2 I)^{-1} e` with the engine's
+        Jacobian and pose, ``Δq`` clamped to ``±max_dq`` and ``q`` clipped to the limits.
+        Without ``target_euler`` only the position is solved (3 rows); with it the full pose
+        (world-frame log-map orientation error). The engine's joint state is restored
+        afterwards: the arm reaches the result through its actuators, not by a jump.
+
+        Args:
+            target_ee: Target position ``(3,)`` [m].
+            target_euler: Optional target ZYX Euler angles ``(3,)`` [rad].
+            max_iters: Maximum iterations.
+            lam: Damping ``λ``.
+            max_dq: Largest joint change per iteration [rad].
+            tol: Stop when the error norm is below this.
+
+        Returns:
+            Joint angles ``(n,)`` inside the limits.
+
+        Raises:
+            RuntimeError: no engine is attached.
+        """
+        engine = self._engine
+        if engine is None:
+            raise RuntimeError("engine_ik needs a physics engine: call physics_engine(engine) first")
+        pt = as_vector("target_ee", target_ee, 3)
+        Rt = None if target_euler is None else euler_zyx_to_matrix(as_vector("target_euler", target_euler, 3))
+        rows = 3 if Rt is None else 6
+        saved = [(engine.get_joint_qpos(n), engine.get_joint_vel(n)) for n in self.joint_names]
+        q = self._read_joints()
+
+        def error_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            for name, v in zip(self.joint_names, q.tolist(), strict=True):
+                engine.set_joint_qpos(name, v)
+            engine.forward()
+            p, R = self._engine_ee()
+            e = pt - p if Rt is None else np.concatenate([pt - p, so3_log(Rt @ R.T)])
+            return e, self._engine_jacobian()[:rows]
+
+        try:
+            # max_iters + 1 steps at most: this loop has always stepped once more than it was asked to
+            q = damped_least_squares(
+                error_jacobian,
+                q,
+                self._lo,
+                self._hi,
+                max_iters=max_iters + 1,
+                max_step=max_dq,
+                lam=lam,
+                converged=lambda e: np.linalg.norm(e) < tol,
+            )[0]
+        finally:
+            for name, (qp, qv) in zip(self.joint_names, saved, strict=True):
+                engine.set_joint_qpos(name, qp)
+                engine.set_joint_vel(name, qv)
+            engine.forward()
+        return q
+
+    def physics_engine(self, engine: Engine | None) -> None:
+        """Attach a MuJoCo engine (or detach with None).
+
+        On attach the end-effector frame is resolved (``ee_body_name``, else the site
+        ``ee_site``, else the last body), every joint name is checked against the model,
+        and joints and pose are read from the engine; the commanded targets start at the
+        measured joints. On detach the arm keeps its last joints and its state becomes
+        their FK pose.
+
+        Raises:
+            UnknownName: a joint or the end-effector body is missing from the model (the
+                message lists the valid names; a ``KeyError``).
+        """
+        if engine is None:
+            self._engine = None
+            self._ee_frame = None
+            self._sim = self._standalone
+            self.state = self._pose_of(self._q)
+            return
+        if self.ee_body_name is not None:
+            frame = ("body", self.ee_body_name)
+        elif ARM6_SITE in getattr(engine, "site_names", ()):
+            frame = ("site", ARM6_SITE)
+        else:
+            frame = ("body", engine.body_names[-1])
+        model = engine.model
+        dofs = []
+        for name in self.joint_names:
+            engine.get_joint_qpos(name)  # KeyError listing the joints if missing
+            dofs.append(int(model.jnt_dofadr[model.joint(name).id]))
+        self._engine = engine
+        self._sim = engine
+        self._ee_frame = frame
+        self._dofs = dofs
+        engine.forward()
+        self._engine_ee()  # KeyError for an unknown ee_body_name
+        self._q = self._read_joints()
+        self._q_cmd = self._q.copy()
+        self._x = self._engine_pose()
+
+    def engine_read(self, engine: Engine) -> np.ndarray:
+        """The end-effector pose ``(6,)`` measured in the engine."""
+        return self._engine_pose()
+
+    def engine_write(self, engine: Engine, x: np.ndarray) -> None:
+        """Place the arm at the pose ``x (6,)`` by IK (see :meth:`set_state`)."""
+        self.set_state(x)
+
+    def _read_joints(self) -> np.ndarray:
+        e = self._engine
+        return np.array([e.get_joint_qpos(n) for n in self.joint_names])
+
+    def _engine_ee(self) -> tuple[np.ndarray, np.ndarray]:
+        """End-effector ``(p (3,), R (3, 3))`` from the engine."""
+        kind, name = self._ee_frame
+        get = self._engine.get_site_pose if kind == "site" else self._engine.get_body_pose
+        p, euler = get(name)
+        return p, euler_zyx_to_matrix(euler)
+
+    def _engine_pose(self) -> np.ndarray:
+        kind, name = self._ee_frame
+        get = self._engine.get_site_pose if kind == "site" else self._engine.get_body_pose
+        p, euler = get(name)
+        return np.concatenate([p, euler])
+
+    def _engine_jacobian(self) -> np.ndarray:
+        kind, name = self._ee_frame
+        get = self._engine.get_site_jacobian if kind == "site" else self._engine.get_body_jacobian
+        return get(name)[:, self._dofs]
+
     # -------------------------------------------------------------- config
     @classmethod
-    def from_config(cls, config: Any, *, engine: Any = None) -> ArmRobot:
+    def from_config(
+        cls,
+        config: Mapping[str, object] | object,
+        backend: ArrayBackend | None = None,
+        *,
+        engine: Engine | None = None,
+        ik: ArmIK | Callable[[ArmRobot], ArmIK] | None = None,
+    ) -> ArmRobot:
         """Build the arm from a ``[plant]`` mapping (or dataclass) of constructor arguments.
 
         Omitted keys take the constructor defaults (no geometry: the shipped arm). With an
@@ -464,15 +676,33 @@ class ArmRobot(ArmEngineMode, Plant):
         ``{"dt": 0.002}``), the geometry and joint names are the shipped arm's
         (:func:`shipped_arm6`) and only the limits come from the model.
 
+        The seed's form is accepted too: a mapping carrying a runtime-injected ``engine`` and
+        ``joint_groups`` (group name -> joint names), with ``joint_group`` naming the arm's group.
+
+        Args:
+            config: The ``[plant]`` table.
+            backend: The seed's array backend; accepted, not used.
+            engine: Optional MuJoCo engine to attach.
+            ik: The arm's IK (see the constructor).
+
         Raises:
             ConfigError: unknown key, invalid value (e.g. ``joint_offsets`` without
                 ``joint_limits`` standalone), a joint missing from the model, or config limits
                 that disagree with the MJCF.
         """
-        cfg = _as_dict(config)
-        if engine is None:
-            return super().from_config(cfg)
-        return super().from_config(with_engine_limits(cfg, engine), engine=engine)
+        cfg, runtime = split_config(config)
+        engine = runtime.get("engine", engine)
+        group = cfg.pop("joint_group", None)
+        if group is not None:
+            groups = runtime.get("joint_groups") or {}
+            if group not in groups:
+                raise ConfigError(
+                    f"[plant] ArmRobot: joint_group '{group}' is not among the joint_groups {list(groups)}"
+                )
+            cfg.setdefault("joint_names", list(groups[group]))
+        if engine is not None:
+            cfg = with_engine_limits(cfg, engine)
+        return super().from_config(cfg, engine=engine, ik=ik)
 
     def __repr__(self) -> str:
         mode = "standalone" if self._engine is None else "engine"

@@ -11,6 +11,10 @@ backend ``bk``. This base turns that one definition into
 * ``get_model()`` / ``linear_model()``: discrete ``(A, B)`` at ``dt``;
 * ``step(u)``: semi-implicit Euler standalone, or one physics-engine step.
 
+The plant is the *model*; its simulation state lives in the engine it holds
+(:attr:`Plant.simulation`): its own :class:`~shinro_ctrl.plants.standalone.StandaloneEngine`,
+or an attached MuJoCo engine. Both keep one contract (``apply``, ``step``,
+``read``, ``write``), so :meth:`Plant.step` does not branch on the engine.
 Engine mode is duck-typed: a plant never imports the engine. It tells the
 engine how to match the MJCF model to its parameters (:meth:`mjcf_patch`) and
 how to read and write its state and inputs (:meth:`Plant.engine_read`,
@@ -20,37 +24,33 @@ of :class:`Plant` lists every hook a new plant may implement.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any, ClassVar
+import inspect
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field, is_dataclass
+from typing import TYPE_CHECKING, ClassVar
 
 import casadi as cs
 import numpy as np
 
-from shinro_ctrl.backend import CasadiBackend, ListBackend, NumpyBackend, ScalarBackend
-from shinro_ctrl.errors import InvalidArgument, NonFiniteError, SimulationDiverged
-from shinro_ctrl.linearization import ExactJacobian, LinearModel, discretize, fd_jacobians
-from shinro_ctrl.plants._config_mixin import ConfigMixin
-from shinro_ctrl.plants._engine_mode import EngineModeMixin
-from shinro_ctrl.plants._state_io import StateIOMixin
+from shinro_ctrl.backend import ArrayBackend, BackendArray, CasadiBackend, ListBackend, NumpyBackend, ScalarBackend
+from shinro_ctrl.errors import ConcurrentUse, ConfigError, InvalidArgument, NonFiniteError
+from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, ExactJacobian, LinearModel, discretize, fd_jacobians
+from shinro_ctrl.plants.standalone import Engine, StandaloneEngine
 from shinro_ctrl.registry import Registry
 from shinro_ctrl.validation import all_finite, as_vector, check_positive, did_you_mean, unknown_keys
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = ["PLANT_REGISTRY", "MjcfPatch", "Plant"]
 
 #: Every :class:`Plant` subclass defined so far, by class name and ``aliases`` (``Plant.__init_subclass__``).
 PLANT_REGISTRY: Registry[Plant] = Registry("plant", "shinro_ctrl.plants")
 
-#: Public hook -> underscore alias (see the :class:`Plant` docstring).
-_HOOK_ALIASES = (
-    ("equations", "_f"),
-    ("integrate", "_integrate"),
-    ("clip_state", "_clip_state"),
-    ("engine_read", "_engine_read"),
-    ("engine_write", "_engine_write"),
-    ("engine_apply", "_engine_apply"),
-)
+#: Keys a ``[plant]`` mapping may carry at run time besides the constructor's arguments (the seed's
+#: ``from_config`` contract: an attached engine and, for the arm, the model's joint groups).
+RUNTIME_KEYS = ("engine", "joint_groups")
 
 _NUMPY = NumpyBackend()
 _SCALAR = ScalarBackend()
@@ -78,6 +78,9 @@ class MjcfPatch:
         joint_damping: Joint name → damping [N m s/rad or N s/m].
         geom_fromto: Visual geom name → ``fromto`` ``(6,)`` [m].
         geom_size: Visual geom name → ``size`` (1 to 3 values) [m].
+        joint_range: Joint name → ``(min, max)``: the joint becomes limited
+            (``limited="true"``) with this range, the stop the standalone
+            :meth:`Plant.clip_state` models (e.g. the cart-pole's track).
     """
 
     asset: str
@@ -89,10 +92,11 @@ class MjcfPatch:
     joint_damping: dict[str, float] = field(default_factory=dict)
     geom_fromto: dict[str, tuple[float, ...]] = field(default_factory=dict)
     geom_size: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    joint_range: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
-class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
-    """Base class of every plant model.
+class Plant:
+    """Base class of every plant model: the model, holding the engine that holds its simulation state.
 
     Subclasses set the class attributes below, call :meth:`_init` from their
     constructor and implement :meth:`equations`. Mechanical plants whose
@@ -109,10 +113,12 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
     * :meth:`integrate` ``(x, u) -> x_next``: one standalone step (default:
       semi-implicit Euler over ``position_indices``/``velocity_indices``,
       then :meth:`clip_state`).
-    * :meth:`clip_state` ``(x) -> x``: documented state clipping (track
-      limits, state bounds); must accept one state ``(n,)`` and a batch
-      ``(N, n)`` (the batch rollout calls it on batches).
+    * :meth:`clip_state` ``(x) -> x``: documented state limits (track
+      limits, state bounds) as inelastic stops (:meth:`stop`); must accept
+      one state ``(n,)`` and a batch ``(N, n)`` (the batch rollout calls it on batches).
     * :meth:`equilibrium` ``() -> (x0, u0)``: the default operating point.
+    * :meth:`state_limits` ``() -> (lo, hi)``: the declared limits of the state.
+    * :meth:`body_force_map` ``(body) -> G (n, 3)``: world body forces in the standalone loop.
     * :meth:`mjcf_patch` ``() -> MjcfPatch``: how the MJCF asset is matched to
       the parameters (engine mode).
     * :meth:`engine_read` ``(engine) -> x``, :meth:`engine_write`
@@ -120,19 +126,13 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
       input in engine mode.
     * :meth:`engine_state_map` ``(x0) -> (T, perm)``: the plant state in
       MuJoCo's coordinates (cross-checks of the linearization).
-    * ``limit_violation() -> float`` (optional method) and
-      ``tracked_states`` (optional attribute): a plant limit metric and the
-      states the tracking error uses.
+    * ``tracked_states`` (optional attribute): the states the tracking error uses.
 
-    The underscore names (``_f``, ``_integrate``, ``_clip_state``,
-    ``_engine_read``, ``_engine_write``, ``_engine_apply``) are aliases kept
-    for plants written against them: a subclass may define either name.
-
-    The engine hooks and attaching an engine live in
-    ``plants/_engine_mode.py``, :meth:`state_limits`, :meth:`body_force_map` and
-    :meth:`output_matrix` in ``plants/_state_io.py``, :meth:`from_config` in
-    ``plants/_config_mixin.py`` (mixins of this class); this list stays the one
-    place that names every hook.
+    Threads: the model methods (:meth:`dynamics`, :meth:`linearize`,
+    :meth:`get_model`, :meth:`symbolic`) may be called from any number of
+    threads at once. :meth:`step` changes the simulation state: a call that
+    enters while another thread is inside :meth:`step` of the same plant raises
+    :class:`~shinro_ctrl.errors.ConcurrentUse` (use one plant per thread).
 
     Attributes:
         state_names: Names of the state components, length ``n``.
@@ -140,7 +140,7 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
         param_names: Names of the physical parameters (constructor names).
         asset: MJCF asset file of the matched MuJoCo model, or None.
         dt: Step [s].
-        state: Current standalone state ``(n,)``.
+        state: Current state ``(n,)`` (the last one read from the engine).
     """
 
     state_names: ClassVar[tuple[str, ...]] = ()
@@ -151,38 +151,36 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
     velocity_indices: ClassVar[tuple[int, ...]] = ()
     #: Short names a scenario or the CLI may use instead of the class name (``("cartpole",)``).
     aliases: ClassVar[tuple[str, ...]] = ()
+    #: True for a plant that takes an IK solver at construction (``ik=``; the arm).
+    takes_ik: ClassVar[bool] = False
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        """Register every subclass under its class name (and its ``aliases``) in :data:`PLANT_REGISTRY`.
-
-        Also binds each public hook and its underscore alias to the same function (whichever
-        name the subclass defined), so either may be called at no extra cost.
-        """
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        """Register every subclass under its class name (and its ``aliases``) in :data:`PLANT_REGISTRY`."""
         super().__init_subclass__(**kwargs)
-        for public, private in _HOOK_ALIASES:
-            for klass in cls.__mro__:  # the definition nearest to cls, under either name
-                own = klass.__dict__
-                if public in own or private in own:
-                    fn = own[public] if public in own else own[private]
-                    break
-            setattr(cls, public, fn)
-            setattr(cls, private, fn)
         PLANT_REGISTRY.register(cls, aliases=cls.__dict__.get("aliases", ()))
 
     # ------------------------------------------------------------------ set-up
-    def _init(self, *, dt: float, params: Mapping[str, float], backend: Any = None) -> None:
-        """Store validated parameters and allocate per-instance caches."""
+    def _init(self, *, dt: float, params: Mapping[str, float], backend: ArrayBackend | None = None) -> None:
+        """Store validated parameters, allocate per-instance caches and the standalone engine.
+
+        ``backend`` is the seed's keyword, accepted and not used: numbers are numpy arrays.
+        """
         self.dt = check_positive("dt", dt)
         missing = [k for k in self.param_names if k not in params]
         if missing:  # a bug in a subclass, not a user error
             raise TypeError(f"{type(self).__name__} did not store parameters {missing}")
         self._params: dict[str, float] = {k: float(params[k]) for k in self.param_names}
         self._pvec = np.array([self._params[k] for k in self.param_names], dtype=float)
-        self.bk = backend if backend is not None else _NUMPY
-        self.state = np.zeros(self.state_dim)
-        self._engine: Any = None
         self._symbolic: dict[bool, cs.Function] = {}
         self._exact: ExactJacobian | None = None
+        self._exact_step: ExactJacobian | None = None
+        self._step_lock = threading.Lock()
+        self._standalone = StandaloneEngine(self)
+        self._engine: Engine | None = None  # an attached physics engine
+        self._sim: Engine = self._standalone  # the engine that holds the state
+        self._x = np.zeros(self.state_dim)
+        self._contact = 0.0  # depth of the last standalone step's contact with a stop
+        self._limited_joints: list[str] = []  # engine joints with the stops of clip_state
 
     @property
     def state_dim(self) -> int:
@@ -198,12 +196,40 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
         """The physical parameters by constructor name (a copy)."""
         return dict(self._params)
 
+    def dynamics_params(self) -> dict[str, float]:
+        """The parameters of :meth:`equations` by :attr:`param_names` (a copy; ``p`` of ``symbolic(params=True)``)."""
+        return dict(self._params)
+
     def equilibrium(self) -> tuple[np.ndarray, np.ndarray]:
         """The documented default operating point ``(x0 (n,), u0 (m,))``."""
         return np.zeros(self.state_dim), np.zeros(self.input_dim)
 
+    # ------------------------------------------------------------ state
+    @property
+    def state(self) -> np.ndarray:
+        """The current state ``(n,)``: the last one stepped, set or read from the engine."""
+        return self._x
+
+    @state.setter
+    def state(self, x: ArrayLike) -> None:
+        x = np.array(x, dtype=float)
+        self._x = x
+        self._sim.write(self, x)
+
+    @property
+    def simulation(self) -> Engine:
+        """The engine holding the simulation state: the attached physics engine, else the :class:`StandaloneEngine`."""
+        return self._sim
+
+    @property
+    def engine(self) -> Engine | None:
+        """The attached physics engine, or None (standalone)."""
+        return self._engine
+
     # -------------------------------------------------------------- dynamics
-    def equations(self, bk: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
+    def equations(
+        self, bk: ArrayBackend, x: BackendArray, u: BackendArray, p: Mapping[str, BackendArray]
+    ) -> BackendArray:
         """Hook: the continuous dynamics ``xdot = f(x, u; p)``, written once against ``bk``.
 
         Args:
@@ -218,22 +244,33 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
         """
         raise NotImplementedError(f"{type(self).__name__} does not define its equations")
 
-    _f = equations
+    def check_model_domain(self, x: np.ndarray) -> None:
+        """Hook: raise :class:`~shinro_ctrl.errors.NonFiniteError` when the model is undefined at ``x (n,)``.
 
-    def dynamics(self, x: Any, u: Any, params: Mapping[str, Any] | None = None) -> np.ndarray:
-        """Evaluate the continuous dynamics numerically.
+        Called by :meth:`dynamics`, :meth:`linearize` and :meth:`step` before evaluating (e.g. the
+        quadrotor's Euler-angle singularity). Default: defined everywhere.
+        """
+
+    def dynamics(
+        self, state: ArrayLike, control: ArrayLike, params: Mapping[str, ArrayLike] | None = None
+    ) -> np.ndarray:
+        """Evaluate the continuous dynamics numerically, ``ẋ = f(x, u)``.
 
         Args:
-            x: State ``(n,)`` or a batch ``(N, n)``.
-            u: Input ``(m,)`` or ``(N, m)``; a scalar or ``(N,)`` when ``m == 1``.
+            state: State ``x`` ``(n,)`` or a batch ``(N, n)``.
+            control: Input ``u`` ``(m,)`` or ``(N, m)``; a scalar or ``(N,)`` when ``m == 1``.
             params: Optional per-instance overrides, name → scalar or ``(N,)``.
 
         Returns:
             ``xdot`` with the broadcast shape of ``x``: ``(n,)`` or ``(N, n)``.
+
+        Raises:
+            InvalidArgument: wrong shapes.
+            NonFiniteError: ``x`` or ``u`` holds NaN or inf, or ``ẋ`` overflows float64.
         """
         n, m = self.state_dim, self.input_dim
-        x = np.asarray(x, dtype=float)
-        u = np.asarray(u, dtype=float)
+        x = np.asarray(state, dtype=float)
+        u = np.asarray(control, dtype=float)
         if m == 1 and (u.ndim == 0 or (u.ndim == 1 and x.ndim == 2 and u.shape[0] != 1)):
             u = u[..., None]
         if x.shape[-1:] != (n,) or u.shape[-1:] != (m,):
@@ -241,16 +278,24 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
                 f"{type(self).__name__}.dynamics: expected x (..., {n}) and u (..., {m}) "
                 f"but found {x.shape} and {u.shape}"
             )
+        if not (np.isfinite(x).all() and np.isfinite(u).all()):
+            for what, v, names in (("x", x, self.state_names), ("u", u, self.input_names)):
+                if not np.isfinite(v).all():
+                    k = int(np.argwhere(~np.isfinite(v))[0][-1])
+                    raise NonFiniteError(
+                        f"{type(self).__name__}.dynamics: {what} holds NaN or inf (in {names[k]}): "
+                        f"{np.array2string(v, precision=4)}"
+                    )
         if x.ndim == 1 and u.ndim == 1 and not params:
+            self.check_model_domain(x)
             try:
                 xdot = self.equations(_SCALAR, x, u, self._params)
             except OverflowError:
                 xdot = None
             if xdot is None or not np.all(np.isfinite(xdot)):
-                if np.all(np.isfinite(x)) and np.all(np.isfinite(u)):
-                    raise NonFiniteError(
-                        f"{type(self).__name__}.dynamics overflows float64 at x = {x.tolist()}, u = {u.tolist()}"
-                    )
+                raise NonFiniteError(
+                    f"{type(self).__name__}.dynamics overflows float64 at x = {x.tolist()}, u = {u.tolist()}"
+                )
             return xdot
         try:
             np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
@@ -258,7 +303,9 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
             raise InvalidArgument(
                 f"{type(self).__name__}.dynamics: batch shapes of x {x.shape} and u {u.shape} do not match"
             ) from None
-        p: dict[str, Any] = dict(self._params)
+        for row in x.reshape(-1, n):
+            self.check_model_domain(row)
+        p: dict[str, BackendArray] = dict(self._params)
         if params:
             bad = unknown_keys(params, self.param_names)
             if bad:
@@ -291,15 +338,38 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
                 )
         return self._symbolic[params]
 
-    def _operating_point(self, x0: Any, u0: Any) -> tuple[np.ndarray, np.ndarray]:
+    def symbolic_step(self) -> cs.Function:
+        """The standalone step ``x⁺ = F(x, u, p)`` as a CasADi ``Function`` named ``"F"`` (without stops).
+
+        Default: semi-implicit Euler over ``position_indices`` / ``velocity_indices``, exactly
+        :meth:`integrate` before :meth:`clip_state`. A plant that overrides :meth:`integrate`
+        overrides this too (the tests compare the two at random points).
+        """
+        x = cs.SX.sym("x", self.state_dim)
+        u = cs.SX.sym("u", self.input_dim)
+        p = cs.SX.sym("p", len(self.param_names))
+        pmap = {k: p[i] for i, k in enumerate(self.param_names)}
+        xd = self.equations(_CASADI, x, u, pmap)
+        new = [x[i] for i in range(self.state_dim)]
+        if not self.position_indices:
+            new = [x[i] + self.dt * xd[i] for i in range(self.state_dim)]  # no mechanical split: explicit Euler
+        for q, v in zip(self.position_indices, self.velocity_indices, strict=True):
+            new[v] = x[v] + self.dt * xd[v]
+            new[q] = x[q] + self.dt * new[v]
+        return cs.Function("F", [x, u, p], [cs.vertcat(*new)], ["x", "u", "p"], ["x_next"])
+
+    def operating_point(self, x0: ArrayLike | None, u0: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(x0 (n,), u0 (m,))`` validated; a None side takes :meth:`equilibrium`'s."""
         if x0 is None or u0 is None:
             xe, ue = self.equilibrium()
             x0 = xe if x0 is None else x0
             u0 = ue if u0 is None else u0
         return as_vector("x0", x0, self.state_dim), as_vector("u0", u0, self.input_dim)
 
+    _operating_point = operating_point
+
     def linearize(
-        self, x0: Any = None, u0: Any = None, *, method: str = "exact", eps: float = 1e-6
+        self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
     ) -> tuple[np.ndarray, np.ndarray]:
         """Continuous-time Jacobians ``(A_c (n, n), B_c (n, m))`` at ``(x0, u0)``.
 
@@ -310,21 +380,15 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
                 (central finite differences of :meth:`dynamics`).
             eps: Finite-difference step (``"fd"`` only).
         """
-        x0, u0 = self._operating_point(x0, u0)
+        x0, u0 = self.operating_point(x0, u0)
+        self.check_model_domain(x0)
         if method == "exact":
             if self._exact is None:
                 self._exact = ExactJacobian(self.symbolic(params=True), self._pvec)
             A, B = self._exact(x0, u0)
         elif method == "fd":
             eps = check_positive("eps", eps)
-            z = np.concatenate([x0, u0])
-            if np.any(z + eps == z) or np.any(z - eps == z):
-                k = int(np.argmax(np.abs(z)))
-                raise InvalidArgument(
-                    f"{type(self).__name__}.linearize (fd): eps = {eps:g} is below float64's resolution at "
-                    f"|{(*self.state_names, *self.input_names)[k]}| = {abs(z[k]):g} (spacing "
-                    f"{np.spacing(abs(z[k])):g}); the finite differences would be zero: use a larger eps"
-                )
+            self._check_fd_step(x0, u0, eps)
             with np.errstate(all="ignore"):
                 A, B = fd_jacobians(lambda X, U: self.equations(_NUMPY, X, U, self._params), x0, u0, eps)
         else:
@@ -332,6 +396,31 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
         if not all_finite(A, B):
             where = f"at x0 = {x0.tolist()}, u0 = {u0.tolist()}" + (f" with eps = {eps:g}" if method == "fd" else "")
             self._check_finite_model(A, B, f"{type(self).__name__}.linearize ({method}) {where}")
+        return A, B
+
+    def _check_fd_step(self, x0: np.ndarray, u0: np.ndarray, eps: float) -> None:
+        z = np.concatenate([x0, u0])
+        if np.any(z + eps == z) or np.any(z - eps == z):
+            k = int(np.argmax(np.abs(z)))
+            raise InvalidArgument(
+                f"{type(self).__name__}.linearize (fd): eps = {eps:g} is below float64's resolution at "
+                f"|{(*self.state_names, *self.input_names)[k]}| = {abs(z[k]):g} (spacing "
+                f"{np.spacing(abs(z[k])):g}); the finite differences would be zero: use a larger eps"
+            )
+
+    def step_jacobians(self, x0: ArrayLike | None = None, u0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Exact Jacobians ``(A (n, n), B (n, m))`` of the standalone step :meth:`symbolic_step` at ``(x0, u0)``.
+
+        This is the ``discretization="step"`` model: the linearization of the discrete step the
+        standalone loop takes (stops not included: away from a limit they do not act).
+        """
+        x0, u0 = self.operating_point(x0, u0)
+        self.check_model_domain(x0)
+        if self._exact_step is None:
+            self._exact_step = ExactJacobian(self.symbolic_step(), self._pvec)
+        A, B = self._exact_step(x0, u0)
+        if not all_finite(A, B):
+            self._check_finite_model(A, B, f"{type(self).__name__} step model at x0 = {x0.tolist()}")
         return A, B
 
     def _check_finite_model(self, A: np.ndarray, B: np.ndarray, what: str) -> None:
@@ -349,24 +438,63 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
 
     def linear_model(
         self,
-        x0: Any = None,
-        u0: Any = None,
+        x0: ArrayLike | None = None,
+        u0: ArrayLike | None = None,
         *,
         method: str = "exact",
         discretization: str = "euler",
         eps: float = 1e-6,
     ) -> LinearModel:
-        """The discrete model at ``dt`` with its context (see :class:`LinearModel`)."""
-        x0, u0 = self._operating_point(x0, u0)
+        """The discrete model at ``dt`` with its context (see :class:`LinearModel`).
+
+        ``discretization``: ``"euler"``, ``"zoh"``, ``"rk4"`` of the continuous Jacobians, or
+        ``"step"``, the exact Jacobians of the standalone step (:meth:`step_jacobians`; with
+        ``method="fd"``, central differences of :meth:`integrate`).
+        """
+        x0, u0 = self.operating_point(x0, u0)
         A_c, B_c = self.linearize(x0, u0, method=method, eps=eps)
-        with np.errstate(all="ignore"):
-            A, B = discretize(A_c, B_c, self.dt, discretization)
+        if discretization not in MODEL_DISCRETIZATIONS:
+            raise InvalidArgument(
+                f"unknown discretization {discretization!r}; valid: {', '.join(MODEL_DISCRETIZATIONS)}"
+            )
+        if discretization == "step":
+            if method == "exact":
+                A, B = self.step_jacobians(x0, u0)
+            else:
+                A, B = fd_jacobians(self._integrate_batch, x0, u0, eps)
+        else:
+            with np.errstate(all="ignore"):
+                A, B = discretize(A_c, B_c, self.dt, discretization)
         if not all_finite(A, B):
             self._check_finite_model(A, B, f"{type(self).__name__} {discretization} model at dt = {self.dt:g} s")
         names = (tuple(self.state_names), tuple(self.input_names))
         return LinearModel(A, B, self.dt, x0, u0, A_c, B_c, method, discretization, *names)
 
-    def statespace(self, x0: Any = None, u0: Any = None, *, discrete: bool = True, measured: Any = None) -> Any:
+    def discrete_offset(self, model: LinearModel) -> np.ndarray:
+        """The affine term ``c (n,)`` of ``model``: ``x⁺ ≈ x0 + A (x − x0) + B (u − u0) + c``.
+
+        Zero at an equilibrium. For ``discretization="step"`` it is the standalone step's own
+        ``F(x0, u0) − x0``; otherwise the drift ``f(x0, u0)`` discretized as ``B`` is.
+        """
+        if model.discretization == "step":
+            F = self.symbolic_step()
+            return np.asarray(F(model.x0, model.u0, self._pvec), dtype=float).reshape(-1) - model.x0
+        drift = np.asarray(self.dynamics(model.x0, model.u0), dtype=float).reshape(-1, 1)
+        return discretize(model.A_c, drift, model.dt, model.discretization)[1][:, 0]
+
+    def _integrate_batch(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """:meth:`integrate` row by row on ``(N, n)``, ``(N, m)`` (the finite-difference reference of the step)."""
+        X, U = np.broadcast_arrays(np.atleast_2d(X), np.atleast_2d(U)[..., : self.input_dim])
+        return np.array([self.integrate(x.copy(), u.copy()) for x, u in zip(X, U, strict=True)])
+
+    def statespace(
+        self,
+        x0: ArrayLike | None = None,
+        u0: ArrayLike | None = None,
+        *,
+        discrete: bool = True,
+        measured: Sequence[str] | None = None,
+    ) -> object:
         """The linear model at ``(x0, u0)`` as a named python-control ``StateSpace`` (Euler at ``dt``).
 
         Args:
@@ -389,14 +517,32 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
         )
 
     def get_model(
-        self, x0: Any = None, u0: Any = None, *, method: str = "exact", discretization: str = "euler"
+        self,
+        x0: ArrayLike | None = None,
+        u0: ArrayLike | None = None,
+        eps: float = 1e-6,
+        *,
+        method: str = "exact",
+        discretization: str = "euler",
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Discrete ``(A (n, n), B (n, m))`` at ``dt`` around ``(x0, u0)``."""
-        lm = self.linear_model(x0, u0, method=method, discretization=discretization)
+        """Discrete ``(A (n, n), B (n, m))`` at ``dt`` around ``(x0, u0)`` (the seed's signature).
+
+        The seed's default model: the continuous Jacobians at ``(x0, u0)`` (default
+        :meth:`equilibrium`), Euler-discretized, ``A = I + dt ∂f/∂x``, ``B = dt ∂f/∂u``.
+
+        Args:
+            x0: Operating state ``(n,)``.
+            u0: Operating input ``(m,)``.
+            eps: Finite-difference step, used with ``method="fd"`` (the seed's central
+                differences); the default ``"exact"`` Jacobians need none.
+            method: ``"exact"`` or ``"fd"``.
+            discretization: ``"euler"`` (default), ``"zoh"``, ``"rk4"`` or ``"step"``.
+        """
+        lm = self.linear_model(x0, u0, method=method, discretization=discretization, eps=eps)
         return lm.A, lm.B
 
     # ------------------------------------------------------------------ step
-    def _input(self, u: Any) -> np.ndarray:
+    def _input(self, u: ArrayLike) -> np.ndarray:
         """``u`` validated as a finite ``(m,)`` array."""
         return as_vector(f"{type(self).__name__} input u", u, self.input_dim)
 
@@ -409,15 +555,15 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
         dt = self.dt
         xd = self.equations(_LIST, x, u, self._params)
         new = x.tolist()
+        if not self.position_indices:  # no mechanical split: explicit Euler
+            new = [a + dt * b for a, b in zip(new, xd, strict=True)]
         for q, v in zip(self.position_indices, self.velocity_indices, strict=True):
             new[v] += dt * xd[v]
             new[q] += dt * new[v]
         return self.clip_state(np.array(new))
 
-    _integrate = integrate
-
     def clip_state(self, x: np.ndarray) -> np.ndarray:
-        """Hook: documented state clipping (state bounds, track limits); identity by default.
+        """Hook: the plant's documented state limits as inelastic stops (:meth:`stop`); identity by default.
 
         Args:
             x: One state ``(n,)`` or a batch ``(N, n)`` (may be modified in place).
@@ -427,13 +573,49 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
         """
         return x
 
-    _clip_state = clip_state
+    def stop(self, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Inelastic stops at ``lo``/``hi`` ``(n,)`` (±inf: none), in place on ``x (n,)`` or ``(N, n)``.
 
-    def step(self, u: Any) -> np.ndarray:
+        A position (``position_indices``) outside its range is put on the limit and its velocity
+        (the paired ``velocity_indices`` entry) is zeroed if it points further out: the stop
+        absorbs the motion into it, as MuJoCo's joint limit does. Any other state outside its
+        range is clipped. For one state the depth of the contact (how far the step went past a
+        limit, in the state's units; 0 without contact) is kept for :meth:`limit_violation`.
+        """
+        below, above = x < lo, x > hi
+        if not (below.any() or above.any()):
+            if x.ndim == 1:
+                self._contact = 0.0
+            return x
+        if x.ndim == 1:
+            self._contact = float(np.max(np.where(below, lo - x, 0.0) + np.where(above, x - hi, 0.0)))
+        for q, v in zip(self.position_indices, self.velocity_indices, strict=True):
+            into = (below[..., q] & (x[..., v] < 0.0)) | (above[..., q] & (x[..., v] > 0.0))
+            if x.ndim == 1:
+                if into:
+                    x[v] = 0.0
+            else:
+                x[into, v] = 0.0
+        np.clip(x, lo, hi, out=x)
+        return x
+
+    def limit_violation(self) -> float:
+        """Depth of the last step's contact with a state limit (0 when none): counted by ``constraint_violations``.
+
+        Standalone: how far the step went past a stop of :meth:`clip_state` before it was stopped.
+        MuJoCo: the penetration of an active joint-limit constraint on a joint of
+        ``mjcf_patch().joint_range`` (the same stops), read from the engine.
+        """
+        if self._engine is None:
+            return self._contact
+        joints = self._limited_joints
+        return self._engine.joint_limit_depth(joints) if joints else 0.0
+
+    def step(self, u: ArrayLike) -> np.ndarray:
         """Advance one step of ``dt`` with input ``u`` held.
 
-        Standalone: semi-implicit Euler on :meth:`dynamics`. With an engine
-        attached: write the actuators, step the engine, read the state back.
+        The plant's engine (:attr:`simulation`) takes the input, steps and is read back:
+        semi-implicit Euler (:meth:`integrate`) standalone, or one physics-engine step.
 
         Args:
             u: Input ``(m,)`` (a scalar when ``m == 1``).
@@ -443,34 +625,35 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
 
         Raises:
             ValueError: ``u`` has the wrong shape.
-            NonFiniteError: ``u`` holds NaN or inf.
+            NonFiniteError: ``u`` holds NaN or inf, or the state is where the model is undefined.
             SimulationDiverged: the state became non-finite.
+            ConcurrentUse: another thread is stepping this plant.
         """
         u = self._input(u)
-        if self._engine is not None:
-            self.engine_apply(self._engine, u)
-            self._engine.step()
-            self.state = self.engine_read(self._engine)
-        else:
-            try:
-                x = self.integrate(self.state, u)
-            except (OverflowError, ZeroDivisionError):  # Python-float arithmetic of a diverging state
-                x = np.full(self.state_dim, np.nan)
-            if not math.isfinite(sum(x.tolist())) and not np.all(np.isfinite(x)):
-                raise SimulationDiverged(
-                    f"{type(self).__name__} state became non-finite after a step from "
-                    f"{np.array2string(self.state, precision=4)} with u = {np.array2string(u, precision=4)}"
-                )
-            self.state = x
-        return self.state.copy()
+        lock = self._step_lock
+        if not lock.acquire(False):
+            self._concurrent()
+        try:
+            self._x = x = self._sim.advance(self, u)  # apply, step, read
+        finally:
+            lock.release()
+        return x.copy()
+
+    def _concurrent(self) -> None:
+        """Raise :class:`ConcurrentUse` for a step entered while another thread steps this plant.
+
+        A subclass with its own ``step`` guards it the same way: ``if not self._step_lock.acquire(False):
+        self._concurrent()`` then release in ``finally``.
+        """
+        raise ConcurrentUse(f"{type(self).__name__}.step entered from two threads; use one plant per thread")
 
     def get_state(self) -> np.ndarray:
         """The current state ``(n,)`` (read from the engine when one is attached)."""
         if self._engine is not None:
-            self.state = self.engine_read(self._engine)
-        return self.state.copy()
+            self._x = self._sim.read(self)
+        return self._x.copy()
 
-    def set_state(self, x: Any) -> None:
+    def set_state(self, x: ArrayLike) -> None:
         """Set the state ``(n,)`` (and the engine's, when one is attached).
 
         Raises:
@@ -488,9 +671,263 @@ class Plant(EngineModeMixin, StateIOMixin, ConfigMixin):
                 f"limits [{lo[i]:g}, {hi[i]:g}]"
             )
         self.state = x.copy()
-        if self._engine is not None:
-            self.engine_write(self._engine, x)
+
+    # ------------------------------------------------------- limits and outputs
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """Declared limits ``(lo (n,), hi (n,))`` of the state (±inf where none), e.g. ``state_bounds``."""
+        return np.full(self.state_dim, -np.inf), np.full(self.state_dim, np.inf)
+
+    def body_force_map(self, body: str) -> np.ndarray:
+        """``G (n, 3)``: how a world-frame force ``F`` [N] at ``body``'s centre of mass changes ``ẋ`` (``ẋ += G F``).
+
+        Used by the :class:`StandaloneEngine` for body-force disturbances (MuJoCo
+        applies the force itself). Plants that accept such forces override this;
+        the base accepts none.
+
+        Raises:
+            InvalidArgument: the plant takes no force on ``body``.
+        """
+        raise InvalidArgument(
+            f"{type(self).__name__} takes no body-force disturbance on '{body}'; disturb an input "
+            f"({', '.join(self.input_names)}) instead"
+        )
+
+    def output_matrix(self, measured: Sequence[str | int] | str | int | None = None) -> np.ndarray:
+        """The measurement matrix ``C (p, n)`` of the measured states: ``y = C x``.
+
+        Args:
+            measured: State names (or indices) in the order of ``y``; None
+                means every state (``C = I``).
+
+        Returns:
+            The rows of the identity at the measured states, ``(p, n)``.
+
+        Raises:
+            InvalidArgument: an unknown name (listing the valid ones), an index
+                out of range, a repeated state, or an empty list.
+        """
+        names = self.state_names
+        if measured is None:
+            return np.eye(self.state_dim)
+        if isinstance(measured, str) or not hasattr(measured, "__iter__"):
+            measured = [measured]
+        idx: list[int] = []
+        for s in measured:
+            if isinstance(s, str):
+                if s not in names:
+                    hint = did_you_mean(s, names)
+                    raise InvalidArgument(
+                        f"measured: unknown state '{s}' of {type(self).__name__}"
+                        f"{hint if 'did you mean' in hint else ''} (valid: {', '.join(names)})"
+                    )
+                i = names.index(s)
+            elif isinstance(s, int | np.integer) and not isinstance(s, bool) and 0 <= s < self.state_dim:
+                i = int(s)
+            else:
+                raise InvalidArgument(f"measured: expected state names ({', '.join(names)}) but found {s!r}")
+            if i in idx:
+                raise InvalidArgument(f"measured: state '{names[i]}' is listed twice")
+            idx.append(i)
+        if not idx:
+            raise InvalidArgument(f"measured: expected at least one state name ({', '.join(names)}) but found []")
+        return np.eye(self.state_dim)[idx]
+
+    # ------------------------------------------------------------ engine mode
+    def physics_engine(self, engine: Engine | None) -> None:
+        """Attach a physics engine (or detach with None).
+
+        On attach the plant's state is read from the engine and the engine holds the simulation
+        state; on detach the plant's standalone engine takes over from the last state.
+        """
+        if engine is not None and self.asset is None:
+            raise InvalidArgument(f"{type(self).__name__} has no MuJoCo model to attach an engine to")
+        self._check_engine(engine)
+        if engine is None:
+            self._engine = None
+            self._sim = self._standalone
+            self._standalone.write(self, self._x)
+            return
+        self._engine = engine
+        self._sim = engine
+        try:
+            self._limited_joints = list(self.mjcf_patch().joint_range)
+        except (NotImplementedError, InvalidArgument):
+            self._limited_joints = []
+        self._x = engine.read(self)
+
+    def _check_engine(self, engine: Engine | None) -> None:
+        """Raise InvalidArgument unless ``engine`` is None or behaves like a MujocoEngine."""
+        needed = (
+            "step",
+            "forward",
+            "get_joint_qpos",
+            "get_joint_vel",
+            "set_joint_ctrl",
+            "read",
+            "write",
+            "apply",
+            "advance",
+        )
+        if engine is not None and not all(callable(getattr(engine, a, None)) for a in needed):
+            raise InvalidArgument(
+                f"{type(self).__name__}.physics_engine expects a MujocoEngine (or None), got {type(engine).__name__}"
+            )
+        if engine is not None and getattr(engine, "model", None) is not None:
+            self._check_engine_matches(engine)
+
+    def _check_engine_matches(self, engine: Engine) -> None:
+        """Raise InvalidArgument when ``engine`` was built for another plant (type, ``dt`` or a parameter).
+
+        The engine's compiled model is compared with what :meth:`mjcf_patch` would
+        write into it (see ``MujocoEngine.for_plant``): step, gravity, body masses
+        and positions, joint damping and ranges; a body or joint the patch names but the
+        model lacks means another plant type. The first mismatch is named.
+        """
+        try:
+            patch = self.mjcf_patch()
+        except NotImplementedError:
+            return
+        m, name = engine.model, type(self).__name__
+        rel = 1e-6
+        built_for = getattr(engine, "plant_type", None)
+        if isinstance(built_for, str) and built_for != name:
+            raise InvalidArgument(
+                f"{name}.physics_engine: the engine was built for another plant type: {built_for}, not {name}; "
+                "build it with MujocoEngine.for_plant(plant)"
+            )
+
+        def differs(a: ArrayLike, b: ArrayLike) -> bool:
+            a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+            return a.shape != b.shape or bool(np.any(np.abs(a - b) > rel * np.maximum(1.0, np.abs(b))))
+
+        def mismatch(what: str, engine_value: object, plant_value: object) -> InvalidArgument:
+            return InvalidArgument(
+                f"{name}.physics_engine: the engine was built for another plant: {what} is {engine_value} in the "
+                f"engine but {plant_value} in the plant; build it with MujocoEngine.for_plant(plant)"
+            )
+
+        engine_dt = float(getattr(engine, "dt", m.opt.timestep))
+        if differs(engine_dt, self.dt):
+            raise mismatch("dt", f"{engine_dt:g} s", f"{self.dt:g} s")
+        if differs(m.opt.gravity, patch.gravity):
+            raise mismatch("gravity", list(np.round(m.opt.gravity, 6)), list(patch.gravity))
+        for kind, names in (
+            ("body", [*patch.inertials, *patch.body_pos, *patch.body_inertia]),
+            ("joint", [*patch.joint_damping, *patch.joint_range]),
+        ):
+            for item in names:
+                try:
+                    getattr(m, kind)(item)
+                except KeyError:
+                    raise InvalidArgument(
+                        f"{name}.physics_engine: the engine was built for another plant type: its model "
+                        f"({engine.source}) has no {kind} '{item}', which {name} needs"
+                    ) from None
+        for body, (mass, ipos) in patch.inertials.items():
+            if differs(m.body(body).mass[0], mass):
+                raise mismatch(f"the mass of body '{body}'", f"{m.body(body).mass[0]:g} kg", f"{mass:g} kg")
+            if differs(m.body(body).ipos, ipos):
+                raise mismatch(f"the centre of mass of body '{body}'", list(m.body(body).ipos), list(ipos))
+        for body, pos in patch.body_pos.items():
+            if differs(m.body(body).pos, pos):
+                raise mismatch(f"the position of body '{body}'", list(m.body(body).pos), list(pos))
+        for joint, damping in patch.joint_damping.items():
+            dof = int(m.joint(joint).dofadr[0])
+            if differs(m.dof_damping[dof], damping):
+                raise mismatch(f"the damping of joint '{joint}'", f"{m.dof_damping[dof]:g}", f"{damping:g}")
+        for joint, rng in patch.joint_range.items():
+            j = m.joint(joint)
+            if not bool(m.jnt_limited[j.id]) or differs(j.range, rng):
+                have = list(j.range) if bool(m.jnt_limited[j.id]) else "unlimited"
+                raise mismatch(f"the range of joint '{joint}'", have, list(rng))
+
+    def mjcf_patch(self) -> MjcfPatch:
+        """Hook: how the plant's MJCF asset must be edited to match its parameters."""
+        raise NotImplementedError(f"{type(self).__name__} has no matched MuJoCo model")
+
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Hook: how the plant's state relates to MuJoCo's ``z = [qpos..., qvel...]``.
+
+        Returns:
+            ``(T (n, n), perm (n,))`` with ``x_plant = T @ z`` (``z`` in the
+            order of ``mjd_transitionFD``); ``perm[i]`` is the index in ``z``
+            of the coordinate state ``i`` is built on (same joint, same
+            derivative order), so ``T == eye(n)[perm]`` unless the plant uses
+            other coordinates. Inputs map 1:1 onto actuators (``ctrl = u``).
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no MuJoCo state map")
+
+    def engine_read(self, engine: Engine) -> np.ndarray:
+        """Hook: the plant state ``x (n,)`` read from the engine's joints (engine mode)."""
+        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
+
+    def engine_write(self, engine: Engine, x: np.ndarray) -> None:
+        """Hook: write the plant state ``x (n,)`` into the engine's joints (engine mode)."""
+        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
+
+    def engine_apply(self, engine: Engine, u: np.ndarray) -> None:
+        """Hook: apply the input ``u (m,)`` to the engine's actuators (engine mode)."""
+        raise NotImplementedError(f"{type(self).__name__} has no engine mode")
+
+    # ------------------------------------------------------------------ config
+    @classmethod
+    def config_keys(cls) -> tuple[str, ...]:
+        """The keys a ``[plant]`` table may hold: the constructor's arguments (not ``backend`` nor ``ik``)."""
+        sig = inspect.signature(cls.__init__)
+        return tuple(k for k in sig.parameters if k not in ("self", "backend", "ik"))
+
+    @classmethod
+    def from_config(
+        cls,
+        config: Mapping[str, object] | object,
+        backend: ArrayBackend | None = None,
+        *,
+        engine: Engine | None = None,
+        **extra: object,
+    ) -> Plant:
+        """Build the plant from a mapping or dataclass of constructor arguments (the seed's signature).
+
+        Args:
+            config: Constructor keyword arguments (a ``type`` key is ignored). A mapping may
+                also carry a runtime-injected ``engine`` (the seed's contract), attached after
+                construction.
+            backend: The seed's array backend; accepted, numbers are numpy arrays.
+            engine: Optional engine to attach.
+            extra: Construction-time collaborators a subclass takes (the arm's ``ik``).
+
+        Raises:
+            ConfigError: an unknown key (with the closest valid one) or an
+                invalid value (naming the key).
+        """
+        kwargs, runtime = split_config(config)
+        engine = runtime.get("engine", engine)
+        allowed = cls.config_keys()
+        bad = unknown_keys(kwargs, allowed)
+        if bad:
+            raise ConfigError(f"[plant] {cls.__name__}: unknown key '{bad[0]}'{did_you_mean(bad[0], allowed)}")
+        try:
+            plant = cls(**kwargs, **extra)
+        except (TypeError, ValueError, FileNotFoundError) as exc:  # a missing model file is a bad [plant] value
+            raise ConfigError(f"[plant] {cls.__name__}: {exc}") from exc
+        if engine is not None:
+            plant.physics_engine(engine)
+        return plant
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v:g}" for k, v in self._params.items())
         return f"{type(self).__name__}({args}, dt={self.dt:g})"
+
+
+def split_config(config: Mapping[str, object] | object) -> tuple[dict[str, object], dict[str, object]]:
+    """``(constructor kwargs, runtime keys)`` of a ``[plant]`` mapping or dataclass (``type`` dropped).
+
+    The runtime keys (:data:`RUNTIME_KEYS`: ``engine``, ``joint_groups``) are the seed's runtime-injected
+    objects, never constructor arguments.
+    """
+    if is_dataclass(config) and not isinstance(config, type):
+        config = asdict(config)
+    if not isinstance(config, Mapping):
+        raise ConfigError(f"[plant] expected a table of constructor arguments, got {type(config).__name__}")
+    kwargs = {k: v for k, v in config.items() if k != "type" and k not in RUNTIME_KEYS}
+    runtime = {k: config[k] for k in RUNTIME_KEYS if k in config}
+    return kwargs, runtime

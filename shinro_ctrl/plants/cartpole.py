@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from shinro_ctrl.backend import ArrayBackend
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = ["CartPole"]
 
@@ -45,9 +50,13 @@ class CartPole(Plant):
         damping: Hinge damping ``b`` [N m s/rad], >= 0.
         gravity: ``g`` [m/s²], >= 0.
         dt: Step [s], > 0.
-        track_limits: Optional ``(min, max)`` cart position [m]; the
-            standalone cart position is clipped to it after each step.
-        backend: Array backend kept for API compatibility (numpy).
+        track_limits: Optional ``(min, max)`` cart position [m], ``min < max``:
+            inelastic stops at the ends of the track. Standalone, a step that
+            carries the cart past an end puts it on the end and zeroes its
+            velocity into the stop (:meth:`Plant.stop`); in MuJoCo the slider
+            gets the same ``range`` (``limited="true"``). Every step in contact
+            with a stop counts in ``constraint_violations`` (:meth:`limit_violation`).
+        backend: The seed's array backend keyword; accepted, not used (numpy).
     """
 
     aliases = ("cartpole",)
@@ -66,8 +75,8 @@ class CartPole(Plant):
         damping: float = 0.0,
         gravity: float = 9.81,
         dt: float = 0.01,
-        track_limits: Any = None,
-        backend: Any = None,
+        track_limits: tuple[float, float] | None = None,
+        backend: ArrayBackend | None = None,
     ):
         self.M = check_positive("cart_mass", cart_mass)
         self.m = check_positive("pole_mass", pole_mass)
@@ -75,6 +84,9 @@ class CartPole(Plant):
         self.b = check_nonnegative("damping", damping)
         self.g = check_nonnegative("gravity", gravity)
         self.track_limits = _track_limits(track_limits)
+        if self.track_limits is not None:
+            self._track_lo = np.array([self.track_limits[0], -np.inf, -np.inf, -np.inf])
+            self._track_hi = np.array([self.track_limits[1], np.inf, np.inf, np.inf])
         self._init(
             dt=dt,
             params={
@@ -100,13 +112,19 @@ class CartPole(Plant):
         return bk.stack([x_dot, x_ddot, theta_dot, theta_ddot])
 
     def clip_state(self, x: np.ndarray) -> np.ndarray:
-        """Clip the cart position to ``track_limits`` (one state ``(4,)`` or a batch ``(N, 4)``, in place)."""
-        if self.track_limits is not None:
-            lo, hi = self.track_limits
-            if x.ndim == 1:
-                x[0] = min(max(x[0], lo), hi)
-            else:
-                x[:, 0] = np.minimum(np.maximum(x[:, 0], lo), hi)
+        """The track's ends as inelastic stops (one state ``(4,)`` or a batch ``(N, 4)``, in place).
+
+        The cart position is put on the end it passed and its velocity into the end is zeroed
+        (see :meth:`Plant.stop`); the stop's impulse, which acts on the cart alone, changes the
+        pole's rate by ``Δθ̇ = −(cos θ / l) Δẋ`` (the mass matrix's coupling), as in MuJoCo.
+        """
+        if self.track_limits is None:
+            return x
+        v_before = x[..., 1].copy()
+        x = self.stop(x, self._track_lo, self._track_hi)
+        # The stop's impulse acts on the cart only: M Δv = [J, 0] gives the pole Δθ̇ = −(cos θ / l) Δẋ.
+        dv = x[..., 1] - v_before
+        x[..., 3] -= np.cos(x[..., 2]) / self.l * dv
         return x
 
     def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -124,9 +142,10 @@ class CartPole(Plant):
             inertials={"cart": (self.M, (0.0, 0.0, 0.0)), "pole": (self.m, (0.0, 0.0, self.l))},
             joint_damping={"hinge": self.b},
             geom_fromto={"pole_rod": (0.0, 0.0, 0.0, 0.0, 0.0, self.l)},
+            joint_range={} if self.track_limits is None else {"slider": self.track_limits},
         )
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [slider, hinge, slider_dot, hinge_dot]``.
 
         See :meth:`Plant.engine_state_map`.
@@ -155,13 +174,19 @@ class CartPole(Plant):
         engine.set_joint_ctrl("slider", u[0])
 
 
-def _track_limits(value: Any) -> tuple[float, float] | None:
+def _track_limits(value: object) -> tuple[float, float] | None:
+    """``track_limits`` as a ``(min, max)`` pair of finite numbers with ``min < max``, or None."""
     if value is None:
         return None
     try:
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
         raise InvalidArgument(f"track_limits must be a (min, max) pair, got {value!r}") from None
-    if not lo <= hi:
-        raise InvalidArgument(f"track_limits: min must be <= max, got ({lo}, {hi})")
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise InvalidArgument(f"track_limits must be finite, got ({lo}, {hi}); omit it for an endless track")
+    if not lo < hi:
+        raise InvalidArgument(
+            f"track_limits: min must be < max (a track of zero or negative length leaves the cart no room), "
+            f"got ({lo:g}, {hi:g})"
+        )
     return lo, hi

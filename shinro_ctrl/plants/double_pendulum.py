@@ -3,19 +3,23 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from shinro_ctrl.plants._bounds import StateBoundsMixin
+from shinro_ctrl.backend import ArrayBackend
+from shinro_ctrl.plants._bounds import StateBounds
 from shinro_ctrl.plants._bounds import state_bounds as _parse_bounds
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
 __all__ = ["DoublePendulum"]
 
 
-class DoublePendulum(StateBoundsMixin, Plant):
+class DoublePendulum(Plant):
     r"""Double pendulum in absolute rod angles, driven by hinge motors.
 
     State ``[theta_1, theta_2, omega_1, omega_2]``: each rod's angle from the
@@ -43,7 +47,10 @@ class DoublePendulum(StateBoundsMixin, Plant):
         length_top, length_bottom: Rod lengths [m], > 0.
         dt: Step [s], > 0.
         g: Gravitational acceleration [m/s²], >= 0.
-        state_bounds: Optional ``(min (4,), max (4,))`` or ``{min, max}``.
+        state_bounds: Optional ``(min (4,), max (4,))`` or ``{min, max}``, ``min < max``:
+            inelastic stops in the standalone loop (:meth:`Plant.stop`), counted in
+            ``constraint_violations``. MuJoCo's second hinge measures the relative angle, so the
+            absolute-angle bounds have no MuJoCo joint range: they act standalone only.
         backend: Array backend kept for API compatibility (numpy).
     """
 
@@ -63,8 +70,8 @@ class DoublePendulum(StateBoundsMixin, Plant):
         length_bottom: float = 0.5,
         dt: float = 0.01,
         g: float = 9.81,
-        state_bounds: Any = None,
-        backend: Any = None,
+        state_bounds: StateBounds | None = None,
+        backend: ArrayBackend | None = None,
     ):
         self.m1 = check_positive("mass_top", mass_top)
         self.m2 = check_positive("mass_bottom", mass_bottom)
@@ -104,7 +111,7 @@ class DoublePendulum(StateBoundsMixin, Plant):
         a2 = (M11 * r2 - M12 * r1) / det
         return bk.stack([w1, w2, a1, a2])
 
-    def energy(self, x: Any) -> Any:
+    def energy(self, x: ArrayLike) -> float | np.ndarray:
         """Total mechanical energy [J] of state(s) ``x`` ``(n,)`` or ``(N, n)``; zero potential at the hinge."""
         x = np.asarray(x, dtype=float)
         th1, th2, w1, w2 = (x[..., i] for i in range(4))
@@ -113,6 +120,18 @@ class DoublePendulum(StateBoundsMixin, Plant):
         kin = kin + m2 * l1 * l2 * w1 * w2 * np.cos(th1 - th2)
         pot = -(m1 + m2) * g * l1 * np.cos(th1) - m2 * g * l2 * np.cos(th2)
         return kin + pot
+
+    def clip_state(self, x: np.ndarray) -> np.ndarray:
+        """``state_bounds`` as inelastic stops (see :meth:`Plant.stop`): ``(n,)`` or ``(N, n)``, in place."""
+        if self.state_bounds is None:
+            return x
+        return self.stop(x, *self.state_bounds)
+
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """``state_bounds`` (±inf without)."""
+        if self.state_bounds is None:
+            return super().state_limits()
+        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
 
     # engine mode: hinges "hinge_1" (absolute) and "hinge_2" (relative), motors "torque_1"/"torque_2"
     def mjcf_patch(self) -> MjcfPatch:
@@ -128,7 +147,7 @@ class DoublePendulum(StateBoundsMixin, Plant):
             },
         )
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [hinge_1, hinge_2, hinge_1_dot, hinge_2_dot]``.
 
         See :meth:`Plant.engine_state_map`.

@@ -3,14 +3,20 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from shinro_ctrl.backend import ArrayBackend
 from shinro_ctrl.errors import InvalidArgument, SimulationDiverged
-from shinro_ctrl.plants.base import MjcfPatch, Plant
+from shinro_ctrl.plants.base import MjcfPatch, Plant, split_config
 from shinro_ctrl.validation import as_vector, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from shinro_ctrl.plants.standalone import Engine
 
 __all__ = ["HolonomicMobileRobot"]
 
@@ -87,7 +93,7 @@ class HolonomicMobileRobot(Plant):
         radius_wheels: float = 0.04,
         dt: float = 0.01,
         drive_joints: Sequence[str] | None = None,
-        backend: Any = None,
+        backend: ArrayBackend | None = None,
     ):
         if isinstance(num_wheels, bool) or not isinstance(num_wheels, (int, np.integer)) or num_wheels < 3:
             raise InvalidArgument(f"num_wheels must be an integer >= 3 (a holonomic base), got {num_wheels!r}")
@@ -140,7 +146,7 @@ class HolonomicMobileRobot(Plant):
         c, s = math.cos(theta), math.sin(theta)
         return np.array([c * u[0] + s * u[1], -s * u[0] + c * u[1], u[2]])
 
-    def wheel_speeds(self, u_world: Any, theta: float | None = None) -> np.ndarray:
+    def wheel_speeds(self, u_world: ArrayLike, theta: float | None = None) -> np.ndarray:
         """Wheel speeds ``(n,)`` [rad/s] for a world-frame command at heading ``theta``.
 
         Args:
@@ -154,7 +160,7 @@ class HolonomicMobileRobot(Plant):
         th = float(self.state[2]) if theta is None else float(theta)
         return self.A_kinematics @ self._world_to_body(u, th) / self.r
 
-    def body_twist(self, wheel_speeds: Any) -> np.ndarray:
+    def body_twist(self, wheel_speeds: ArrayLike) -> np.ndarray:
         """Least-squares body twist ``[v_bx, v_by, ω]`` ``(3,)`` of wheel speeds ``(n,)`` [rad/s].
 
         ``r A_pinv_kin ω_wheels``: the exact inverse of :meth:`wheel_speeds`
@@ -163,7 +169,7 @@ class HolonomicMobileRobot(Plant):
         return self.r * (self.A_pinv_kin @ as_vector("wheel_speeds", wheel_speeds, self.n))
 
     # ------------------------------------------------------------------ step
-    def step(self, u_world: Any) -> np.ndarray:
+    def step(self, u_world: ArrayLike) -> np.ndarray:
         """Advance one step with the world-frame command held; return the wheel speeds.
 
         The command is rotated into the body frame with the heading before the
@@ -188,16 +194,25 @@ class HolonomicMobileRobot(Plant):
             NonFiniteError: ``u_world`` holds NaN or inf.
         """
         u = self._input(u_world)
+        if not self._step_lock.acquire(False):
+            self._concurrent()
+        try:
+            return self._step(u)
+        finally:
+            self._step_lock.release()
+
+    def _step(self, u: np.ndarray) -> np.ndarray:
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below, not warned about
-            speeds = self.A_kinematics @ self._world_to_body(u, float(self.state[2])) / self.r
-            new = self.integrate(self.state, u)
-        if not np.isfinite(new).all():
-            raise SimulationDiverged(f"HolonomicMobileRobot pose became non-finite: {new}")
+            speeds = self.A_kinematics @ self._world_to_body(u, float(self._x[2])) / self.r
         if not np.isfinite(speeds).all():
             raise SimulationDiverged(
                 f"HolonomicMobileRobot wheel speeds overflowed for the command {u} (wheel radius {self.r:g} m)"
             )
-        self.state = new
+        pose = self._standalone  # the pose is the plant's own in both modes
+        with np.errstate(over="ignore", invalid="ignore"):
+            pose.apply(self, u)
+            pose.step()
+        self._x = pose.read(self)
         if self._engine is not None:
             self._pending_wheel_delta = speeds * self.dt
             self._engine.step()
@@ -212,19 +227,23 @@ class HolonomicMobileRobot(Plant):
         """The pose ``[x, y, theta]`` ``(3,)``; the plant's pose is the source of truth in both modes."""
         return self.state.copy()
 
-    def set_state(self, x: Any) -> None:
+    def set_state(self, x: ArrayLike) -> None:
         """Set the pose ``(3,)`` (and pin the engine's base to it)."""
         self.state = as_vector("HolonomicMobileRobot state", x, 3).copy()
         if self._engine is not None:
             self._pin(self._engine)
 
+    def limit_violation(self) -> float:
+        """0: the base has no state limits."""
+        return 0.0
+
     # -------------------------------------------------------------- engine
-    def physics_engine(self, engine: Any) -> None:
+    def physics_engine(self, engine: Engine | None) -> None:
         """Attach a physics engine (or detach with None).
 
-        The plant keeps its pose and the engine's base is pinned to it; every
-        drive joint must exist in the engine's model (a ``KeyError`` from the
-        engine lists the valid names otherwise).
+        The plant keeps its pose (in its own standalone engine, :attr:`simulation`, in both
+        modes) and the engine's base is pinned to it; every drive joint must exist in the
+        engine's model (a ``KeyError`` from the engine lists the valid names otherwise).
         """
         self._pending_wheel_delta = None
         if engine is not None:
@@ -235,7 +254,7 @@ class HolonomicMobileRobot(Plant):
         else:
             self._engine = None
 
-    def post_engine_step(self, engine: Any) -> None:
+    def post_engine_step(self, engine: Engine) -> None:
         """Reconcile the engine's floating chassis with the plant's pose after ``engine.step()``.
 
         Writes ``(x, y, theta)`` into the free joint with the chassis upright
@@ -255,10 +274,29 @@ class HolonomicMobileRobot(Plant):
                 engine.set_joint_qpos(name, engine.get_joint_qpos(name) + delta)
         self._pin(engine)
 
-    def _pin(self, engine: Any) -> None:
+    def _pin(self, engine: Engine) -> None:
         if engine.has_free_joint:
-            x, y, theta = self.state.tolist()
+            x, y, theta = self._x.tolist()
             engine.pin_free_base(x, y, self.base_height, yaw=theta)
+
+    @classmethod
+    def from_config(
+        cls,
+        config: Mapping[str, object] | object,
+        backend: ArrayBackend | None = None,
+        *,
+        engine: Engine | None = None,
+        **extra: object,
+    ) -> HolonomicMobileRobot:
+        """:meth:`Plant.from_config`; without ``drive_joints``, a runtime ``joint_groups["drive_joints"]`` names them.
+
+        (The seed's contract: the config may carry the model's joint groups and an engine.)
+        """
+        kwargs, runtime = split_config(config)
+        groups = runtime.get("joint_groups") or {}
+        if kwargs.get("drive_joints") is None and isinstance(groups, Mapping) and groups.get("drive_joints"):
+            kwargs["drive_joints"] = list(groups["drive_joints"])
+        return super().from_config(kwargs, engine=runtime.get("engine", engine), **extra)
 
     def mjcf_patch(self) -> MjcfPatch:
         """Step and, for the shipped 3-wheel asset, wheel placement and size.
@@ -289,13 +327,15 @@ class HolonomicMobileRobot(Plant):
             geom_size=geom_size,
         )
 
-    def engine_read(self, engine: Any) -> np.ndarray:
-        return self.state.copy()
+    def engine_read(self, engine: Engine) -> np.ndarray:
+        """The plant's own pose ``(3,)`` (the engine's base follows it)."""
+        return self._x.copy()
 
-    def engine_write(self, engine: Any, x: np.ndarray) -> None:
+    def engine_write(self, engine: Engine, x: np.ndarray) -> None:
+        """Pin the engine's base to the plant's pose."""
         self._pin(engine)
 
-    def engine_apply(self, engine: Any, u: np.ndarray) -> None:
+    def engine_apply(self, engine: Engine, u: np.ndarray) -> None:
         """Nothing to actuate: the base is kinematic (see :meth:`step`)."""
 
     def __repr__(self) -> str:

@@ -2,19 +2,24 @@
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from shinro_ctrl.plants._bounds import StateBoundsMixin
+from shinro_ctrl.backend import ArrayBackend
+from shinro_ctrl.plants._bounds import StateBounds
 from shinro_ctrl.plants._bounds import state_bounds as _parse_bounds
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import check_nonnegative, check_positive
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
 __all__ = ["InvertedPendulum"]
 
 
-class InvertedPendulum(StateBoundsMixin, Plant):
+class InvertedPendulum(Plant):
     r"""Point-mass pendulum with the angle measured from upright.
 
     State ``[theta, theta_dot]`` (rad, rad/s), input ``[tau]`` (N m at the
@@ -34,8 +39,11 @@ class InvertedPendulum(StateBoundsMixin, Plant):
         damping: Hinge damping [N m s/rad], >= 0.
         gravity: Gravitational acceleration [m/s²], >= 0.
         dt: Step [s], > 0.
-        state_bounds: Optional ``(min (2,), max (2,))`` or ``{min, max}``;
-            the standalone state is clipped to it after each step.
+        state_bounds: Optional ``(min (2,), max (2,))`` or ``{min, max}``, ``min < max``:
+            inelastic stops (:meth:`Plant.stop`: an angle past a bound is put on it and its rate
+            into the bound zeroed; a rate past a bound is clipped). In MuJoCo the hinge gets the
+            angle range (the rate bounds act standalone only). Contacts count in
+            ``constraint_violations``.
         backend: Array backend kept for API compatibility (numpy).
     """
 
@@ -54,8 +62,8 @@ class InvertedPendulum(StateBoundsMixin, Plant):
         damping: float = 0.0,
         gravity: float = 9.81,
         dt: float = 0.01,
-        state_bounds: Any = None,
-        backend: Any = None,
+        state_bounds: StateBounds | None = None,
+        backend: ArrayBackend | None = None,
     ):
         self.m = check_positive("mass", mass)
         self.l = check_positive("length", length)
@@ -75,6 +83,18 @@ class InvertedPendulum(StateBoundsMixin, Plant):
         theta_ddot = p["gravity"] / p["length"] * bk.sin(theta) + (tau - p["damping"] * theta_dot) / ml2
         return bk.stack([theta_dot, theta_ddot])
 
+    def clip_state(self, x: np.ndarray) -> np.ndarray:
+        """``state_bounds`` as inelastic stops (see :meth:`Plant.stop`): ``(n,)`` or ``(N, n)``, in place."""
+        if self.state_bounds is None:
+            return x
+        return self.stop(x, *self.state_bounds)
+
+    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """``state_bounds`` (±inf without)."""
+        if self.state_bounds is None:
+            return super().state_limits()
+        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
+
     # engine mode: hinge "hinge", motor actuator "hinge"
     def mjcf_patch(self) -> MjcfPatch:
         return MjcfPatch(
@@ -84,9 +104,17 @@ class InvertedPendulum(StateBoundsMixin, Plant):
             inertials={"pole": (self.m, (0.0, 0.0, self.l))},
             joint_damping={"hinge": self.b},
             geom_fromto={"rod": (0.0, 0.0, 0.0, 0.0, 0.0, self.l)},
+            joint_range=self._hinge_range(),
         )
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def _hinge_range(self) -> dict[str, tuple[float, float]]:
+        """The angle bounds as the MuJoCo hinge's range (the same stop in both loops)."""
+        if self.state_bounds is None:
+            return {}
+        lo, hi = float(self.state_bounds[0][0]), float(self.state_bounds[1][0])
+        return {"hinge": (lo, hi)} if math.isfinite(lo) and math.isfinite(hi) else {}
+
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``x = T @ z`` with MuJoCo's ``z = [hinge, hinge_dot]``.
 
         See :meth:`Plant.engine_state_map`.

@@ -3,20 +3,30 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
+import casadi as cs
 import numpy as np
 
-from shinro_ctrl.backend import ScalarBackend
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.backend import ArrayBackend, CasadiBackend, ScalarBackend
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_nonnegative, check_positive
 
-__all__ = ["ROTOR_LAYOUTS", "Quadrotor", "quat_to_zyx_euler", "zyx_euler_to_quat"]
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+__all__ = ["GIMBAL_COS_MIN", "ROTOR_LAYOUTS", "Quadrotor", "quat_to_zyx_euler", "zyx_euler_to_quat"]
 
 _SCALAR = ScalarBackend()
+_CASADI = CasadiBackend()
 
 ROTOR_LAYOUTS = ("+", "x")
+
+#: The model is refused where ``|cos(pitch)| <`` this (pitch within about 0.057° of ±90°): the Euler-rate
+#: map ``W`` has ``1/cos(pitch)`` entries (> 1e3 there) and its Jacobian ``1/cos²`` entries (> 1e6), so the
+#: dynamics, their linearization and the standalone step lose every meaningful digit at the singularity.
+GIMBAL_COS_MIN = 1e-3
 
 
 def zyx_euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -45,7 +55,7 @@ def zyx_euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
     )
 
 
-def quat_to_zyx_euler(quat: Any) -> np.ndarray:
+def quat_to_zyx_euler(quat: ArrayLike) -> np.ndarray:
     r"""ZYX Euler angles ``[roll, pitch, yaw]`` of a quaternion ``(w, x, y, z)``.
 
     The inverse of :func:`zyx_euler_to_quat` on ``roll, yaw ∈ (−π, π]`` and
@@ -88,7 +98,10 @@ class Quadrotor(Plant):
         \dot{\mathbf v} = \frac{T}{m} R(\phi, \theta, \psi)\, e_z - g\, e_z, \qquad
         \dot\omega = I^{-1}\left(\tau - \omega \times I \omega\right).
 
-    The Euler-rate map is singular at ``|pitch| = π/2``; the model is meant for
+    The Euler-rate map is singular at ``|pitch| = π/2`` (gimbal lock): :meth:`dynamics`,
+    :meth:`linearize` (and every model built on it) and the standalone :meth:`step` raise
+    :class:`~shinro_ctrl.errors.NonFiniteError` where ``|cos(pitch)| <``
+    :data:`GIMBAL_COS_MIN` (1e-3, within about 0.057° of ±90°); the model is meant for
     flight well inside that. Hover (zero state, ``u0 = [m g, 0, 0, 0]``) is the
     default operating point. The standalone step is semi-implicit Euler
     (velocities first, then positions and angles from the new velocities),
@@ -138,13 +151,13 @@ class Quadrotor(Plant):
     def __init__(
         self,
         mass: float = 0.5,
-        inertia: Any = (3.0e-3, 3.0e-3, 5.0e-3),
+        inertia: ArrayLike = (3.0e-3, 3.0e-3, 5.0e-3),
         arm_length: float = 0.17,
         gravity: float = 9.81,
         dt: float = 0.01,
         rotor_layout: str = "x",
         yaw_moment_coefficient: float = 0.016,
-        backend: Any = None,
+        backend: ArrayBackend | None = None,
     ):
         self.m = check_positive("mass", mass)
         self.inertia = _inertia(inertia)
@@ -163,7 +176,7 @@ class Quadrotor(Plant):
         self._mixer = self._build_mixer()
         self._mixer_inv = np.linalg.inv(self._mixer) if self.yaw_moment_coefficient > 0.0 else None
 
-    def params(self) -> dict[str, Any]:
+    def params(self) -> dict[str, float | list[float]]:
         """The physical constructor arguments (a ``[plant]`` table can hold them as they are).
 
         ``mass``, ``inertia`` (a list ``[Ixx, Iyy, Izz]``), ``arm_length``,
@@ -208,12 +221,38 @@ class Quadrotor(Plant):
         wz_dot = (tau_z + (Ixx - Iyy) * wx * wy) / Izz
         return bk.stack([vx, vy, vz, phi_dot, theta_dot, psi_dot, ax, ay, az, wx_dot, wy_dot, wz_dot])
 
+    def check_model_domain(self, x: np.ndarray) -> None:
+        """Refuse a state at the Euler-angle singularity: ``|cos(pitch)| <`` :data:`GIMBAL_COS_MIN`.
+
+        Raises:
+            NonFiniteError: naming the pitch and the limit.
+        """
+        pitch = float(x[4])
+        if abs(math.cos(pitch)) < GIMBAL_COS_MIN:
+            raise NonFiniteError(
+                f"Quadrotor: pitch = {pitch:.9g} rad is at the Euler-angle singularity (gimbal lock, "
+                f"|cos(pitch)| = {abs(math.cos(pitch)):.3g} < {GIMBAL_COS_MIN:g}): the ZYX Euler-rate map is "
+                "undefined there; keep |pitch| below pi/2 - 1e-3 or use MuJoCo (quaternions) for such attitudes"
+            )
+
+    def symbolic_step(self) -> cs.Function:
+        """The two-stage semi-implicit Euler step of :meth:`integrate` as CasADi ``F(x, u, p)``."""
+        x = cs.SX.sym("x", 12)
+        u = cs.SX.sym("u", 4)
+        p = cs.SX.sym("p", len(self.param_names))
+        pmap = {k: p[i] for i, k in enumerate(self.param_names)}
+        f1 = self.equations(_CASADI, x, u, pmap)
+        new = cs.vertcat(x[:6], x[6:] + self.dt * f1[6:])
+        f2 = self.equations(_CASADI, new, u, pmap)
+        new = cs.vertcat(x[:6] + self.dt * f2[:6], new[6:])
+        return cs.Function("F", [x, u, p], [new], ["x", "u", "p"], ["x_next"])
+
     def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Semi-implicit Euler: velocities first; then position and angles with the new velocities.
 
         ``v⁺ = v + dt v̇(x, u)``, ``ω⁺ = ω + dt ω̇(x, u)``, ``p⁺ = p + dt v⁺``,
         ``η⁺ = η + dt W(φ, θ) ω⁺`` (``η`` the Euler angles, ``W`` at the old
-        angles). Both stages evaluate the one :meth:`_f`.
+        angles). Both stages evaluate the one :meth:`equations`.
         """
         dt = self.dt
         new = x.copy()
@@ -266,11 +305,11 @@ class Quadrotor(Plant):
         """
         return self._mixer.copy()
 
-    def rotor_thrusts_to_input(self, f: Any) -> np.ndarray:
+    def rotor_thrusts_to_input(self, f: ArrayLike) -> np.ndarray:
         """Plant input ``[T, τx, τy, τz]`` ``(4,)`` from rotor thrusts ``f`` ``(4,)`` [N]."""
         return self._mixer @ as_vector("rotor thrusts f", f, 4)
 
-    def input_to_rotor_thrusts(self, u: Any) -> np.ndarray:
+    def input_to_rotor_thrusts(self, u: ArrayLike) -> np.ndarray:
         """Rotor thrusts ``f`` ``(4,)`` [N] that produce the input ``u`` ``(4,)`` (inverse mixer).
 
         Raises:
@@ -296,7 +335,7 @@ class Quadrotor(Plant):
             geom_fromto=fromto,
         )
 
-    def engine_state_map(self, x0: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``δx = T @ δz`` at ``x0``, with MuJoCo's tangent ``z = [pos, rotation tangent, v, ω]``.
 
         ``mjd_transitionFD`` differentiates the free joint's orientation in
@@ -308,6 +347,7 @@ class Quadrotor(Plant):
         """
         T = np.eye(12)
         if x0 is not None:
+            self.check_model_domain(np.asarray(x0, dtype=float))
             roll, pitch = float(x0[3]), float(x0[4])
             sr, cr, tp, cp = math.sin(roll), math.cos(roll), math.tan(pitch), math.cos(pitch)
             T[3:6, 3:6] = [[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]]
@@ -332,7 +372,7 @@ class Quadrotor(Plant):
             engine.set_joint_ctrl(name, value)
 
 
-def _inertia(value: Any) -> tuple[float, float, float]:
+def _inertia(value: ArrayLike) -> tuple[float, float, float]:
     """Validate ``inertia`` as three positive principal moments of a physical body."""
     try:
         arr = np.asarray(value, dtype=float)

@@ -18,7 +18,6 @@ from shinro_ctrl.sim.metrics import NEVER_METRICS, bound_excess, compute_metrics
 from shinro_ctrl.sim.reference import Reference
 from shinro_ctrl.sim.result import SimResult
 from shinro_ctrl.sim.robot import MAX_STEPS, RobotSim
-from shinro_ctrl.sim.robot import _install_ik as _install_ik  # private (not in __all__); sweep/executors.py uses it
 
 __all__ = [
     "MAX_STEPS",

@@ -7,7 +7,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,6 +18,11 @@ from shinro_ctrl.sim.metrics import compute_metrics
 from shinro_ctrl.sim.output_feedback import estimation_metrics, loop_signals, uses_estimation
 from shinro_ctrl.sim.reference import Reference
 from shinro_ctrl.sim.result import SimResult
+
+if TYPE_CHECKING:
+    from shinro_ctrl.controllers.base import Controller
+    from shinro_ctrl.engine import MujocoEngine
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["MAX_STEPS", "RobotSim"]
 
@@ -66,29 +71,18 @@ class RobotSim:
     """
 
     def __init__(self, scenario: Scenario, *, engine: str | None = None):
-        from shinro_ctrl.controllers import controller_class
-        from shinro_ctrl.plants import plant_class
-
         self.scenario = scenario
         src = str(scenario.path) if scenario.path else scenario.name
-        self.plant = plant_class(scenario.plant.type).from_config(scenario.plant.params)
         if engine not in (None, "standalone", "mujoco"):
             raise ConfigError(f"engine must be 'standalone' or 'mujoco', got {engine!r}")
         use_engine = scenario.engine is not None if engine is None else engine == "mujoco"
+        self.plant, ik = self._build_plant(scenario.plant.params)
         self.engine = None
         if use_engine:
             if self.plant.asset is None and (scenario.engine is None or scenario.engine.model is None):
                 raise ConfigError(f"{src}: {scenario.plant.type} has no MuJoCo model; run it standalone")
             self.engine = self._attach_engine(self.plant)
-        options = dict(scenario.controller.options)
-        ccls = controller_class(scenario.controller.type)
-        try:
-            self.controller = ccls.from_plant(self.plant, **options)
-        except ShinroError as exc:
-            raise type(exc)(f"{src}: [controller] {exc}") from exc
-        except (TypeError, ValueError, FileNotFoundError) as exc:  # FileNotFoundError: a plan file it loads
-            raise ConfigError(f"{src}: [controller] {exc}") from exc
-        _install_ik(self.plant, self.controller)
+        self.controller = ik if ik is not None else self._design(self.plant)
         from shinro_ctrl.sim.output_feedback import build_estimator
 
         self.estimator, self.initial_estimate, self.initial_covariance = build_estimator(
@@ -105,7 +99,43 @@ class RobotSim:
         names = sim.track or list(getattr(self.plant, "tracked_states", None) or self._default_tracked())
         self.tracked = [self.plant.state_names.index(s) for s in names]
 
-    def _attach_engine(self, plant: Any) -> Any:
+    def _design(self, plant: Plant) -> Controller:
+        """The scenario's controller, built by its class's ``from_plant`` on ``plant``."""
+        from shinro_ctrl.controllers import controller_class
+
+        src = str(self.scenario.path) if self.scenario.path else self.scenario.name
+        ccls = controller_class(self.scenario.controller.type)
+        try:
+            return ccls.from_plant(plant, **self.scenario.controller.options)
+        except ShinroError as exc:
+            raise type(exc)(f"{src}: [controller] {exc}") from exc
+        except (TypeError, ValueError, FileNotFoundError) as exc:  # FileNotFoundError: a plan file it loads
+            raise ConfigError(f"{src}: [controller] {exc}") from exc
+
+    def _build_plant(self, params: dict[str, Any]) -> tuple[Plant, Controller | None]:
+        """The scenario's plant from ``params``; for a plant that takes its IK at construction (the arm)
+        driven by an IK controller (one with ``track(q, T)``, such as ``IKQP``), that controller too.
+
+        The arm is then built with ``ik=`` a factory that designs the scenario's controller on the arm
+        itself, so the arm steps with the very object the loop calls (nothing is installed afterwards).
+        """
+        from shinro_ctrl.controllers import controller_class
+        from shinro_ctrl.plants import plant_class
+
+        pcls = plant_class(self.scenario.plant.type)
+        ccls = controller_class(self.scenario.controller.type)
+        if not (pcls.takes_ik and callable(getattr(ccls, "track", None))):
+            return pcls.from_config(params), None
+        built: list[Controller] = []
+
+        def design(arm: Plant) -> Controller:
+            built.append(self._design(arm))
+            return built[0]
+
+        plant = pcls.from_config(params, ik=design)
+        return plant, built[0]
+
+    def _attach_engine(self, plant: Plant) -> MujocoEngine:
         """Build a MuJoCo engine matched to ``plant`` (the scenario's model and substeps) and attach it."""
         from shinro_ctrl.engine import MujocoEngine
 
@@ -126,17 +156,18 @@ class RobotSim:
         The plant is rebuilt from the scenario's ``[plant]`` table with
         ``overrides`` (constructor name → value); in a MuJoCo loop it gets a
         fresh matched engine. The controller object, reference, initial state
-        and settings are shared with this sim, which is not modified.
+        and settings are shared with this sim, which is not modified (an arm
+        driven by its IK controller gets that controller built on the new arm:
+        the two are one object).
 
         Raises:
             ConfigError: an invalid value (say, a negative mass), naming the key.
         """
-        from shinro_ctrl.plants import plant_class
-
         sim = copy.copy(self)
-        sim.plant = plant_class(self.scenario.plant.type).from_config({**self.scenario.plant.params, **overrides})
+        sim.plant, ik = self._build_plant({**self.scenario.plant.params, **overrides})
+        if ik is not None:  # the arm's IK is its controller: designed on the new arm
+            sim.controller = ik
         sim.engine = self._attach_engine(sim.plant) if self.engine is not None else None
-        _install_ik(sim.plant, sim.controller)
         return sim
 
     @classmethod
@@ -257,7 +288,8 @@ class RobotSim:
     def _loop(self, s: _LoopState, progress: bool | None) -> None:
         """Step the closed loop, filling ``s``'s trajectories (the hot path: locals only, nothing allocated here
         that a step could reuse)."""
-        plant, ctrl, ref, engine = self.plant, self.controller, self.reference, self.engine
+        plant, ctrl, ref = self.plant, self.controller, self.reference
+        engine = plant.simulation  # holds the state: applies body forces in both loops
         t, X, U, R, X_hat, Y, solve, pviol = s.t, s.X, s.U, s.R, s.X_hat, s.Y, s.solve, s.pviol
         limit, rng, noise, measured = s.limit, s.rng, s.noise, s.measured
         sensor, extra, forces = s.sig.sensor, s.sig.extra_input, s.sig.forces
@@ -289,12 +321,8 @@ class RobotSim:
                 U[k] = u
                 u_prev = u
                 for body, F, _ in forces:
-                    if engine is not None:
-                        engine.set_body_force(body, F[k])
+                    engine.set_body_force(body, F[k])
                 plant.step(u if extra is None else u + extra[k])  # the plant feels noise and disturbances
-                for _, F, G in forces:
-                    if engine is None:  # standalone: the force's effect over the step, dt · G F
-                        plant.state = plant.state + dt * (G @ F[k])
                 x = plant.get_state()
                 X[k + 1] = x
                 if limit is not None:
@@ -305,7 +333,7 @@ class RobotSim:
             raise type(exc)(f"{self.scenario.name} ({self.loop}) at t = {t[k]:.4g} s: {exc}") from exc
         finally:
             bar.close()
-            if forces and engine is not None:
+            if forces:
                 engine.clear_body_forces()
         s.x, s.u_prev = x, u_prev
 
@@ -401,18 +429,6 @@ class RobotSim:
         if s.regression:
             doc["regression"] = s.regression
         return doc
-
-
-def _install_ik(plant: Any, controller: Any) -> None:
-    """An arm driven by a differential-IK controller turns its twists into that controller's joint targets.
-
-    The scenario layer wires the two (a controller never changes its plant): ``ArmRobot.ik``
-    is the IK its ``step`` uses, and an :class:`~shinro_ctrl.controllers.ik_qp.IKQP` is one.
-    """
-    from shinro_ctrl.plants import ArmRobot
-
-    if isinstance(plant, ArmRobot) and type(controller).__name__ == "IKQP":
-        plant.ik = controller
 
 
 def _bound(value: Any, size: int) -> np.ndarray | None:

@@ -50,7 +50,7 @@ def batch_unsupported_reason(plant: Plant, controller: Any) -> str | None:
     Requirements: an :class:`~shinro_ctrl.controllers.LQR` (a linear law with
     ``K``, ``u0``), a standalone plant that integrates with the base
     semi-implicit Euler (position/velocity index pairs, no ``integrate``
-    override), no plant limit metric,
+    override), no state limits (stops),
     and constructor parameters that are exactly the dynamics' ``param_names``
     (so per-instance parameters can be handed to ``dynamics``).
     """
@@ -65,8 +65,8 @@ def batch_unsupported_reason(plant: Plant, controller: Any) -> str | None:
         return "the loop runs in MuJoCo"
     if type(plant).integrate is not Plant.integrate or not plant.position_indices:
         return f"{name} does not integrate with the base semi-implicit Euler"
-    if hasattr(plant, "limit_violation"):
-        return f"{name} reports plant limit violations"
+    if np.isfinite(np.concatenate(plant.state_limits())).any():
+        return f"{name} has state limits (stops) whose contacts the batch rollout does not count"
     if set(plant.params()) != set(plant.param_names):
         return (
             f"{name}'s constructor arguments ({', '.join(plant.params())}) do not map onto its dynamics "

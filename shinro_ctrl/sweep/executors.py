@@ -46,10 +46,12 @@ def perturbed_sim(nominal: Any, overrides: Mapping[str, float]) -> Any:
     settings. ``nominal`` is not modified (the result is a shallow copy).
 
     A memoryless controller (one that keeps the base no-op ``reset``, such as
-    LQR) is shared as the very object. A controller with memory (MPC, IK-QP:
-    OSQP warm starts and adaptive ``rho``) is designed again from the
-    *nominal* plant with the scenario's options, so that a sample's result
-    never depends on which samples ran before it in the same worker.
+    LQR) is shared as the very object. A controller with memory (MPC: OSQP
+    warm starts and adaptive ``rho``) is designed again from the *nominal*
+    plant with the scenario's options, so that a sample's result never
+    depends on which samples ran before it in the same worker. An arm's IK
+    controller is the arm's own IK, built with the sample's arm
+    (:meth:`RobotSim.with_plant`).
 
     Args:
         nominal: The sim built from the nominal scenario.
@@ -62,12 +64,9 @@ def perturbed_sim(nominal: Any, overrides: Mapping[str, float]) -> Any:
 
     scenario: Scenario = nominal.scenario
     sim = nominal.with_plant(dict(overrides))
-    if nominal.controller.stateful:  # memory between calls: a fresh controller per sample
+    if nominal.controller.stateful and sim.controller is nominal.controller:  # memory: a fresh one per sample
         ccls = controller_class(scenario.controller.type)
         sim.controller = ccls.from_plant(nominal.plant, **scenario.controller.options)
-        from shinro_ctrl.sim import _install_ik
-
-        _install_ik(sim.plant, sim.controller)
     return sim
 
 
