@@ -174,7 +174,7 @@ def test_input_bounds_match_bvls_on_condensed_qp(cartpole, u_min, u_max, x):
     H, f = condensed(A, B, Q_CP, R_CP, P, N, x)
     L = np.linalg.cholesky(H)  # H = L Lᵀ: ½ UᵀHU + fᵀU = ½ ‖Lᵀ U + L⁻¹ f‖² + const
     rhs = -scipy.linalg.solve_triangular(L, f, lower=True)
-    ref = scipy.optimize.lsq_linear(L.T, rhs, bounds=(u_min, u_max), method="bvls", tol=1e-14)
+    ref = scipy.optimize.lsq_linear(L.T, rhs, bounds=(u_min, u_max), method="bvls", tol=1e-14, max_iter=1000)
     assert ref.success
     U = ref.x
     active = np.flatnonzero((U <= u_min + 1e-9) | (U >= u_max - 1e-9))
