@@ -23,6 +23,7 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from shinro_ctrl.controllers.mpc import QP, LinearMPC, MPCSolution
+from shinro_ctrl.controllers.qp.sparse import qp_size
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable, ShinroError
 from shinro_ctrl.plants import CartPole
 
@@ -379,14 +380,14 @@ def test_build_exposes_the_qp_without_solving(cartpole):
 
 def test_matrices_are_built_once_and_paths_agree(cartpole):
     plant, _, _ = cartpole
-    kw = dict(horizon=20, u_min=-3.0, u_max=3.0, **cart_bounds(0.6))
+    kw = dict(horizon=20, u_min=-3.0, u_max=3.0, solver="osqp", **cart_bounds(0.6))
     fast = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
     public = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
-    public._osqp.fast = False  # force OSQP's public Python wrapper
-    assert fast._osqp.fast and not public._osqp.fast
+    public.backend.qp.fast = False  # force OSQP's public Python wrapper
+    assert fast.backend.qp.fast and not public.backend.qp.fast
     P, A = fast.P, fast.A_con
     Pdata, Adata = P.data.copy(), A.data.copy()
-    solver = fast._osqp.solver
+    solver = fast.backend.qp.solver
 
     def no_setup(*args, **kwargs):
         raise AssertionError("setup called per step")
@@ -399,7 +400,7 @@ def test_matrices_are_built_once_and_paths_agree(cartpole):
         np.testing.assert_allclose(u1, u2, atol=1e-12)
         assert fast.last.iterations == public.last.iterations
         plant.step(u1)
-    assert fast.P is P and fast.A_con is A and fast._osqp.solver is solver
+    assert fast.P is P and fast.A_con is A and fast.backend.qp.solver is solver
     np.testing.assert_array_equal(P.data, Pdata)
     np.testing.assert_array_equal(A.data, Adata)
 
@@ -418,13 +419,24 @@ def test_from_plant_off_equilibrium_has_the_drift_offset():
         LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=5, u_mx=3)  # misspelt option
 
 
-def test_describe_lists_sizes_terminal_cost_and_settings(cartpole):
+@pytest.mark.parametrize("solver", ["osqp", "daqp", "auto"])
+def test_describe_lists_sizes_terminal_cost_and_settings_of_the_backend_in_use(cartpole, solver):
+    """The sizes and settings printed are those of the backend that solves (``design mpc`` prints this)."""
     plant, _, _ = cartpole
-    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=20, u_min=-3, u_max=3, soft=True, **cart_bounds(0.6))
+    mpc = LinearMPC.from_plant(
+        plant, Q_CP, R_CP, horizon=20, u_min=-3, u_max=3, soft=True, solver=solver, **cart_bounds(0.6)
+    )
     text = mpc.describe()
-    assert f"{mpc.n_var} variables" in text and f"{mpc.n_con} constraints" in text
-    assert f"nnz(P) = {mpc.P.nnz}" in text and f"nnz(A) = {mpc.A_con.nnz}" in text
-    assert "terminal cost (dare)" in text and "eps_abs=0.0001" in text and "soft" in text
+    if mpc.solver == "osqp":
+        assert f"{mpc.n_var} variables" in text and f"{mpc.n_con} constraints" in text
+        assert f"nnz(P) = {mpc.P.nnz}" in text and f"nnz(A) = {mpc.A_con.nnz}" in text
+        assert "OSQP settings:" in text and "eps_abs=0.0001" in text and "DAQP" not in text
+    else:
+        dense = mpc.dense
+        assert f"condensed QP (DAQP): {dense.n_var} variables ({dense.n_slack} slacks)" in text
+        assert "DAQP settings:" in text and "primal_tol=1e-09" in text and "OSQP" not in text
+    assert f"backend: {mpc.solver} (solver = '{solver}')" in text
+    assert "terminal cost (lqr)" in text and "soft" in text
     assert "horizon N = 20" in text and "dt = 0.02 s" in text
 
 
@@ -448,7 +460,7 @@ def test_describe_lists_sizes_terminal_cost_and_settings(cartpole):
         ({"u_min": [np.nan]}, NonFiniteError, "u_min"),
         ({"x_min": [0.0, 0.0]}, ValueError, r"x_min: expected \(4,\) but found \(2,\)"),
         ({"du_max": -1.0}, ValueError, "du_max must be > 0"),
-        ({"terminal_cost": "lqr"}, ValueError, "terminal_cost"),
+        ({"terminal_cost": "riccati"}, ValueError, "terminal_cost"),
         ({"terminal_cost": np.eye(3)}, ValueError, r"terminal_cost: expected \(4, 4\)"),
         ({"fallback": "hold"}, ValueError, "fallback"),
         ({"soft_weight_quad": 0.0}, ValueError, "soft_weight_quad"),
@@ -497,9 +509,9 @@ def test_oversized_horizon_is_rejected_before_building(cartpole, horizon):
 def test_size_estimate_bounds_the_built_qp(cartpole, soft):
     _, A, B = cartpole
     mpc = LinearMPC(A, B, Q_CP, R_CP, 25, u_min=-3, u_max=3, du_max=0.5, soft=soft, **cart_bounds(0.6))
-    nvar, nnz = mpc._qp_size()
+    nvar, nnz = qp_size(mpc.A, mpc.B, mpc.Q, mpc.R, mpc.N, mpc.options)
     assert nvar == mpc.n_var
-    assert mpc._P.nnz + mpc._A.nnz <= nnz <= mpc._P.nnz + mpc._A.nnz + 4 * 5 // 2
+    assert mpc.P.nnz + mpc.A_con.nnz <= nnz <= mpc.P.nnz + mpc.A_con.nnz + 4 * 5 // 2
 
 
 def test_dare_failure_is_not_stabilizable():
