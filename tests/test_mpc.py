@@ -408,7 +408,7 @@ def test_matrices_are_built_once_and_paths_agree(cartpole):
 def test_from_plant_off_equilibrium_has_the_drift_offset():
     plant = CartPole(dt=0.02)
     x0 = np.array([0.0, 0.0, 0.1, 0.0])  # not an equilibrium: the pole falls
-    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=5, x0=x0, terminal_cost="Q")
+    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=30, x0=x0, terminal_cost="Q")
     np.testing.assert_allclose(mpc.offset, 0.02 * plant.dynamics(x0, [0.0]), rtol=1e-12)
     assert mpc.model is not None and mpc.model.discretization == "euler"
     mpc(x0)
@@ -519,7 +519,8 @@ def test_dare_failure_is_not_stabilizable():
     B = np.array([[0.0], [1.0]])  # the unstable mode is unreachable
     with pytest.raises(NotStabilizable, match="DARE"):
         LinearMPC(A, B, np.eye(2), [[1.0]], 5)
-    LinearMPC(A, B, np.eye(2), [[1.0]], 5, terminal_cost="Q")  # fine without the DARE
+    with pytest.raises(NotStabilizable, match=r"spectral radius 1\.5 >= 1"):  # no law can move the mode
+        LinearMPC(A, B, np.eye(2), [[1.0]], 5, terminal_cost="Q")
 
 
 def test_call_validation(cartpole):
@@ -574,3 +575,153 @@ def test_mutating_the_returned_input_does_not_move_the_rate_window(cartpole):
     r0 = mpc.groups["rate bounds"].start
     qp = mpc.build([0.0, 0.0, 0.1, 0.0])
     np.testing.assert_allclose([qp.l[r0], qp.u[r0]], [applied[0] - 0.5, applied[0] + 0.5])
+
+
+# ------------------------------------------------------ nominal closed loop
+def _plants_for_the_nominal_loop():
+    from shinro_ctrl.plants import DoublePendulum, InvertedPendulum, Quadrotor
+
+    return [
+        ("cartpole", CartPole(dt=0.02), Q_CP, R_CP),
+        ("pendulum", InvertedPendulum(dt=0.02), np.diag([10.0, 1.0]), np.array([[0.1]])),
+        ("acrobot", DoublePendulum(dt=0.01), np.diag([10.0, 10.0, 1.0, 1.0]), None),
+        ("quadrotor", Quadrotor(dt=0.02), np.eye(12), None),
+    ]
+
+
+@pytest.mark.parametrize("horizon", [1, 3, 10, 40])
+def test_a_non_stabilizing_mpc_is_refused_when_built(horizon):
+    """The unconstrained MPC law from a plain condensed QP (H⁻¹F by simulation): refused iff A − B K is unstable."""
+    outcomes = set()
+    for name, plant, Q, R in _plants_for_the_nominal_loop():
+        lm = plant.linear_model(discretization="euler")
+        A, B = lm.A, lm.B
+        m = B.shape[1]
+        R = 0.1 * np.eye(m) if R is None else R
+        for terminal in ("Q", 2.0 * Q):
+            P_f = Q if isinstance(terminal, str) else terminal
+            # the reference gain: first move of the condensed QP's unconstrained optimum, column by column
+            H, _ = condensed(A, B, Q, R, P_f, horizon, np.zeros(A.shape[0]))
+            K = np.column_stack(
+                [np.linalg.solve(H, condensed(A, B, Q, R, P_f, horizon, e)[1])[:m] for e in np.eye(A.shape[0])]
+            )
+            radius = np.max(np.abs(np.linalg.eigvals(A - B @ K)))
+            kw = dict(horizon=horizon, terminal_cost=terminal, discretization="euler")
+            if radius >= 1.0 - 1e-9:
+                with pytest.raises(NotStabilizable) as info:
+                    LinearMPC.from_plant(plant, Q, R, **kw)
+                text = str(info.value)
+                assert f"spectral radius {radius:.4g} >= 1" in text, (name, text)
+                assert "longer horizon" in text and "terminal_cost = 'lqr'" in text
+                outcomes.add("refused")
+            else:
+                mpc = LinearMPC.from_plant(plant, Q, R, **kw)
+                np.testing.assert_allclose(mpc.K_mpc, K, rtol=1e-6, atol=1e-9 * np.abs(K).max())
+                outcomes.add("built")
+    if horizon == 1:
+        assert "refused" in outcomes  # the cart-pole at N = 1 (radius 1.07) among others
+    if horizon == 40:
+        assert "built" in outcomes
+
+
+def test_a_stabilizing_short_horizon_builds_and_settles():
+    """The fix the message names works: terminal_cost='lqr' at N = 1, or a longer horizon with 'Q'."""
+    plant = CartPole(dt=0.02)
+    with pytest.raises(NotStabilizable, match=r"horizon = 26 is the shortest that stabilizes it"):
+        LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=1, terminal_cost="Q")
+    for mpc in (
+        LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=1, terminal_cost="lqr"),
+        LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=50, terminal_cost="Q"),  # spectral radius 0.985
+    ):
+        x = np.array([0.0, 0.0, 0.1, 0.0])
+        for _ in range(1000):
+            x = mpc.A @ x + mpc.B @ mpc(x)
+        assert np.abs(x).max() < 1e-3
+
+
+# ------------------------------------------------------------------ threads
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_one_controller_called_from_four_threads_equals_a_serial_run(cartpole, solver):
+    """4 threads x 1,000 calls on one LinearMPC give each state's serial answer (the lock serializes the steps)."""
+    import threading
+
+    _, A, B = cartpole
+    kw = dict(u_min=-3.0, u_max=3.0, solver=solver, **cart_bounds(0.6))  # no rate bounds: u depends on x only
+    rng = np.random.default_rng(11)
+    states = rng.uniform(-1, 1, (4, 1000, 4)) * np.array([0.3, 0.3, 0.2, 0.3])
+    serial = LinearMPC(A, B, Q_CP, R_CP, 10, **kw)
+    expected = np.array([[serial(x)[0] for x in chunk] for chunk in states])
+    shared = LinearMPC(A, B, Q_CP, R_CP, 10, **kw)
+    got = np.full((4, 1000), np.nan)
+    errors: list[BaseException] = []
+    start = threading.Barrier(4)
+
+    def work(i: int) -> None:
+        try:
+            start.wait()
+            for k, x in enumerate(states[i]):
+                got[i, k] = shared(x)[0]
+        except BaseException as exc:  # reported by the main thread
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors[:1]
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-6)
+
+
+def test_osqp_adapter_detects_a_second_thread():
+    """OsqpQP raises ConcurrentUse for a call from a thread other than the latest update's, never crashes."""
+    import threading
+
+    from shinro_ctrl.controllers._osqp import OsqpQP
+    from shinro_ctrl.errors import ConcurrentUse
+
+    P = sp.csc_matrix(np.eye(2))
+    A = sp.csc_matrix(np.eye(2))
+    qp = OsqpQP("test QP", P, np.zeros(2), A, -np.ones(2), np.ones(2), {"verbose": False})
+    qp.update(np.array([1.0, -1.0]), -np.ones(2), np.ones(2))  # the main thread owns the latest update
+    caught: list[BaseException] = []
+    t = threading.Thread(target=lambda: _call_into(qp.solve, caught))
+    t.start()
+    t.join()
+    assert len(caught) == 1 and isinstance(caught[0], ConcurrentUse) and "another thread" in str(caught[0])
+    sol, info = qp.solve()  # the owner goes on
+    assert info.status == "solved"
+    np.testing.assert_allclose(sol.x, [-1.0, 1.0], atol=1e-2)  # OSQP at its default eps 1e-3
+    # a thread that takes over starts with an update and then owns the object
+    done: list[BaseException] = []
+    t = threading.Thread(
+        target=lambda: _call_into(lambda: (qp.update(None, -np.ones(2), np.ones(2)), qp.solve()), done)
+    )
+    t.start()
+    t.join()
+    assert not done
+    # four threads hammering one object: each sequence solves or is refused with ConcurrentUse, nothing else
+    outcomes: list[str] = []
+
+    def hammer() -> None:
+        for _ in range(1000):
+            try:
+                qp.update(None, -np.ones(2), np.ones(2))
+                qp.solve()
+                outcomes.append("solved")
+            except ConcurrentUse:
+                outcomes.append("refused")
+
+    threads = [threading.Thread(target=hammer) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(outcomes) == 4000 and set(outcomes) <= {"solved", "refused"}
+
+
+def _call_into(fn, sink: list) -> None:
+    try:
+        fn()
+    except BaseException as exc:  # handed to the main thread
+        sink.append(exc)

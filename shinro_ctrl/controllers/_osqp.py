@@ -33,7 +33,7 @@ from typing import Any
 
 import osqp
 
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.validation import closest, unknown_keys
 
 __all__ = ["OsqpQP", "merge_settings", "setup_solver", "valid_settings"]
@@ -213,6 +213,15 @@ class OsqpQP:
     Attributes:
         solver: The public ``osqp.OSQP`` object.
         fast: Whether calls go through the compiled solver.
+
+    Threads: one object serves one thread at a time. A method entered while
+    another thread is inside one, or a ``warm_start``/``solve`` from a thread
+    other than the one that made the latest ``update``, raises
+    :class:`~shinro_ctrl.errors.ConcurrentUse` instead of letting OSQP's C
+    workspace be written by two threads (which crashed the process). An
+    owner that serializes its calls (``LinearMPC`` holds a lock around its
+    whole step) never sees it; a thread that takes over an idle object
+    starts with ``update``.
     """
 
     _NEEDED = ("update_data_vec", "update_data_mat", "warm_start", "update_rho", "solve", "info", "solution")
@@ -222,14 +231,36 @@ class OsqpQP:
         self.settings = dict(settings)
         self._data = (P, q, A, l, u)
         self.prefer_fast = bool(fast)
+        self._busy = threading.Lock()  # held while a method runs: a second thread entering is detected
+        self._writer: int | None = None  # the thread of the latest update (a solve from another is concurrent use)
         self.setup()
+
+    def _enter(self, method: str, *, writes: bool = False) -> None:
+        """Claim the object for one method call, or raise :class:`ConcurrentUse`."""
+        me = threading.get_ident()
+        if not self._busy.acquire(blocking=False):
+            raise ConcurrentUse(
+                f"OsqpQP.{method} called while another thread is inside this OSQP problem ({self.what})"
+            )
+        if writes:
+            self._writer = me
+        elif self._writer is not None and self._writer != me:
+            self._busy.release()
+            raise ConcurrentUse(
+                f"OsqpQP.{method} called from another thread than the latest update of this OSQP problem "
+                f"({self.what}): its data may be the other thread's"
+            )
 
     def setup(self) -> None:
         """(Re)create and set up the OSQP object from the set-up data (a clean solver state)."""
-        self.solver = osqp.OSQP()
-        setup_solver(self.solver, self.what, *self._data, **self.settings)
-        raw = getattr(self.solver, "_solver", None) if self.prefer_fast else None
-        self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
+        self._enter("setup", writes=True)
+        try:
+            self.solver = osqp.OSQP()
+            setup_solver(self.solver, self.what, *self._data, **self.settings)
+            raw = getattr(self.solver, "_solver", None) if self.prefer_fast else None
+            self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
+        finally:
+            self._busy.release()
 
     @property
     def fast(self) -> bool:
@@ -247,28 +278,36 @@ class OsqpQP:
 
     def update(self, q: Any, l: Any, u: Any, Px: Any = None, Ax: Any = None) -> None:
         """New ``q`` (None keeps it), ``l``, ``u``; optionally new values ``Px`` / ``Ax`` of P's / A's pattern."""
-        raw = self._raw
-        if raw is not None:
-            if raw.update_data_vec(q, l, u) != 0:  # pragma: no cover - sizes are fixed
-                raise RuntimeError("OSQP rejected the vector update")
-            if Px is not None or Ax is not None:
-                raw.update_data_mat(Px, None, Ax, None)
-            return
-        kwargs = {"l": l, "u": u}
-        if q is not None:
-            kwargs["q"] = q
-        if Px is not None:
-            kwargs["Px"] = Px
-        if Ax is not None:
-            kwargs["Ax"] = Ax
-        self.solver.update(**kwargs)
+        self._enter("update", writes=True)
+        try:
+            raw = self._raw
+            if raw is not None:
+                if raw.update_data_vec(q, l, u) != 0:  # pragma: no cover - sizes are fixed
+                    raise RuntimeError("OSQP rejected the vector update")
+                if Px is not None or Ax is not None:
+                    raw.update_data_mat(Px, None, Ax, None)
+                return
+            kwargs = {"l": l, "u": u}
+            if q is not None:
+                kwargs["q"] = q
+            if Px is not None:
+                kwargs["Px"] = Px
+            if Ax is not None:
+                kwargs["Ax"] = Ax
+            self.solver.update(**kwargs)
+        finally:
+            self._busy.release()
 
     def warm_start(self, x: Any, y: Any) -> None:
         """Primal ``x (n,)`` and dual ``y (m,)`` starting iterates for the next solve."""
-        if self._raw is not None:
-            self._raw.warm_start(x, y)
-        else:
-            self.solver.warm_start(x=x, y=y)
+        self._enter("warm_start")
+        try:
+            if self._raw is not None:
+                self._raw.warm_start(x, y)
+            else:
+                self.solver.warm_start(x=x, y=y)
+        finally:
+            self._busy.release()
 
     def update_settings(self, **settings: Any) -> None:
         """Change settings between solves (e.g. tighter ``eps_abs``/``eps_rel`` for one re-solve).
@@ -276,15 +315,23 @@ class OsqpQP:
         Only the settings OSQP allows to change after set-up (tolerances,
         ``max_iter``, ``polishing``, ``time_limit``, …); kept in :attr:`settings`.
         """
-        self.solver.update_settings(**settings)
-        self.settings.update(settings)
+        self._enter("update_settings")
+        try:
+            self.solver.update_settings(**settings)
+            self.settings.update(settings)
+        finally:
+            self._busy.release()
 
     def update_rho(self, rho: float) -> None:
         """Set the ADMM step ``rho`` (OSQP adapts it between solves when ``adaptive_rho``)."""
-        if self._raw is not None:
-            self._raw.update_rho(rho)
-        else:
-            self.solver.update_settings(rho=rho)
+        self._enter("update_rho")
+        try:
+            if self._raw is not None:
+                self._raw.update_rho(rho)
+            else:
+                self.solver.update_settings(rho=rho)
+        finally:
+            self._busy.release()
 
     def solve(self) -> tuple[Any, Any]:
         """Solve; returns ``(solution, info)`` (``.x``, ``.y``, ``.prim_inf_cert``; ``.status``, ``.iter``, …).
@@ -292,14 +339,19 @@ class OsqpQP:
         Raises:
             KeyboardInterrupt: OSQP caught Ctrl-C (status ``interrupted``): the interruption ends the
                 command, it is never reported as an infeasible or failed solve.
+            ConcurrentUse: another thread is inside this object, or made the latest update.
         """
-        raw = self._raw
-        if raw is not None:
-            raw.solve()
-            info = raw.info
-        else:
-            sol = self.solver.solve(raise_error=False)
-            info = sol.info
+        self._enter("solve")
+        try:
+            raw = self._raw
+            if raw is not None:
+                raw.solve()
+                info = raw.info
+            else:
+                sol = self.solver.solve(raise_error=False)
+                info = sol.info
+        finally:
+            self._busy.release()
         if info.status_val == _OSQP_SIGINT:
             raise KeyboardInterrupt("OSQP solve interrupted")
         return (raw.solution if raw is not None else sol), info

@@ -64,12 +64,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
+from shinro_ctrl.analysis.design import finite_horizon_gain
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqr import riccati
 from shinro_ctrl.controllers.offset_free import offset_free_call
@@ -95,7 +97,7 @@ from shinro_ctrl.controllers.qp.sparse import (
     fill_rate_rows,
     qp_size,
 )
-from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError
+from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
 from shinro_ctrl.linearization import discretize
 from shinro_ctrl.validation import as_vector, state_space, weight_matrix
 
@@ -133,6 +135,12 @@ class LinearMPC(Controller):
     (k = 1..N; ``s_k >= 0`` only when ``soft``, else ``s_k = 0``). The module
     docstring spells out the sparse form.
 
+    Threads: a call, :meth:`reset` and :meth:`build` hold the controller's
+    lock, so concurrent calls from several threads are correct (each one a
+    whole step on the shared warm start and previous input, in the order the
+    threads get the lock; the lock costs well under 1 % of a call). For
+    independent loops use one controller per thread.
+
     The options (everything after ``horizon``) are the fields of
     :class:`MPCOptions` (each documented there), passed as keywords or as one
     ``options`` object (keywords override its fields); the backend gets the
@@ -151,6 +159,8 @@ class LinearMPC(Controller):
     Attributes:
         options: The resolved :class:`MPCOptions` (validated arrays, merged OSQP settings).
         K: LQR gain ``(m, n)`` of the DARE (None for another terminal cost).
+        K_mpc: The unconstrained first-move gain ``(m, n)``: with no constraint active
+            ``u − u0 = −K_mpc (x − x0)`` (+ reference and offset terms); ``K`` for ``terminal_cost="lqr"``.
         u_min, u_max, x_min, x_max: The bounds ``(m,)`` / ``(n,)`` in absolute
             units (±inf where unbounded).
         P_f: Terminal cost matrix ``(n, n)``.
@@ -167,7 +177,9 @@ class LinearMPC(Controller):
             bounds, unknown or invalid OSQP settings.
         NonFiniteError: NaN or inf where a finite number is needed.
         NotStabilizable: ``terminal_cost="lqr"`` but the DARE has no
-            stabilizing solution.
+            stabilizing solution; or the unconstrained MPC law does not
+            stabilize the model (a short horizon with ``terminal_cost="Q"``
+            or a matrix): the message names the spectral radius and the fixes.
 
     Example:
         >>> from shinro_ctrl.plants import CartPole
@@ -236,6 +248,7 @@ class LinearMPC(Controller):
             self.P_f = opts.terminal_cost
             self.terminal_cost = "matrix"
         self.problem = MPCProblem(A_, B_, Q_, R_, self.P_f, self.K, N)
+        self.K_mpc = self._check_nominal_loop()
         self.sparse = build_sparse(A_, B_, Q_, R_, self.P_f, N, opts)
         self.groups: dict[str, RowGroup] = {g.name: g for g in self.sparse.groups}
         self.solver = choose_solver(n, m, N, opts)
@@ -252,7 +265,45 @@ class LinearMPC(Controller):
         self._referee: DaqpBackend | None = self.backend if isinstance(self.backend, DaqpBackend) else None
         self._referee_fits = fits
         self._u_prev_buf = np.zeros(m)  # the previously applied input (when _u_prev is not None)
+        self._lock = threading.RLock()  # one step at a time on the backend's buffers (re-entered by offset_free)
         self.reset()
+
+    def _check_nominal_loop(self) -> np.ndarray:
+        """The unconstrained first-move gain ``K_mpc``; raise unless ``A − B K_mpc`` is strictly stable.
+
+        With no constraint active the MPC is the linear law ``u − u0 = −K_mpc (x − x0)``
+        (plus a constant from the references and the offset), ``K_mpc`` the first
+        block of ``H⁻¹ F`` of the condensed QP, i.e. the backward Riccati
+        recursion over the horizon from the terminal cost
+        (:func:`~shinro_ctrl.analysis.design.finite_horizon_gain`). A short
+        horizon with a terminal cost other than the DARE's may leave that loop
+        unstable on the very model it was designed on; such a controller would
+        run and diverge, so it is refused, as LQR refuses an unstable loop.
+
+        Raises:
+            NotStabilizable: the spectral radius of ``A − B K_mpc`` is >= 1 (margin 1e-9),
+                naming it, the shortest stabilizing horizon when there is one, and the fixes.
+        """
+        A, B, Q, R, N = self.A, self.B, self.Q, self.R, self.N
+        if self.K is not None:  # terminal_cost="lqr": the law is the LQR's, whose loop riccati() checked
+            return self.K
+        K_mpc = finite_horizon_gain(A, B, Q, R, self.P_f, N)
+        radius = float(np.max(np.abs(np.linalg.eigvals(A - B @ K_mpc))))
+        if radius < 1.0 - 1e-9:
+            return K_mpc
+        hint = ""
+        for longer in range(N + 1, max(4 * N, 200) + 1):  # the shortest horizon that stabilizes, if one is near
+            K_long = finite_horizon_gain(A, B, Q, R, self.P_f, longer)
+            if float(np.max(np.abs(np.linalg.eigvals(A - B @ K_long)))) < 1.0 - 1e-9:
+                hint = f" (horizon = {longer} is the shortest that stabilizes it)"
+                break
+        tc = "the given matrix" if self.terminal_cost == "matrix" else f"'{self.terminal_cost}'"
+        raise NotStabilizable(
+            f"LinearMPC with horizon = {N} and terminal_cost = {tc} does not stabilize its own model: "
+            f"with no constraint active its law u = -K_mpc (x - x0) leaves the closed loop A - B K_mpc with "
+            f"spectral radius {radius:.4g} >= 1, so the loop diverges; use a longer horizon{hint} or "
+            "terminal_cost = 'lqr' (the DARE's cost, stabilizing at any horizon)"
+        )
 
     @classmethod
     def option_keys(cls) -> tuple[str, ...]:
@@ -387,6 +438,10 @@ class LinearMPC(Controller):
         Returns:
             A :class:`QP` with fresh arrays (the solver is not touched).
         """
+        with self._lock:
+            return self._build(x, ref, u_ref, u_prev)
+
+    def _build(self, x: ArrayLike, ref: ArrayLike | None, u_ref: ArrayLike | None, u_prev: ArrayLike | None) -> QP:
         s = self.sparse
         x = as_vector("x", x, self.n)
         q = s.q.copy()
@@ -404,17 +459,18 @@ class LinearMPC(Controller):
             u_prev: Optional input ``(m,)`` to treat as previously applied (for
                 the rate bounds of the first move).
         """
-        self._u_prev: np.ndarray | None = None
-        if u_prev is not None:
-            self._u_prev_buf[:] = as_vector("u_prev", u_prev, self.m)
-            self._u_prev = self._u_prev_buf
-        self._plan_u: np.ndarray | None = None
-        self._plan_x: np.ndarray | None = None
-        self._plan_age = 0
-        self.last: MPCSolution | None = None
-        self.backend.reset()  # cold working set / warm start: runs repeat exactly
-        if self._referee is not None and self._referee is not self.backend:
-            self._referee.reset()
+        with self._lock:
+            self._u_prev: np.ndarray | None = None
+            if u_prev is not None:
+                self._u_prev_buf[:] = as_vector("u_prev", u_prev, self.m)
+                self._u_prev = self._u_prev_buf
+            self._plan_u: np.ndarray | None = None
+            self._plan_x: np.ndarray | None = None
+            self._plan_age = 0
+            self.last: MPCSolution | None = None
+            self.backend.reset()  # cold working set / warm start: runs repeat exactly
+            if self._referee is not None and self._referee is not self.backend:
+                self._referee.reset()
 
     def __call__(self, x: ArrayLike, ref: ArrayLike | None = None, *, u_ref: ArrayLike | None = None) -> np.ndarray:
         """Solve the MPC problem at state ``x`` and return the first input.
@@ -436,8 +492,13 @@ class LinearMPC(Controller):
             MPCInfeasible: the backend certified infeasibility or failed (and
                 no ``fallback="shift"`` plan is left).
         """
-        if self.disturbance_model is not None and np.shape(x) == (self.n + self.m,):
-            return offset_free_call(self, x, ref, u_ref)  # [x̂; d̂] from a disturbance-augmented estimator
+        with self._lock:
+            if self.disturbance_model is not None and np.shape(x) == (self.n + self.m,):
+                return offset_free_call(self, x, ref, u_ref)  # [x̂; d̂] from a disturbance-augmented estimator
+            return self._step(x, ref, u_ref)
+
+    def _step(self, x: ArrayLike, ref: ArrayLike | None, u_ref: ArrayLike | None) -> np.ndarray:
+        """One MPC step (under the lock): check the arguments, solve, settle, record or fall back."""
         x = np.asarray(x, dtype=float)
         if x.shape != (self.n,):
             x = as_vector("x", x, self.n)  # raises with the standard message
