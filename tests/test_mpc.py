@@ -236,18 +236,22 @@ def test_soft_state_bound_becomes_active_standalone(record_property):
 
 
 # ---------------------------------------------------------------- infeasibility
-def test_infeasible_hard_state_bound_raises(cartpole):
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_infeasible_hard_state_bound_raises(cartpole, solver):
     plant, _, _ = cartpole
-    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=50, u_min=-3.0, u_max=3.0, **cart_bounds(0.6))
+    kw = dict(horizon=50, u_min=-3.0, u_max=3.0, solver=solver, **cart_bounds(0.6))
+    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
     with pytest.raises(MPCInfeasible) as info:
         mpc([0.59, 3.0, 0.0, 0.0])  # 3 m/s towards the bound, 1 cm away, 3 N of braking
     msg = str(info.value)
     assert "infeasible" in msg
-    # Euler model: x_1 = x_0 + dt v_0 = 0.59 + 0.06 > 0.6 whatever the input, so stage 1 is the first
-    assert re.search(r"state bounds at stage 1 \(x in \[-0.6, 0.6\]\)", msg), msg
+    # Euler model: x_1 = x_0 + dt v_0 = 0.59 + 0.06 > 0.6 whatever the input: not a constraint of the plan (left
+    # out and reported); stage 2, where the input first acts, is the first that cannot be met
+    assert re.search(r"state bounds at stage 2 \(x in \[-0.6, 0.6\]\)", msg), msg
     assert "input bounds" in msg  # what it conflicts with
     assert isinstance(info.value, RuntimeError) and isinstance(info.value, ShinroError)
     assert mpc.last.status == "primal infeasible" and np.isnan(mpc.last.u).all()
+    assert mpc.last.dropped_rows.startswith("x in [-0.6, 0.6] at stage 1: predicted 0.65 whatever the input")
 
 
 def test_infeasible_rate_and_input_bounds_name_stage_zero(cartpole):

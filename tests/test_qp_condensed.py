@@ -282,10 +282,18 @@ def test_infeasible_flag_and_explanation(model):
     assert why is not None and why.startswith("state bounds at stage") and "input bounds" in why
     # a feasible state afterwards is solved (the failed working set is not kept)
     assert qp.solve(np.array([0.0, 0.0, 0.1, 0.0])).solved
-    # a fixed row (x_1 = x_0 + dt v_0 under Euler) violated: infeasible whatever the input, stage 1 named
+    # a fixed row (x_1 = x_0 + dt v_0 under Euler) violated: no input moves it, so it is left out and reported;
+    # the problem is still infeasible here, at stage 2, which is what the explanation names
     x1 = np.array([0.59, 1.0, 0.0, 0.0])
     assert qp.solve(x1).status == "primal infeasible"
-    assert qp.explain_infeasibility(x1).startswith("state bounds at stage 1")
+    assert qp.dropped_rows.startswith("x[0] in [-0.6, 0.6] at stage 1: predicted 0.61 whatever the input")
+    assert qp.explain_infeasibility(x1).startswith("state bounds at stage 2")
+    # where the later stages can still be met, the step is solved with the note
+    x2 = np.array([0.5999, 0.02, 0.0, 0.0])  # x_1 = 0.6003 > 0.6, then 3 N brakes the cart in time
+    info = qp.solve(x2)
+    assert info.solved and "at stage 1: predicted 0.6003" in qp.dropped_rows
+    X, _, _ = qp.plan()
+    assert X[1, 0] == pytest.approx(0.6003) and np.abs(X[2:, 0]).max() <= 0.6 + 1e-9
 
 
 def test_long_horizon_unstable_cartpole(model):

@@ -135,6 +135,14 @@ class LinearMPC(Controller):
     (k = 1..N; ``s_k >= 0`` only when ``soft``, else ``s_k = 0``). The module
     docstring spells out the sparse form.
 
+    State bounds the input cannot affect at a stage (the rows of the
+    prediction w.r.t. the inputs vanish: the cart position at stage 1 of an
+    explicit-Euler model is ``x + dt·v`` whatever ``u_0``) are not
+    constraints of the plan: no input changes them. When the measured state
+    violates one, both backends leave that bound out of the step (it holds
+    again from the next step on) and report it in ``last.dropped_rows``
+    instead of declaring the problem infeasible.
+
     Threads: a call, :meth:`reset` and :meth:`build` hold the controller's
     lock, so concurrent calls from several threads are correct (each one a
     whole step on the shared warm start and previous input, in the order the

@@ -104,4 +104,5 @@ class DaqpBackend:
             backend="daqp",
             active_set_size=active,
             kkt_residual=info.kkt_residual,
+            dropped_rows=dq.dropped_rows,
         )

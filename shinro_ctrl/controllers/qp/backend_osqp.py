@@ -20,11 +20,12 @@ import time
 import numpy as np
 
 from shinro_ctrl.controllers._osqp import OsqpQP
+from shinro_ctrl.controllers.qp.condensed import fixed_rows_note
 from shinro_ctrl.controllers.qp.diagnose import diagnose
 from shinro_ctrl.controllers.qp.options import MPCOptions, MPCProblem
 from shinro_ctrl.controllers.qp.solution import MPCSolution, clip_input
 from shinro_ctrl.controllers.qp.solution import same_reference as _same
-from shinro_ctrl.controllers.qp.sparse import QP, SparseQP, build_sparse, fill_linear_cost, fill_rate_rows
+from shinro_ctrl.controllers.qp.sparse import INF, QP, SparseQP, build_sparse, fill_linear_cost, fill_rate_rows
 
 __all__ = ["OsqpBackend"]
 
@@ -95,6 +96,7 @@ class OsqpBackend:
         self._uref_cache: np.ndarray | None = None
         self._solved_since_setup = False
         self.settled = True
+        self._fixed = _fixed_state_rows(problem, options, s)
         self.qp = OsqpQP("MPC problem or its osqp_settings", s.P, self._q, s.A, self._l, self._u, options.osqp_settings)
 
     def reset(self) -> None:
@@ -142,6 +144,7 @@ class OsqpBackend:
         np.subtract(x, opts.x0, out=self._dx0)
         self._dx0u[:] = self._dx0
         fill_rate_rows(s, opts, u_prev, self._l, self._u)
+        dropped = self._drop_fixed_rows() if self._fixed is not None else ""
         q = self._update_q(ref, u_ref)
         if self._warm:
             self._zws[:n] = self._dx0
@@ -164,7 +167,7 @@ class OsqpBackend:
             message = diagnose(x, info, sol, s.A, self._l, self._u, s.groups)
             # the next attempt starts from the shifted warm start, not the failed iterate
             self._shift_warm_start(self._zws.copy(), self._yws.copy())
-            return self._result(info.status, iterations, info.solve_time, t0, message=message)
+            return self._result(info.status, iterations, info.solve_time, t0, message=message, dropped=dropped)
         z = sol.x
         u_out = z[self._iu0] + opts.u0
         clip_input(u_out, u_prev, opts.du_max, opts.u_min, opts.u_max)
@@ -183,6 +186,7 @@ class OsqpBackend:
             max_slack=float(z[s.islack].max()) if self._has_slack else 0.0,
             active=int(np.count_nonzero(sol.y[self._ineq0 :])),
             kkt=max(info.prim_res, info.dual_res),
+            dropped=dropped,
         )
 
     def _result(
@@ -198,6 +202,7 @@ class OsqpBackend:
         active: int = -1,
         kkt: float = math.nan,
         message: str = "",
+        dropped: str = "",
     ) -> MPCSolution:
         if plan is None:
             p = self.problem
@@ -216,7 +221,31 @@ class OsqpBackend:
             backend="osqp",
             active_set_size=active,
             kkt_residual=kkt,
+            dropped_rows=dropped,
         )
+
+    def _drop_fixed_rows(self) -> str:
+        """Open the hard state-bound rows no input can move that the measured state violates (this step only)."""
+        fx = self._fixed
+        assert fx is not None
+        rows, E, c, lo, hi = fx
+        self._l[rows] = lo  # the previous step's opened rows are bounds again
+        self._u[rows] = hi
+        value = E @ self._dx0 + c
+        bad = np.flatnonzero((value > hi + 1e-9) | (value < lo - 1e-9))
+        if not bad.size:
+            return ""
+        self._l[rows[bad]] = -INF
+        self._u[rows[bad]] = INF
+        opts, group = self.options, next(g for g in self.sparse.groups if g.name == "state bounds")
+        parts = []
+        for b in bad:
+            stage, label = group.locate(int(rows[b]))
+            i = int(
+                np.flatnonzero(np.isfinite(opts.x_min) | np.isfinite(opts.x_max))[(rows[b] - group.start) % group.width]
+            )
+            parts.append(f"{label} at stage {stage}: predicted {opts.x0[i] + value[b]:.4g} whatever the input")
+        return fixed_rows_note(parts)
 
     def _update_q(self, ref: np.ndarray | None, u_ref: np.ndarray | None) -> np.ndarray | None:
         """Bring ``q`` to the references; returns it when it changed (for OSQP), else None."""
@@ -287,3 +316,44 @@ class OsqpBackend:
         if self._Acl is not None:
             np.matmul(self._Acl, self._zN_prev, out=self._zN)
             np.matmul(self._mK, self._zN_prev, out=self._zuN)
+
+
+def _fixed_state_rows(
+    problem: MPCProblem, opts: MPCOptions, s: SparseQP
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The hard state-bound rows whose state no input moves at their stage, with their prediction.
+
+    State ``i`` at stage ``k`` depends on the inputs iff row ``i`` of
+    ``[A^{k-1} B, …, A B, B]`` is nonzero (the same rows the condensed QP
+    finds fixed). Returns ``(rows, E, c, lo, hi)``: the rows of ``A_con``,
+    ``δx_{k,i} = E_r δx_0 + c_r`` and the rows' bounds; None when there are none.
+    """
+    group = next((g for g in s.groups if g.name == "state bounds"), None)
+    if group is None or opts.soft:
+        return None  # soft bounds take any violation into their slack
+    A, B, N, n = problem.A, problem.B, problem.N, problem.n
+    xb = np.flatnonzero(np.isfinite(opts.x_min) | np.isfinite(opts.x_max))
+    tol = 1e-13 * max(1.0, float(np.abs(B).max(initial=0.0)))
+    reach = np.zeros(n)  # squared row norms of [A^{k-1} B, …, B]
+    AkB = B.copy()
+    Ak = np.eye(n)
+    c = np.zeros(n)
+    rows, Es, cs = [], [], []
+    for k in range(1, N + 1):
+        reach += np.sum(AkB * AkB, axis=1) if k == 1 else 0.0
+        if k > 1:
+            AkB = A @ AkB
+            reach += np.sum(AkB * AkB, axis=1)
+        Ak = A @ Ak
+        c = A @ c + opts.offset
+        free = [j for j, i in enumerate(xb) if np.sqrt(reach[i]) <= tol]
+        if not free:
+            break
+        for j in free:
+            rows.append(group.start + (k - 1) * group.width + j)
+            Es.append(Ak[xb[j]])
+            cs.append(c[xb[j]])
+    if not rows:
+        return None
+    r = np.array(rows, dtype=np.intp)
+    return r, np.array(Es), np.array(cs), s.l[r].copy(), s.u[r].copy()

@@ -44,7 +44,8 @@ input), per bounded state and stage ``k = 1..N`` (``S_v`` rows; with soft
 bounds two rows, ``e − s ≤ h`` and ``e + s ≥ ℓ``, sharing one slack, as in the
 sparse formulation). Rows are scaled to unit norm. Rows that do not depend on
 ``z`` (a state the inputs cannot move yet, e.g. a position one Euler step
-ahead) are kept out of the QP and checked directly.
+ahead) are kept out of the QP: no plan changes them, so a violated one is
+reported (:attr:`CondensedQP.dropped_rows`), never declared infeasible.
 
 Everything above is built once per model. A call computes ``e_0``, ``F e_0``,
 ``E e_0`` into preallocated buffers, hands them to one :class:`daqp.Model`
@@ -89,6 +90,7 @@ __all__ = [
     "DenseRowGroup",
     "DenseSolveInfo",
     "condensed_size",
+    "fixed_rows_note",
     "prestabilizing_gain",
 ]
 
@@ -127,6 +129,16 @@ MAX_DENSE_SIZE = 10_000_000
 #: (``einsum``) instead of BLAS: multithreaded OpenBLAS gemv on a busy machine stalled calls
 #: for ~50 ms at N = 400 (threads waiting for cores), while one thread needs ~0.3 ms.
 _BLAS_MAX = 1 << 17
+
+
+def fixed_rows_note(parts: list[str]) -> str:
+    """The sentence reported in ``MPCSolution.dropped_rows`` for bounds no input can move (empty: none)."""
+    if not parts:
+        return ""
+    return (
+        "; ".join(parts) + " (no input reaches that stage yet, e.g. a position one explicit-Euler step ahead: "
+        "the bound is left out of this step, the plan keeps it from the next stage on)"
+    )
 
 
 def _mv(M: np.ndarray, v: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -204,6 +216,8 @@ class CondensedQP:
         cond_H: Condition number of the Hessian's input block.
         n_var: ``nz`` (slacks + ``N m``).
         n_slack: Number of slacks ``ns``.
+        dropped_rows: The bounds no input can move that the latest state violates
+            (predicted values; empty when none): left out, not infeasible.
         z: The latest solution ``(nz,)`` (DAQP's array; None before a solve).
         lam: Its multipliers ``(ns + rows kept,)`` (scaled rows).
 
@@ -304,6 +318,7 @@ class CondensedQP:
         self.lam: np.ndarray | None = None
         self._w_lin = np.zeros(n)
         self._c0 = 0.0
+        self.dropped_rows = ""
 
     def _setup(self) -> None:
         # A throwaway state-independent set-up (bounds at e0 = 0, no u_prev); every solve updates them.
@@ -396,10 +411,13 @@ class CondensedQP:
         np.subtract(x, x0, out=e0)
         self._fill(e0, None if u_prev is None else u_prev - self.options.u0)
         self.z = self.lam = self.X = self.U = None
+        self.dropped_rows = ""
         if mat.fixed.size:
+            # bounds no input can move at their stage (x_1's position under explicit Euler): not in the QP;
+            # violated ones are reported, not declared infeasible (nothing the plan does changes them)
             _mv(mat.Ef2, e0, self._tmp_f)
             if np.greater(self._tmp_f, mat.bf2, out=self._fviol).any():
-                return DenseSolveInfo(DAQP_STATUS[-1], -1, 0, 0, math.nan, 0.0, math.nan)
+                self.dropped_rows = self._describe_fixed(e0)
         model = self._model
         if self._mtot:
             model.update(f=self._f, bupper=self._bu, blower=self._bl)
@@ -434,6 +452,21 @@ class CondensedQP:
             info["solve_time"],
             objective,
         )
+
+    def _describe_fixed(self, e0: np.ndarray) -> str:
+        """The violated bounds among the rows no input moves (hard state bounds), with their predicted values."""
+        mat, opts, parts = self.matrices, self.options, []
+        bounded = np.flatnonzero(np.isfinite(opts.x_min) | np.isfinite(opts.x_max))
+        for row in mat.fixed:
+            value = float(mat.E[row] @ e0)  # deviation minus the offset's constant part
+            if mat.lo[row] - 1e-9 <= value <= mat.hi[row] + 1e-9:
+                continue
+            group = next(g for g in mat.groups if g.start <= row < g.stop)
+            stage, label = group.locate(int(row))
+            i = bounded[(int(row) - group.start) % group.width]
+            shift = opts.x_max[i] - mat.hi[row] if np.isfinite(opts.x_max[i]) else opts.x_min[i] - mat.lo[row]
+            parts.append(f"{label} at stage {stage}: predicted {value + shift:.4g} whatever the input")
+        return fixed_rows_note(parts)
 
     def kkt_residual(self) -> float:
         """KKT residual of the latest solution (see :class:`DenseSolveInfo`); NaN without one.
@@ -504,6 +537,7 @@ class CondensedQP:
         f[ns:] = mat.F[ns:] @ e0 + self._fr
         Ee = mat.E @ e0
         lo, hi = mat.lo - Ee, mat.hi - Ee
+        lo[mat.fixed], hi[mat.fixed] = -np.inf, np.inf  # rows no input moves are not part of the QP
         if mat.rate0 is not None:
             sl = mat.rate0
             if u_prev is None:
