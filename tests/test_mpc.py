@@ -729,3 +729,59 @@ def _call_into(fn, sink: list) -> None:
         fn()
     except BaseException as exc:  # handed to the main thread
         sink.append(exc)
+
+
+# ---------------------------------------------------------------- settings
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("key", ["eps_abs", "eps_rel", "rho", "alpha", "time_limit"])
+def test_non_finite_osqp_settings_are_refused_in_one_line(cartpole, key, value):
+    _, A, B = cartpole
+    with pytest.raises(InvalidArgument) as info:
+        LinearMPC(A, B, Q_CP, R_CP, 10, osqp_settings={key: value})
+    assert str(info.value) == f"osqp_settings: '{key}' must be a finite number, got {value!r}"
+
+
+def test_non_finite_osqp_setting_in_a_scenario_file_exits_2_with_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    scenario = tmp_path / "mpc_nan.toml"
+    scenario.write_text(
+        '[plant]\ntype = "CartPole"\ndt = 0.02\n\n[controller]\ntype = "LinearMPC"\nhorizon = 20\nQ = [10, 1, 100, 1]\n'
+        "R = [0.1]\nosqp_settings = { eps_abs = nan }\n\n[sim]\nduration = 0.1\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-m", "shinro_ctrl.cli", "design", "mpc", str(scenario)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 2, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "'eps_abs' must be a finite number, got nan" in lines[0], res.stderr
+
+
+@pytest.mark.parametrize("solver", ["auto", "osqp"])
+def test_design_mpc_prints_the_backend_in_use(tmp_path, solver):
+    """``design mpc`` prints the sizes and settings of the backend that solves, not OSQP's while DAQP solves."""
+    import subprocess
+    import sys
+
+    scenario = tmp_path / "mpc.toml"
+    scenario.write_text(
+        '[plant]\ntype = "CartPole"\ndt = 0.02\n\n[controller]\ntype = "LinearMPC"\nhorizon = 20\nQ = [10, 1, 100, 1]\n'
+        f'R = [0.1]\nu_min = [-3.0]\nu_max = [3.0]\nsolver = "{solver}"\n\n[sim]\nduration = 0.2\n'
+    )
+    res = subprocess.run(
+        [sys.executable, "-m", "shinro_ctrl.cli", "design", "mpc", str(scenario)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    if solver == "auto":  # N·m = 20: DAQP
+        assert "backend: daqp" in res.stdout and "condensed QP (DAQP): 20 variables" in res.stdout
+        assert "DAQP settings: " in res.stdout and "OSQP" not in res.stdout
+    else:
+        assert "backend: osqp" in res.stdout and "sparse QP (OSQP): 104 variables" in res.stdout
+        assert "OSQP settings: " in res.stdout and "eps_abs=0.0001" in res.stdout and "DAQP" not in res.stdout

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import ctypes
 import io
+import math
 import os
 import sys
 import tempfile
@@ -187,6 +188,8 @@ def _check_setting_type(name: str, key: str, value: Any) -> None:
         ok, want = isinstance(value, int | str) and not is_bool, "an integer or a name"
     if not ok:
         raise InvalidArgument(f"{name}: '{key}' must be {want}, got {type(value).__name__} {value!r}")
+    if isinstance(default, float) and not math.isfinite(value):  # OSQP would take NaN and compare nothing with it
+        raise InvalidArgument(f"{name}: '{key}' must be a finite number, got {value!r}")
 
 
 class OsqpQP:

@@ -588,8 +588,6 @@ class LinearMPC(Controller):
             f"LinearMPC: n = {self.n} states, m = {self.m} inputs, horizon N = {self.N}{dt}",
             f"backend: {self.solver} (solver = '{self.options.solver}')",
             self.backend.describe(),
-            "constraint groups: "
-            + ", ".join(f"{g.name} [{g.start}:{g.stop}] ({g.width} x {g.stages} stages)" for g in self.sparse.groups),
             f"operating point: x0 = {fmt(self.x0)}, u0 = {fmt(self.u0)}",
             f"input bounds: u_min = {fmt(self.u_min)}, u_max = {fmt(self.u_max)}",
             f"state bounds ({'soft' if self.soft else 'hard'}): x_min = {fmt(self.x_min)}, x_max = {fmt(self.x_max)}",

@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from shinro_ctrl.controllers.qp.condensed import CondensedQP
-from shinro_ctrl.controllers.qp.diagnose import fmt
+from shinro_ctrl.controllers.qp.diagnose import describe_groups, fmt
 from shinro_ctrl.controllers.qp.options import MPCOptions, MPCProblem
 from shinro_ctrl.controllers.qp.solution import MPCSolution, clip_input
 from shinro_ctrl.controllers.qp.solution import same_reference as _same
@@ -54,7 +54,8 @@ class DaqpBackend:
     def describe(self) -> str:
         """Sizes and settings of the condensed QP and of DAQP."""
         settings = ", ".join(f"{k}={v}" for k, v in sorted(self.dense.settings.items()))
-        return f"{self.dense.describe()}\nDAQP settings: {settings}"
+        groups = describe_groups(self.dense.matrices.groups)
+        return f"{self.dense.describe()}\nconstraint groups: {groups or 'none'}\nDAQP settings: {settings}"
 
     def solve(
         self, x: np.ndarray, ref: np.ndarray | None, u_ref: np.ndarray | None, u_prev: np.ndarray | None

@@ -21,7 +21,7 @@ import numpy as np
 
 from shinro_ctrl.controllers._osqp import OsqpQP
 from shinro_ctrl.controllers.qp.condensed import fixed_rows_note
-from shinro_ctrl.controllers.qp.diagnose import diagnose
+from shinro_ctrl.controllers.qp.diagnose import describe_groups, diagnose
 from shinro_ctrl.controllers.qp.options import MPCOptions, MPCProblem
 from shinro_ctrl.controllers.qp.solution import MPCSolution, clip_input
 from shinro_ctrl.controllers.qp.solution import same_reference as _same
@@ -118,7 +118,7 @@ class OsqpBackend:
         settings = ", ".join(f"{k}={v}" for k, v in sorted(self.qp.settings.items()))
         return (
             f"sparse QP (OSQP): {s.n_var} variables, {s.n_con} constraints, nnz(P) = {s.P.nnz}, "
-            f"nnz(A) = {s.A.nnz}\nOSQP settings: {settings}"
+            f"nnz(A) = {s.A.nnz}\nconstraint groups: {describe_groups(s.groups)}\nOSQP settings: {settings}"
         )
 
     def solve(
