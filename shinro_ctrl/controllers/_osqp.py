@@ -32,7 +32,9 @@ import threading
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
 import osqp
+import scipy.sparse as sp
 
 from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.validation import closest, unknown_keys
@@ -71,7 +73,7 @@ def _split(text: str) -> tuple[list[str], str]:
     return errors, "".join(ln for ln in lines if not ln.lstrip().startswith("ERROR in"))
 
 
-def setup_solver(solver: Any, what: str, /, *args: Any, **kwargs: Any) -> None:
+def setup_solver(solver: osqp.OSQP, what: str, /, *args: Any, **kwargs: Any) -> None:
     """``solver.setup(*args, **kwargs)`` with OSQP's prints captured.
 
     Both routes OSQP may print by are captured: file descriptor 1 (C
@@ -229,7 +231,18 @@ class OsqpQP:
 
     _NEEDED = ("update_data_vec", "update_data_mat", "warm_start", "update_rho", "solve", "info", "solution")
 
-    def __init__(self, what: str, P: Any, q: Any, A: Any, l: Any, u: Any, settings: Mapping[str, Any], *, fast=True):
+    def __init__(
+        self,
+        what: str,
+        P: sp.csc_matrix,
+        q: np.ndarray,
+        A: sp.csc_matrix,
+        l: np.ndarray,
+        u: np.ndarray,
+        settings: Mapping[str, Any],
+        *,
+        fast: bool = True,
+    ):
         self.what = what
         self.settings = dict(settings)
         self._data = (P, q, A, l, u)
@@ -279,7 +292,14 @@ class OsqpQP:
             raw = getattr(self.solver, "_solver", None)
             self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
 
-    def update(self, q: Any, l: Any, u: Any, Px: Any = None, Ax: Any = None) -> None:
+    def update(
+        self,
+        q: np.ndarray | None,
+        l: np.ndarray,
+        u: np.ndarray,
+        Px: np.ndarray | None = None,
+        Ax: np.ndarray | None = None,
+    ) -> None:
         """New ``q`` (None keeps it), ``l``, ``u``; optionally new values ``Px`` / ``Ax`` of P's / A's pattern."""
         self._enter("update", writes=True)
         try:
@@ -301,7 +321,7 @@ class OsqpQP:
         finally:
             self._busy.release()
 
-    def warm_start(self, x: Any, y: Any) -> None:
+    def warm_start(self, x: np.ndarray, y: np.ndarray) -> None:
         """Primal ``x (n,)`` and dual ``y (m,)`` starting iterates for the next solve."""
         self._enter("warm_start")
         try:

@@ -97,6 +97,7 @@ class OsqpBackend:
         self._solved_since_setup = False
         self.settled = True
         self._fixed = _fixed_state_rows(problem, options, s)
+        self._opened = False  # some of those rows are open in l/u (the previous step dropped them)
         self.qp = OsqpQP("MPC problem or its osqp_settings", s.P, self._q, s.A, self._l, self._u, options.osqp_settings)
 
     def reset(self) -> None:
@@ -229,21 +230,24 @@ class OsqpBackend:
         fx = self._fixed
         assert fx is not None
         rows, E, c, lo, hi = fx
-        self._l[rows] = lo  # the previous step's opened rows are bounds again
-        self._u[rows] = hi
-        value = E @ self._dx0 + c
-        bad = np.flatnonzero((value > hi + 1e-9) | (value < lo - 1e-9))
-        if not bad.size:
+        if self._opened:  # the previous step's opened rows are bounds again
+            self._l[rows] = lo
+            self._u[rows] = hi
+            self._opened = False
+        value = E @ self._dx0
+        value += c
+        if not ((value > hi + 1e-9).any() or (value < lo - 1e-9).any()):
             return ""
+        bad = np.flatnonzero((value > hi + 1e-9) | (value < lo - 1e-9))
         self._l[rows[bad]] = -INF
         self._u[rows[bad]] = INF
+        self._opened = True
         opts, group = self.options, next(g for g in self.sparse.groups if g.name == "state bounds")
+        bounded = np.flatnonzero(np.isfinite(opts.x_min) | np.isfinite(opts.x_max))
         parts = []
         for b in bad:
             stage, label = group.locate(int(rows[b]))
-            i = int(
-                np.flatnonzero(np.isfinite(opts.x_min) | np.isfinite(opts.x_max))[(rows[b] - group.start) % group.width]
-            )
+            i = int(bounded[(rows[b] - group.start) % group.width])
             parts.append(f"{label} at stage {stage}: predicted {opts.x0[i] + value[b]:.4g} whatever the input")
         return fixed_rows_note(parts)
 

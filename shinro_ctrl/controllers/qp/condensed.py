@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -78,7 +79,7 @@ from shinro_ctrl.controllers.qp.condensed_build import (
 )
 from shinro_ctrl.controllers.qp.condensed_infeasibility import DenseQP, explain_infeasibility
 from shinro_ctrl.controllers.qp.options import MPCOptions
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 
 __all__ = [
     "DAQP_STATUS",
@@ -221,6 +222,10 @@ class CondensedQP:
         z: The latest solution ``(nz,)`` (DAQP's array; None before a solve).
         lam: Its multipliers ``(ns + rows kept,)`` (scaled rows).
 
+    Threads: one object serves one thread; :meth:`solve` entered while
+    another thread is inside it raises :class:`~shinro_ctrl.errors.ConcurrentUse`
+    (``LinearMPC`` serializes its calls with a lock).
+
     Raises:
         InvalidArgument: wrong shapes, NaN bounds, a problem larger than
             :data:`MAX_DENSE_SIZE`, DAQP rejecting the set-up or a setting.
@@ -319,6 +324,7 @@ class CondensedQP:
         self._w_lin = np.zeros(n)
         self._c0 = 0.0
         self.dropped_rows = ""
+        self._busy = threading.Lock()  # a second thread inside solve() is detected (ConcurrentUse)
 
     def _setup(self) -> None:
         # A throwaway state-independent set-up (bounds at e0 = 0, no u_prev); every solve updates them.
@@ -406,6 +412,14 @@ class CondensedQP:
             the plan :attr:`X` ``(N + 1, n)``, :attr:`U` ``(N, m)`` (absolute
             units, new arrays) hold the solution; on failure they are None.
         """
+        if not self._busy.acquire(blocking=False):
+            raise ConcurrentUse("CondensedQP.solve called while another thread is solving it; use one per thread")
+        try:
+            return self._solve(x, u_prev)
+        finally:
+            self._busy.release()
+
+    def _solve(self, x: np.ndarray, u_prev: np.ndarray | None) -> DenseSolveInfo:
         mat, x0 = self.matrices, self.options.x0
         e0 = self._e0
         np.subtract(x, x0, out=e0)

@@ -12,13 +12,14 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from shinro_ctrl.controllers.qp.sparse import RowGroup
 
 __all__ = ["describe_groups", "diagnose", "explain_certificate", "fmt"]
 
 
-def fmt(v: Any) -> str:
+def fmt(v: ArrayLike) -> str:
     """A short rendering of a vector for messages."""
     return np.array2string(np.asarray(v), precision=4, suppress_small=True)
 
