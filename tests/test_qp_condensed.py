@@ -359,3 +359,40 @@ def test_reference_solver_on_degenerate_active_sets(seed):
     z_ref = bvls(H, f, lo, hi)
     assert np.isclose(np.abs(z_ref), 1.0).sum() >= 2  # bounds active: the duplicates make the set dependent
     np.testing.assert_allclose(z, z_ref, rtol=0, atol=1e-8)
+
+
+def test_concurrent_solves_are_refused_or_right(model):
+    """4 threads x 300 solves on one CondensedQP: each returns the serial answer or raises ConcurrentUse."""
+    import threading
+
+    from shinro_ctrl.errors import ConcurrentUse
+
+    A, B, P, _ = model
+    kw = {"u_min": [-3.0], "u_max": [3.0], "x_min": CART[0], "x_max": CART[1]}
+    shared = CondensedQP(A, B, Q_CP, R_CP, P, 20, **kw)
+    serial = CondensedQP(A, B, Q_CP, R_CP, P, 20, **kw)
+    rng = np.random.default_rng(5)
+    states = rng.uniform(-1, 1, (4, 300, 4)) * np.array([0.3, 0.3, 0.2, 0.3])
+    expected = np.array([[serial.solve(x).objective for x in chunk] for chunk in states])
+    got = np.full((4, 300), np.nan)
+    refused = [0] * 4
+    other: list[BaseException] = []
+
+    def work(i: int) -> None:
+        for k, x in enumerate(states[i]):
+            try:
+                got[i, k] = shared.solve(x).objective
+            except ConcurrentUse:
+                refused[i] += 1
+            except BaseException as exc:  # handed to the main thread
+                other.append(exc)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not other, other[:1]
+    done = np.isfinite(got)
+    assert done.sum() + sum(refused) == 1200 and done.sum() > 0
+    np.testing.assert_allclose(got[done], expected[done], rtol=1e-9)

@@ -60,7 +60,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -324,7 +323,7 @@ class CondensedQP:
         self._w_lin = np.zeros(n)
         self._c0 = 0.0
         self.dropped_rows = ""
-        self._busy = threading.Lock()  # a second thread inside solve() is detected (ConcurrentUse)
+        self._busy = [True]  # the token of solve(): a second thread inside it finds none (ConcurrentUse)
 
     def _setup(self) -> None:
         # A throwaway state-independent set-up (bounds at e0 = 0, no u_prev); every solve updates them.
@@ -412,12 +411,17 @@ class CondensedQP:
             the plan :attr:`X` ``(N + 1, n)``, :attr:`U` ``(N, m)`` (absolute
             units, new arrays) hold the solution; on failure they are None.
         """
-        if not self._busy.acquire(blocking=False):
-            raise ConcurrentUse("CondensedQP.solve called while another thread is solving it; use one per thread")
+        busy = self._busy
+        try:
+            busy.pop()  # atomic under the GIL: one token, taken by the thread inside solve()
+        except IndexError:
+            raise ConcurrentUse(
+                "CondensedQP.solve called while another thread is solving it; use one per thread"
+            ) from None
         try:
             return self._solve(x, u_prev)
         finally:
-            self._busy.release()
+            busy.append(True)
 
     def _solve(self, x: np.ndarray, u_prev: np.ndarray | None) -> DenseSolveInfo:
         mat, x0 = self.matrices, self.options.x0
