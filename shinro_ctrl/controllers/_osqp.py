@@ -247,21 +247,23 @@ class OsqpQP:
         self.settings = dict(settings)
         self._data = (P, q, A, l, u)
         self.prefer_fast = bool(fast)
-        self._busy = threading.Lock()  # held while a method runs: a second thread entering is detected
+        self._token = [True]  # taken while a method runs: a second thread entering finds none
         self._writer: int | None = None  # the thread of the latest update (a solve from another is concurrent use)
         self.setup()
 
     def _enter(self, method: str, *, writes: bool = False) -> None:
-        """Claim the object for one method call, or raise :class:`ConcurrentUse`."""
-        me = threading.get_ident()
-        if not self._busy.acquire(blocking=False):
+        """Claim the object for one method call (take its token), or raise :class:`ConcurrentUse`."""
+        try:
+            self._token.pop()  # atomic under the GIL: the one token, held by the thread inside a method
+        except IndexError:
             raise ConcurrentUse(
                 f"OsqpQP.{method} called while another thread is inside this OSQP problem ({self.what})"
-            )
+            ) from None
+        me = threading.get_ident()
         if writes:
             self._writer = me
         elif self._writer is not None and self._writer != me:
-            self._busy.release()
+            self._token.append(True)
             raise ConcurrentUse(
                 f"OsqpQP.{method} called from another thread than the latest update of this OSQP problem "
                 f"({self.what}): its data may be the other thread's"
@@ -276,7 +278,7 @@ class OsqpQP:
             raw = getattr(self.solver, "_solver", None) if self.prefer_fast else None
             self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
         finally:
-            self._busy.release()
+            self._token.append(True)
 
     @property
     def fast(self) -> bool:
@@ -319,7 +321,7 @@ class OsqpQP:
                 kwargs["Ax"] = Ax
             self.solver.update(**kwargs)
         finally:
-            self._busy.release()
+            self._token.append(True)
 
     def warm_start(self, x: np.ndarray, y: np.ndarray) -> None:
         """Primal ``x (n,)`` and dual ``y (m,)`` starting iterates for the next solve."""
@@ -330,7 +332,7 @@ class OsqpQP:
             else:
                 self.solver.warm_start(x=x, y=y)
         finally:
-            self._busy.release()
+            self._token.append(True)
 
     def update_settings(self, **settings: Any) -> None:
         """Change settings between solves (e.g. tighter ``eps_abs``/``eps_rel`` for one re-solve).
@@ -343,7 +345,7 @@ class OsqpQP:
             self.solver.update_settings(**settings)
             self.settings.update(settings)
         finally:
-            self._busy.release()
+            self._token.append(True)
 
     def update_rho(self, rho: float) -> None:
         """Set the ADMM step ``rho`` (OSQP adapts it between solves when ``adaptive_rho``)."""
@@ -354,7 +356,7 @@ class OsqpQP:
             else:
                 self.solver.update_settings(rho=rho)
         finally:
-            self._busy.release()
+            self._token.append(True)
 
     def solve(self) -> tuple[Any, Any]:
         """Solve; returns ``(solution, info)`` (``.x``, ``.y``, ``.prim_inf_cert``; ``.status``, ``.iter``, …).
@@ -374,7 +376,7 @@ class OsqpQP:
                 sol = self.solver.solve(raise_error=False)
                 info = sol.info
         finally:
-            self._busy.release()
+            self._token.append(True)
         if info.status_val == _OSQP_SIGINT:
             raise KeyboardInterrupt("OSQP solve interrupted")
         return (raw.solution if raw is not None else sol), info

@@ -98,6 +98,9 @@ class OsqpBackend:
         self.settled = True
         self._fixed = _fixed_state_rows(problem, options, s)
         self._opened = False  # some of those rows are open in l/u (the previous step dropped them)
+        if self._fixed is not None:
+            self._fixed_value = np.empty(self._fixed[0].size)
+            self._fixed_lo, self._fixed_hi = self._fixed[3] - 1e-9, self._fixed[4] + 1e-9
         self.qp = OsqpQP("MPC problem or its osqp_settings", s.P, self._q, s.A, self._l, self._u, options.osqp_settings)
 
     def reset(self) -> None:
@@ -234,9 +237,9 @@ class OsqpBackend:
             self._l[rows] = lo
             self._u[rows] = hi
             self._opened = False
-        value = E @ self._dx0
+        value = np.matmul(E, self._dx0, out=self._fixed_value)
         value += c
-        if not ((value > hi + 1e-9).any() or (value < lo - 1e-9).any()):
+        if _within(value, self._fixed_lo, self._fixed_hi):
             return ""
         bad = np.flatnonzero((value > hi + 1e-9) | (value < lo - 1e-9))
         self._l[rows[bad]] = -INF
@@ -320,6 +323,14 @@ class OsqpBackend:
         if self._Acl is not None:
             np.matmul(self._Acl, self._zN_prev, out=self._zN)
             np.matmul(self._mK, self._zN_prev, out=self._zuN)
+
+
+def _within(value: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """``lo <= value <= hi`` everywhere (a few small rows: a plain loop beats array temporaries)."""
+    for v, a, b in zip(value.tolist(), lo.tolist(), hi.tolist(), strict=True):
+        if v < a or v > b:
+            return False
+    return True
 
 
 def _fixed_state_rows(
