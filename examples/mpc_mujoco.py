@@ -35,7 +35,7 @@ def main() -> None:
     peak_x, peak_u, times = 0.0, 0.0, []
     for _ in range(250):
         u = mpc(plant.get_state())
-        times.append(mpc.last.solve_time_s)
+        times.append(mpc.last.call_time_s)
         peak_u = max(peak_u, abs(float(u[0])))
         x = plant.step(u)
         peak_x = max(peak_x, abs(float(x[0])))

@@ -151,7 +151,9 @@ def test_step_solves_the_qp(arm, ik, rng):
         dq = ik.step(q, T)
         A = np.vstack([sw[:, None] * prob.J, np.sqrt(ik.damping) * np.eye(6)])
         b = np.concatenate([sw * prob.error, np.zeros(6)])
-        ref = lsq_linear(A, b, bounds=(prob.l, prob.u), method="bvls", tol=1e-14).x
+        res = lsq_linear(A, b, bounds=(prob.l, prob.u), method="bvls", tol=1e-14, max_iter=1000)
+        assert res.success  # BVLS's default max_iter (the number of variables) can stop it short
+        ref = res.x
         np.testing.assert_allclose(dq, ref, atol=2e-3)
 
         cost_dq = 0.5 * dq @ prob.P @ dq + prob.c @ dq

@@ -23,6 +23,7 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from shinro_ctrl.controllers.mpc import QP, LinearMPC, MPCSolution
+from shinro_ctrl.controllers.qp.sparse import qp_size
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable, ShinroError
 from shinro_ctrl.plants import CartPole
 
@@ -174,7 +175,7 @@ def test_input_bounds_match_bvls_on_condensed_qp(cartpole, u_min, u_max, x):
     H, f = condensed(A, B, Q_CP, R_CP, P, N, x)
     L = np.linalg.cholesky(H)  # H = L Lᵀ: ½ UᵀHU + fᵀU = ½ ‖Lᵀ U + L⁻¹ f‖² + const
     rhs = -scipy.linalg.solve_triangular(L, f, lower=True)
-    ref = scipy.optimize.lsq_linear(L.T, rhs, bounds=(u_min, u_max), method="bvls", tol=1e-14)
+    ref = scipy.optimize.lsq_linear(L.T, rhs, bounds=(u_min, u_max), method="bvls", tol=1e-14, max_iter=1000)
     assert ref.success
     U = ref.x
     active = np.flatnonzero((U <= u_min + 1e-9) | (U >= u_max - 1e-9))
@@ -235,20 +236,22 @@ def test_soft_state_bound_becomes_active_standalone(record_property):
 
 
 # ---------------------------------------------------------------- infeasibility
-def test_infeasible_hard_state_bound_raises(cartpole):
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_infeasible_hard_state_bound_raises(cartpole, solver):
     plant, _, _ = cartpole
-    mpc = LinearMPC.from_plant(
-        plant, Q_CP, R_CP, horizon=50, u_min=-3.0, u_max=3.0, discretization="euler", **cart_bounds(0.6)
-    )
+    kw = dict(horizon=50, u_min=-3.0, u_max=3.0, solver=solver, discretization="euler", **cart_bounds(0.6))
+    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
     with pytest.raises(MPCInfeasible) as info:
         mpc([0.59, 3.0, 0.0, 0.0])  # 3 m/s towards the bound, 1 cm away, 3 N of braking
     msg = str(info.value)
     assert "infeasible" in msg
-    # Euler model: x_1 = x_0 + dt v_0 = 0.59 + 0.06 > 0.6 whatever the input, so stage 1 is the first
-    assert re.search(r"state bounds at stage 1 \(x in \[-0.6, 0.6\]\)", msg), msg
+    # Euler model: x_1 = x_0 + dt v_0 = 0.59 + 0.06 > 0.6 whatever the input: not a constraint of the plan (left
+    # out and reported); stage 2, where the input first acts, is the first that cannot be met
+    assert re.search(r"state bounds at stage 2 \(x in \[-0.6, 0.6\]\)", msg), msg
     assert "input bounds" in msg  # what it conflicts with
     assert isinstance(info.value, RuntimeError) and isinstance(info.value, ShinroError)
     assert mpc.last.status == "primal infeasible" and np.isnan(mpc.last.u).all()
+    assert mpc.last.dropped_rows.startswith("x in [-0.6, 0.6] at stage 1: predicted 0.65 whatever the input")
 
 
 def test_infeasible_rate_and_input_bounds_name_stage_zero(cartpole):
@@ -381,14 +384,14 @@ def test_build_exposes_the_qp_without_solving(cartpole):
 
 def test_matrices_are_built_once_and_paths_agree(cartpole):
     plant, _, _ = cartpole
-    kw = dict(horizon=20, u_min=-3.0, u_max=3.0, **cart_bounds(0.6))
+    kw = dict(horizon=20, u_min=-3.0, u_max=3.0, solver="osqp", **cart_bounds(0.6))
     fast = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
     public = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
-    public._osqp.fast = False  # force OSQP's public Python wrapper
-    assert fast._osqp.fast and not public._osqp.fast
+    public.backend.qp.fast = False  # force OSQP's public Python wrapper
+    assert fast.backend.qp.fast and not public.backend.qp.fast
     P, A = fast.P, fast.A_con
     Pdata, Adata = P.data.copy(), A.data.copy()
-    solver = fast._osqp.solver
+    solver = fast.backend.qp.solver
 
     def no_setup(*args, **kwargs):
         raise AssertionError("setup called per step")
@@ -401,7 +404,7 @@ def test_matrices_are_built_once_and_paths_agree(cartpole):
         np.testing.assert_allclose(u1, u2, atol=1e-12)
         assert fast.last.iterations == public.last.iterations
         plant.step(u1)
-    assert fast.P is P and fast.A_con is A and fast._osqp.solver is solver
+    assert fast.P is P and fast.A_con is A and fast.backend.qp.solver is solver
     np.testing.assert_array_equal(P.data, Pdata)
     np.testing.assert_array_equal(A.data, Adata)
 
@@ -409,11 +412,11 @@ def test_matrices_are_built_once_and_paths_agree(cartpole):
 def test_from_plant_off_equilibrium_has_the_drift_offset():
     plant = CartPole(dt=0.02)
     x0 = np.array([0.0, 0.0, 0.1, 0.0])  # not an equilibrium: the pole falls
-    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=5, x0=x0, terminal_cost="Q")
+    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=30, x0=x0, terminal_cost="Q")
     # the default model is the plant's own step: the affine term is that step from (x0, u0) minus x0
     np.testing.assert_allclose(mpc.offset, plant.integrate(x0.copy(), np.zeros(1)) - x0, rtol=1e-12, atol=1e-15)
     assert mpc.model is not None and mpc.model.discretization == "step"
-    euler = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=5, x0=x0, terminal_cost="Q", discretization="euler")
+    euler = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=30, x0=x0, terminal_cost="Q", discretization="euler")
     np.testing.assert_allclose(euler.offset, 0.02 * plant.dynamics(x0, [0.0]), rtol=1e-12)
     mpc(x0)
     # one predicted step from x0 with input u: x0 + A·0 + B (u - u0) + d
@@ -423,13 +426,24 @@ def test_from_plant_off_equilibrium_has_the_drift_offset():
         LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=5, u_mx=3)  # misspelt option
 
 
-def test_describe_lists_sizes_terminal_cost_and_settings(cartpole):
+@pytest.mark.parametrize("solver", ["osqp", "daqp", "auto"])
+def test_describe_lists_sizes_terminal_cost_and_settings_of_the_backend_in_use(cartpole, solver):
+    """The sizes and settings printed are those of the backend that solves (``design mpc`` prints this)."""
     plant, _, _ = cartpole
-    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=20, u_min=-3, u_max=3, soft=True, **cart_bounds(0.6))
+    mpc = LinearMPC.from_plant(
+        plant, Q_CP, R_CP, horizon=20, u_min=-3, u_max=3, soft=True, solver=solver, **cart_bounds(0.6)
+    )
     text = mpc.describe()
-    assert f"{mpc.n_var} variables" in text and f"{mpc.n_con} constraints" in text
-    assert f"nnz(P) = {mpc.P.nnz}" in text and f"nnz(A) = {mpc.A_con.nnz}" in text
-    assert "terminal cost (dare)" in text and "eps_abs=0.0001" in text and "soft" in text
+    if mpc.solver == "osqp":
+        assert f"{mpc.n_var} variables" in text and f"{mpc.n_con} constraints" in text
+        assert f"nnz(P) = {mpc.P.nnz}" in text and f"nnz(A) = {mpc.A_con.nnz}" in text
+        assert "OSQP settings:" in text and "eps_abs=0.0001" in text and "DAQP" not in text
+    else:
+        dense = mpc.dense
+        assert f"condensed QP (DAQP): {dense.n_var} variables ({dense.n_slack} slacks)" in text
+        assert "DAQP settings:" in text and "primal_tol=1e-09" in text and "OSQP" not in text
+    assert f"backend: {mpc.solver} (solver = '{solver}')" in text
+    assert "terminal cost (lqr)" in text and "soft" in text
     assert "horizon N = 20" in text and "dt = 0.02 s" in text
 
 
@@ -453,7 +467,7 @@ def test_describe_lists_sizes_terminal_cost_and_settings(cartpole):
         ({"u_min": [np.nan]}, NonFiniteError, "u_min"),
         ({"x_min": [0.0, 0.0]}, ValueError, r"x_min: expected \(4,\) but found \(2,\)"),
         ({"du_max": -1.0}, ValueError, "du_max must be > 0"),
-        ({"terminal_cost": "lqr"}, ValueError, "terminal_cost"),
+        ({"terminal_cost": "riccati"}, ValueError, "terminal_cost"),
         ({"terminal_cost": np.eye(3)}, ValueError, r"terminal_cost: expected \(4, 4\)"),
         ({"fallback": "hold"}, ValueError, "fallback"),
         ({"soft_weight_quad": 0.0}, ValueError, "soft_weight_quad"),
@@ -502,9 +516,9 @@ def test_oversized_horizon_is_rejected_before_building(cartpole, horizon):
 def test_size_estimate_bounds_the_built_qp(cartpole, soft):
     _, A, B = cartpole
     mpc = LinearMPC(A, B, Q_CP, R_CP, 25, u_min=-3, u_max=3, du_max=0.5, soft=soft, **cart_bounds(0.6))
-    nvar, nnz = mpc._qp_size()
+    nvar, nnz = qp_size(mpc.A, mpc.B, mpc.Q, mpc.R, mpc.N, mpc.options)
     assert nvar == mpc.n_var
-    assert mpc._P.nnz + mpc._A.nnz <= nnz <= mpc._P.nnz + mpc._A.nnz + 4 * 5 // 2
+    assert mpc.P.nnz + mpc.A_con.nnz <= nnz <= mpc.P.nnz + mpc.A_con.nnz + 4 * 5 // 2
 
 
 def test_dare_failure_is_not_stabilizable():
@@ -512,7 +526,8 @@ def test_dare_failure_is_not_stabilizable():
     B = np.array([[0.0], [1.0]])  # the unstable mode is unreachable
     with pytest.raises(NotStabilizable, match="DARE"):
         LinearMPC(A, B, np.eye(2), [[1.0]], 5)
-    LinearMPC(A, B, np.eye(2), [[1.0]], 5, terminal_cost="Q")  # fine without the DARE
+    with pytest.raises(NotStabilizable, match=r"spectral radius 1\.5 >= 1"):  # no law can move the mode
+        LinearMPC(A, B, np.eye(2), [[1.0]], 5, terminal_cost="Q")
 
 
 def test_call_validation(cartpole):
@@ -567,3 +582,209 @@ def test_mutating_the_returned_input_does_not_move_the_rate_window(cartpole):
     r0 = mpc.groups["rate bounds"].start
     qp = mpc.build([0.0, 0.0, 0.1, 0.0])
     np.testing.assert_allclose([qp.l[r0], qp.u[r0]], [applied[0] - 0.5, applied[0] + 0.5])
+
+
+# ------------------------------------------------------ nominal closed loop
+def _plants_for_the_nominal_loop():
+    from shinro_ctrl.plants import DoublePendulum, InvertedPendulum, Quadrotor
+
+    return [
+        ("cartpole", CartPole(dt=0.02), Q_CP, R_CP),
+        ("pendulum", InvertedPendulum(dt=0.02), np.diag([10.0, 1.0]), np.array([[0.1]])),
+        ("acrobot", DoublePendulum(dt=0.01), np.diag([10.0, 10.0, 1.0, 1.0]), None),
+        ("quadrotor", Quadrotor(dt=0.02), np.eye(12), None),
+    ]
+
+
+@pytest.mark.parametrize("horizon", [1, 3, 10, 40])
+def test_a_non_stabilizing_mpc_is_refused_when_built(horizon):
+    """The unconstrained MPC law from a plain condensed QP (H⁻¹F by simulation): refused iff A − B K is unstable."""
+    outcomes = set()
+    for name, plant, Q, R in _plants_for_the_nominal_loop():
+        lm = plant.linear_model(discretization="euler")
+        A, B = lm.A, lm.B
+        m = B.shape[1]
+        R = 0.1 * np.eye(m) if R is None else R
+        for terminal in ("Q", 2.0 * Q):
+            P_f = Q if isinstance(terminal, str) else terminal
+            # the reference gain: first move of the condensed QP's unconstrained optimum, column by column
+            H, _ = condensed(A, B, Q, R, P_f, horizon, np.zeros(A.shape[0]))
+            K = np.column_stack(
+                [np.linalg.solve(H, condensed(A, B, Q, R, P_f, horizon, e)[1])[:m] for e in np.eye(A.shape[0])]
+            )
+            radius = np.max(np.abs(np.linalg.eigvals(A - B @ K)))
+            kw = dict(horizon=horizon, terminal_cost=terminal, discretization="euler")
+            if radius >= 1.0 - 1e-9:
+                with pytest.raises(NotStabilizable) as info:
+                    LinearMPC.from_plant(plant, Q, R, **kw)
+                text = str(info.value)
+                assert f"spectral radius {radius:.4g} >= 1" in text, (name, text)
+                assert "longer horizon" in text and "terminal_cost = 'lqr'" in text
+                outcomes.add("refused")
+            else:
+                mpc = LinearMPC.from_plant(plant, Q, R, **kw)
+                np.testing.assert_allclose(mpc.K_mpc, K, rtol=1e-6, atol=1e-9 * np.abs(K).max())
+                outcomes.add("built")
+    if horizon == 1:
+        assert "refused" in outcomes  # the cart-pole at N = 1 (radius 1.07) among others
+    if horizon == 40:
+        assert "built" in outcomes
+
+
+def test_a_stabilizing_short_horizon_builds_and_settles():
+    """The fix the message names works: terminal_cost='lqr' at N = 1, or a longer horizon with 'Q'."""
+    plant = CartPole(dt=0.02)
+    with pytest.raises(NotStabilizable, match=r"horizon = 26 is the shortest that stabilizes it"):
+        LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=1, terminal_cost="Q", discretization="euler")
+    for mpc in (
+        LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=1, terminal_cost="lqr"),
+        LinearMPC.from_plant(plant, Q_CP, R_CP, horizon=50, terminal_cost="Q"),  # spectral radius 0.985
+    ):
+        x = np.array([0.0, 0.0, 0.1, 0.0])
+        for _ in range(1000):
+            x = mpc.A @ x + mpc.B @ mpc(x)
+        assert np.abs(x).max() < 1e-3
+
+
+# ------------------------------------------------------------------ threads
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_one_controller_called_from_four_threads_equals_a_serial_run(cartpole, solver):
+    """4 threads x 1,000 calls on one LinearMPC give each state's serial answer (the lock serializes the steps)."""
+    import threading
+
+    _, A, B = cartpole
+    kw = dict(u_min=-3.0, u_max=3.0, solver=solver, **cart_bounds(0.6))  # no rate bounds: u depends on x only
+    rng = np.random.default_rng(11)
+    states = rng.uniform(-1, 1, (4, 1000, 4)) * np.array([0.3, 0.3, 0.2, 0.3])
+    serial = LinearMPC(A, B, Q_CP, R_CP, 10, **kw)
+    expected = np.array([[serial(x)[0] for x in chunk] for chunk in states])
+    shared = LinearMPC(A, B, Q_CP, R_CP, 10, **kw)
+    got = np.full((4, 1000), np.nan)
+    errors: list[BaseException] = []
+    start = threading.Barrier(4)
+
+    def work(i: int) -> None:
+        try:
+            start.wait()
+            for k, x in enumerate(states[i]):
+                got[i, k] = shared(x)[0]
+        except BaseException as exc:  # reported by the main thread
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors[:1]
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-6)
+
+
+def test_osqp_adapter_detects_a_second_thread():
+    """OsqpQP raises ConcurrentUse for a call from a thread other than the latest update's, never crashes."""
+    import threading
+
+    from shinro_ctrl.controllers._osqp import OsqpQP
+    from shinro_ctrl.errors import ConcurrentUse
+
+    P = sp.csc_matrix(np.eye(2))
+    A = sp.csc_matrix(np.eye(2))
+    qp = OsqpQP("test QP", P, np.zeros(2), A, -np.ones(2), np.ones(2), {"verbose": False})
+    qp.update(np.array([1.0, -1.0]), -np.ones(2), np.ones(2))  # the main thread owns the latest update
+    caught: list[BaseException] = []
+    t = threading.Thread(target=lambda: _call_into(qp.solve, caught))
+    t.start()
+    t.join()
+    assert len(caught) == 1 and isinstance(caught[0], ConcurrentUse) and "another thread" in str(caught[0])
+    sol, info = qp.solve()  # the owner goes on
+    assert info.status == "solved"
+    np.testing.assert_allclose(sol.x, [-1.0, 1.0], atol=1e-2)  # OSQP at its default eps 1e-3
+    # a thread that takes over starts with an update and then owns the object
+    done: list[BaseException] = []
+    t = threading.Thread(
+        target=lambda: _call_into(lambda: (qp.update(None, -np.ones(2), np.ones(2)), qp.solve()), done)
+    )
+    t.start()
+    t.join()
+    assert not done
+    # four threads hammering one object: each sequence solves or is refused with ConcurrentUse, nothing else
+    outcomes: list[str] = []
+
+    def hammer() -> None:
+        for _ in range(1000):
+            try:
+                qp.update(None, -np.ones(2), np.ones(2))
+                qp.solve()
+                outcomes.append("solved")
+            except ConcurrentUse:
+                outcomes.append("refused")
+
+    threads = [threading.Thread(target=hammer) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(outcomes) == 4000 and set(outcomes) <= {"solved", "refused"}
+
+
+def _call_into(fn, sink: list) -> None:
+    try:
+        fn()
+    except BaseException as exc:  # handed to the main thread
+        sink.append(exc)
+
+
+# ---------------------------------------------------------------- settings
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("key", ["eps_abs", "eps_rel", "rho", "alpha", "time_limit"])
+def test_non_finite_osqp_settings_are_refused_in_one_line(cartpole, key, value):
+    _, A, B = cartpole
+    with pytest.raises(InvalidArgument) as info:
+        LinearMPC(A, B, Q_CP, R_CP, 10, osqp_settings={key: value})
+    assert str(info.value) == f"osqp_settings: '{key}' must be a finite number, got {value!r}"
+
+
+def test_non_finite_osqp_setting_in_a_scenario_file_exits_2_with_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    scenario = tmp_path / "mpc_nan.toml"
+    scenario.write_text(
+        '[plant]\ntype = "CartPole"\ndt = 0.02\n\n[controller]\ntype = "LinearMPC"\nhorizon = 20\nQ = [10, 1, 100, 1]\n'
+        "R = [0.1]\nosqp_settings = { eps_abs = nan }\n\n[sim]\nduration = 0.1\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-m", "shinro_ctrl.cli", "design", "mpc", str(scenario)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 2, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "'eps_abs' must be a finite number, got nan" in lines[0], res.stderr
+
+
+@pytest.mark.parametrize("solver", ["auto", "osqp"])
+def test_design_mpc_prints_the_backend_in_use(tmp_path, solver):
+    """``design mpc`` prints the sizes and settings of the backend that solves, not OSQP's while DAQP solves."""
+    import subprocess
+    import sys
+
+    scenario = tmp_path / "mpc.toml"
+    scenario.write_text(
+        '[plant]\ntype = "CartPole"\ndt = 0.02\n\n[controller]\ntype = "LinearMPC"\nhorizon = 20\nQ = [10, 1, 100, 1]\n'
+        f'R = [0.1]\nu_min = [-3.0]\nu_max = [3.0]\nsolver = "{solver}"\n\n[sim]\nduration = 0.2\n'
+    )
+    res = subprocess.run(
+        [sys.executable, "-m", "shinro_ctrl.cli", "design", "mpc", str(scenario)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    if solver == "auto":  # N·m = 20: DAQP
+        assert "backend: daqp" in res.stdout and "condensed QP (DAQP): 20 variables" in res.stdout
+        assert "DAQP settings: " in res.stdout and "OSQP" not in res.stdout
+    else:
+        assert "backend: osqp" in res.stdout and "sparse QP (OSQP): 104 variables" in res.stdout
+        assert "OSQP settings: " in res.stdout and "eps_abs=0.0001" in res.stdout and "DAQP" not in res.stdout

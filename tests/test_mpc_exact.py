@@ -209,3 +209,39 @@ def test_shipped_mpc_scenarios_run_exact_on_auto(name):
         iu = (mpc.N + 1) * mpc.n
         u_ref = np.clip(out.x[iu : iu + mpc.m] + mpc.u0, mpc.u_min, mpc.u_max)
         np.testing.assert_allclose(u, u_ref, rtol=1e-6, atol=1e-9 * max(1.0, float(np.abs(u_ref).max())))
+
+
+@pytest.mark.parametrize("solver", BACKENDS)
+def test_bounds_no_input_can_move_are_left_out_not_infeasible(cp, solver):
+    """Explicit Euler: x_1's cart position is x + dt·v whatever u_0. A run that raised MPCInfeasible at step 27
+    (|x| <= 0.3, the measured state already past the bound one step ahead) now runs through; the step leaves
+    that bound out, says so in ``dropped_rows``, and its plan is the exact optimum without it."""
+    A, B, _, P = cp
+    plant = CartPole(dt=0.02)
+    kw = dict(horizon=30, u_min=-10.0, u_max=10.0, solver=solver, **cart_bounds(0.3))
+    mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
+    plant.set_state([0.0, 0.0, 0.3, 0.0])
+    dropped = []
+    for k in range(200):
+        x = plant.get_state()
+        u = mpc(x)  # used to raise MPCInfeasible at k = 27 ("state bounds at stage 1")
+        if mpc.last.dropped_rows:
+            dropped.append((k, x.copy(), mpc.last.dropped_rows))
+        plant.step(u)
+    assert abs(plant.get_state()[2]) < 0.01  # the pole is balanced
+    assert dropped and all("at stage 1: predicted" in text and "x in [-0.3, 0.3]" in text for _, _, text in dropped)
+    k, x, text = dropped[0]
+    assert k == 27 and f"predicted {x[0] + 0.02 * x[1]:.4g}" in text
+    # the exact optimum of the plain condensed QP with every bound but x_1's
+    N = 30
+    mpc.reset()
+    u = mpc(x)
+    H, f, Phi, Gam, c = plain_qp(A, B, Q_CP, R_CP, P, N, x)
+    sel = np.arange(2, N + 1) * 4  # cart rows of x_2 … x_N (x_1's is left out)
+    off = (Phi @ x + c)[sel]
+    G = np.vstack([np.eye(N), Gam[sel]])
+    U = exact_qp(
+        H, f, G, np.concatenate([np.full(N, -10.0), -0.3 - off]), np.concatenate([np.full(N, 10.0), 0.3 - off])
+    )
+    np.testing.assert_allclose(u[0], U[0], rtol=1e-6)
+    assert np.abs(mpc.last.states[2:, 0]).max() <= 0.3 + 1e-7 < mpc.last.states[1, 0]

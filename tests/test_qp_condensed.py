@@ -6,9 +6,10 @@ References, all built here without the module under test:
   simulating the model column by column, with the cost written stage by stage;
 * its exact optimum: scipy's BVLS (``lsq_linear(method="bvls")``) on the
   Cholesky factor when only the inputs are bounded, else an active set taken
-  from ``trust-constr`` at tight tolerances and solved exactly as a KKT system
-  (primal feasibility and multiplier signs checked, so the reference is a
-  certified optimum);
+  started from ``trust-constr`` at tight tolerances and finished by a primal
+  active-set method on linearly independent working sets (degenerate active
+  sets allowed), certified by the KKT conditions (primal feasibility,
+  stationarity, multiplier signs);
 * the discrete LQR from ``scipy.linalg.solve_discrete_are``.
 """
 
@@ -67,21 +68,31 @@ def plain_qp(A, B, Q, R, P_f, N, x0, d=None, ref=None, u_ref=None):
 
 
 def bvls(H, f, lo, hi):
-    """Exact minimizer of ``½ UᵀHU + fᵀU`` on the box ``[lo, hi]`` (BVLS on ``H = L Lᵀ``)."""
+    """Exact minimizer of ``½ UᵀHU + fᵀU`` on the box ``[lo, hi]`` (BVLS on ``H = L Lᵀ``).
+
+    ``max_iter`` well above BVLS's default (the number of variables), which can stop it short of the optimum.
+    """
     L = np.linalg.cholesky(H)
-    res = scipy.optimize.lsq_linear(L.T, -np.linalg.solve(L, f), bounds=(lo, hi), method="bvls", tol=1e-15)
+    res = scipy.optimize.lsq_linear(
+        L.T, -np.linalg.solve(L, f), bounds=(lo, hi), method="bvls", tol=1e-15, max_iter=100 * f.size + 100
+    )
     assert res.success
     return res.x
 
 
 def exact_qp(H, f, G, lo, hi):
-    """Certified minimizer of ``½ zᵀHz + fᵀz  s.t.  lo ≤ G z ≤ hi``.
+    """Certified minimizer of ``½ zᵀHz + fᵀz  s.t.  lo ≤ G z ≤ hi`` (``H`` positive definite).
 
-    ``trust-constr`` (tight tolerances) proposes the active set; a plain
-    primal-dual active-set loop corrects it (drop the most wrong-signed
-    multiplier, add the most violated row) and solves the KKT system on it
-    exactly; the final point passes primal feasibility and multiplier-sign
-    checks, which makes it the unique optimum of this strictly convex QP.
+    ``trust-constr`` (tight tolerances) gives a starting point; a primal
+    active-set method (Nocedal & Wright, Algorithm 16.3) finishes exactly
+    from it. Its working set starts as a linearly *independent* subset of the
+    nearly active rows (a box row and a rate row active at the same input
+    are dependent: only one enters) with the point projected onto them, and
+    stays independent: a blocking row ``g`` has ``gᵀp ≠ 0`` along a step
+    ``p`` that every working row keeps at ``0``. Each KKT system is therefore
+    nonsingular, its multipliers unique. The result is certified by the KKT
+    conditions themselves (primal feasibility, multiplier signs, stationarity),
+    which for a strictly convex QP make it the unique optimum.
     """
     res = scipy.optimize.minimize(
         lambda z: 0.5 * z @ H @ z + f @ z,
@@ -94,27 +105,56 @@ def exact_qp(H, f, G, lo, hi):
     )
     norms = np.linalg.norm(G, axis=1)
     scale = np.where(norms > 0, norms, 1.0)  # a zero row (x_1's position under Euler) is checked unscaled
-    gz = G @ res.x
-    # active rows: +1 at the upper bound, -1 at the lower bound
-    side = np.where(np.abs(gz - hi) <= 1e-6 * scale, 1, np.where(np.abs(gz - lo) <= 1e-6 * scale, -1, 0))
     nz = f.size
-    for _ in range(200):
+    z = res.x
+    gz = G @ z
+    near = np.minimum(np.abs(gz - hi), np.abs(gz - lo)) / scale
+    side = np.zeros(G.shape[0], dtype=int)
+    for i in np.argsort(near):  # the closest rows first, each only if independent of those taken
+        if near[i] > 1e-6 or norms[i] == 0:
+            break
+        rows = np.flatnonzero(side)
+        if np.linalg.matrix_rank(G[np.append(rows, i)], tol=1e-10 * norms.max()) == rows.size + 1:
+            side[i] = 1 if abs(gz[i] - hi[i]) <= abs(gz[i] - lo[i]) else -1
+    rows = np.flatnonzero(side)
+    if rows.size:
+        b = np.where(side[rows] > 0, hi[rows], lo[rows])
+        z = z + np.linalg.lstsq(G[rows], b - G[rows] @ z, rcond=None)[0]
+    for _ in range(1000):
         rows = np.flatnonzero(side)
         Ga = G[rows]
-        b = np.where(side[rows] > 0, hi[rows], lo[rows])
         K = np.block([[H, Ga.T], [Ga, np.zeros((rows.size, rows.size))]])
-        sol = np.linalg.solve(K, np.concatenate([-f, b]))
-        z, lam = sol[:nz], sol[nz:]
-        wrong = lam * side[rows]  # must be >= 0
-        viol = np.maximum(G @ z - hi, lo - G @ z) / scale
-        if wrong.size and wrong.min() < -1e-10:
-            side[rows[int(np.argmin(wrong))]] = 0
-        elif viol.max(initial=0.0) > 1e-10:
-            i = int(np.argmax(viol))
-            side[i] = 1 if G[i] @ z > hi[i] else -1
-        else:
-            return z
-    raise AssertionError("reference active-set loop did not settle")
+        sol = np.linalg.solve(K, np.concatenate([-(H @ z + f), np.zeros(rows.size)]))
+        p, lam = sol[:nz], sol[nz:]
+        if np.linalg.norm(p) <= 1e-13 * (1.0 + np.linalg.norm(z)):
+            mu = lam * side[rows]  # multipliers in the sign convention of each row's side: must be >= 0
+            if not mu.size or mu.min() >= -1e-10 * max(1.0, np.abs(mu).max()):
+                break
+            side[rows[int(np.argmin(mu))]] = 0
+            continue
+        # step to the first blocking row outside the working set; rows in the working set's span never block
+        # (their gᵀp is zero up to rounding, which a small step can make look like a block at alpha = 0)
+        gz, gp = G @ z, G @ p
+        basis = np.linalg.qr(Ga.T)[0] if rows.size else np.zeros((nz, 0))
+        outside = np.linalg.norm(G.T - basis @ (basis.T @ G.T), axis=0) > 1e-9 * scale
+        alpha, block = 1.0, -1
+        for i in np.flatnonzero((side == 0) & outside & (gp != 0)):
+            a = ((hi[i] if gp[i] > 0 else lo[i]) - gz[i]) / gp[i]
+            if a < alpha:
+                alpha, block = max(a, 0.0), i
+        z = z + alpha * p
+        if block >= 0:
+            side[block] = 1 if gp[block] > 0 else -1
+    else:
+        raise AssertionError("reference active-set method did not converge")
+    # the certificate: feasible, stationary, multipliers of the right signs
+    rows = np.flatnonzero(side)
+    viol = np.maximum(G @ z - hi, lo - G @ z) / scale
+    assert viol.max(initial=0.0) <= 1e-9, viol.max()
+    lam = np.linalg.lstsq(G[rows].T, -(H @ z + f), rcond=None)[0]
+    assert np.linalg.norm(H @ z + f + G[rows].T @ lam) <= 1e-9 * max(1.0, np.linalg.norm(f))
+    assert np.all(lam * side[rows] >= -1e-10 * max(1.0, np.abs(lam).max(initial=0.0)))
+    return z
 
 
 def states(rng, count, scale):
@@ -242,10 +282,18 @@ def test_infeasible_flag_and_explanation(model):
     assert why is not None and why.startswith("state bounds at stage") and "input bounds" in why
     # a feasible state afterwards is solved (the failed working set is not kept)
     assert qp.solve(np.array([0.0, 0.0, 0.1, 0.0])).solved
-    # a fixed row (x_1 = x_0 + dt v_0 under Euler) violated: infeasible whatever the input, stage 1 named
+    # a fixed row (x_1 = x_0 + dt v_0 under Euler) violated: no input moves it, so it is left out and reported;
+    # the problem is still infeasible here, at stage 2, which is what the explanation names
     x1 = np.array([0.59, 1.0, 0.0, 0.0])
     assert qp.solve(x1).status == "primal infeasible"
-    assert qp.explain_infeasibility(x1).startswith("state bounds at stage 1")
+    assert qp.dropped_rows.startswith("x[0] in [-0.6, 0.6] at stage 1: predicted 0.61 whatever the input")
+    assert qp.explain_infeasibility(x1).startswith("state bounds at stage 2")
+    # where the later stages can still be met, the step is solved with the note
+    x2 = np.array([0.5999, 0.02, 0.0, 0.0])  # x_1 = 0.6003 > 0.6, then 3 N brakes the cart in time
+    info = qp.solve(x2)
+    assert info.solved and "at stage 1: predicted 0.6003" in qp.dropped_rows
+    X, _, _ = qp.plan()
+    assert X[1, 0] == pytest.approx(0.6003) and np.abs(X[2:, 0]).max() <= 0.6 + 1e-9
 
 
 def test_long_horizon_unstable_cartpole(model):
@@ -287,3 +335,64 @@ def test_warm_and_cold_agree(model, rng):
         its.append((iw.iterations, ic.iterations))
         x = plant.step(u)
     assert sum(w for w, _ in its) < sum(c for _, c in its)  # the warm start saves iterations
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_reference_solver_on_degenerate_active_sets(seed):
+    """The reference ``exact_qp`` on box QPs with redundant rows (duplicates, sums of box rows) equals BVLS.
+
+    The redundant rows are active exactly when the box rows they repeat are, so
+    every optimum with an active bound has a linearly dependent active set (the
+    kind of a box row and a rate row meeting at one input).
+    """
+    r = np.random.default_rng(seed)
+    n = 8
+    M = r.normal(size=(n, n))
+    H = M @ M.T + 0.1 * np.eye(n)
+    f = r.normal(scale=5.0, size=n)
+    lo, hi = -np.ones(n), np.ones(n)
+    pairs = np.eye(n)[:-1] + np.eye(n, k=1)[:-1]  # z_i + z_{i+1}: active with both bounds of a pair
+    G = np.vstack([np.eye(n), np.eye(n), pairs])
+    glo = np.concatenate([lo, lo, lo[:-1] + lo[1:]])
+    ghi = np.concatenate([hi, hi, hi[:-1] + hi[1:]])
+    z = exact_qp(H, f, G, glo, ghi)
+    z_ref = bvls(H, f, lo, hi)
+    assert np.isclose(np.abs(z_ref), 1.0).sum() >= 2  # bounds active: the duplicates make the set dependent
+    np.testing.assert_allclose(z, z_ref, rtol=0, atol=1e-8)
+
+
+def test_concurrent_solves_are_refused_or_right(model):
+    """4 threads x 300 solves on one CondensedQP: each returns the serial answer or raises ConcurrentUse."""
+    import threading
+
+    from shinro_ctrl.errors import ConcurrentUse
+
+    A, B, P, _ = model
+    kw = {"u_min": [-3.0], "u_max": [3.0], "x_min": CART[0], "x_max": CART[1]}
+    shared = CondensedQP(A, B, Q_CP, R_CP, P, 20, **kw)
+    serial = CondensedQP(A, B, Q_CP, R_CP, P, 20, **kw)
+    rng = np.random.default_rng(5)
+    states = rng.uniform(-1, 1, (4, 300, 4)) * np.array([0.3, 0.3, 0.2, 0.3])
+    expected = np.array([[serial.solve(x).objective for x in chunk] for chunk in states])
+    got = np.full((4, 300), np.nan)
+    refused = [0] * 4
+    other: list[BaseException] = []
+
+    def work(i: int) -> None:
+        for k, x in enumerate(states[i]):
+            try:
+                got[i, k] = shared.solve(x).objective
+            except ConcurrentUse:
+                refused[i] += 1
+            except BaseException as exc:  # handed to the main thread
+                other.append(exc)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not other, other[:1]
+    done = np.isfinite(got)
+    assert done.sum() + sum(refused) == 1200 and done.sum() > 0
+    np.testing.assert_allclose(got[done], expected[done], rtol=1e-9)

@@ -11,7 +11,7 @@ over the horizon ``N`` from the terminal cost ``P_f``,
     K_N = (R + Bᵀ P_1 B)⁻¹ Bᵀ P_1 A
 
 (valid while no constraint is active; equal to the LQR gain with the default
-``terminal_cost = "dare"``).
+``terminal_cost = "lqr"``).
 """
 
 from __future__ import annotations

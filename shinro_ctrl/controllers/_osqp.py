@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import ctypes
 import io
+import math
 import os
 import sys
 import tempfile
@@ -31,9 +32,11 @@ import threading
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
 import osqp
+import scipy.sparse as sp
 
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.validation import closest, unknown_keys
 
 __all__ = ["OsqpQP", "merge_settings", "setup_solver", "valid_settings"]
@@ -70,7 +73,7 @@ def _split(text: str) -> tuple[list[str], str]:
     return errors, "".join(ln for ln in lines if not ln.lstrip().startswith("ERROR in"))
 
 
-def setup_solver(solver: Any, what: str, /, *args: Any, **kwargs: Any) -> None:
+def setup_solver(solver: osqp.OSQP, what: str, /, *args: Any, **kwargs: Any) -> None:
     """``solver.setup(*args, **kwargs)`` with OSQP's prints captured.
 
     Both routes OSQP may print by are captured: file descriptor 1 (C
@@ -187,6 +190,8 @@ def _check_setting_type(name: str, key: str, value: Any) -> None:
         ok, want = isinstance(value, int | str) and not is_bool, "an integer or a name"
     if not ok:
         raise InvalidArgument(f"{name}: '{key}' must be {want}, got {type(value).__name__} {value!r}")
+    if isinstance(default, float) and not math.isfinite(value):  # OSQP would take NaN and compare nothing with it
+        raise InvalidArgument(f"{name}: '{key}' must be a finite number, got {value!r}")
 
 
 class OsqpQP:
@@ -213,23 +218,67 @@ class OsqpQP:
     Attributes:
         solver: The public ``osqp.OSQP`` object.
         fast: Whether calls go through the compiled solver.
+
+    Threads: one object serves one thread at a time. A method entered while
+    another thread is inside one, or a ``warm_start``/``solve`` from a thread
+    other than the one that made the latest ``update``, raises
+    :class:`~shinro_ctrl.errors.ConcurrentUse` instead of letting OSQP's C
+    workspace be written by two threads (which crashed the process). An
+    owner that serializes its calls (``LinearMPC`` holds a lock around its
+    whole step) never sees it; a thread that takes over an idle object
+    starts with ``update``.
     """
 
     _NEEDED = ("update_data_vec", "update_data_mat", "warm_start", "update_rho", "solve", "info", "solution")
 
-    def __init__(self, what: str, P: Any, q: Any, A: Any, l: Any, u: Any, settings: Mapping[str, Any], *, fast=True):
+    def __init__(
+        self,
+        what: str,
+        P: sp.csc_matrix,
+        q: np.ndarray,
+        A: sp.csc_matrix,
+        l: np.ndarray,
+        u: np.ndarray,
+        settings: Mapping[str, Any],
+        *,
+        fast: bool = True,
+    ):
         self.what = what
         self.settings = dict(settings)
         self._data = (P, q, A, l, u)
         self.prefer_fast = bool(fast)
+        self._token = [True]  # taken while a method runs: a second thread entering finds none
+        self._writer: int | None = None  # the thread of the latest update (a solve from another is concurrent use)
         self.setup()
+
+    def _enter(self, method: str, *, writes: bool = False) -> None:
+        """Claim the object for one method call (take its token), or raise :class:`ConcurrentUse`."""
+        try:
+            self._token.pop()  # atomic under the GIL: the one token, held by the thread inside a method
+        except IndexError:
+            raise ConcurrentUse(
+                f"OsqpQP.{method} called while another thread is inside this OSQP problem ({self.what})"
+            ) from None
+        me = threading.get_ident()
+        if writes:
+            self._writer = me
+        elif self._writer is not None and self._writer != me:
+            self._token.append(True)
+            raise ConcurrentUse(
+                f"OsqpQP.{method} called from another thread than the latest update of this OSQP problem "
+                f"({self.what}): its data may be the other thread's"
+            )
 
     def setup(self) -> None:
         """(Re)create and set up the OSQP object from the set-up data (a clean solver state)."""
-        self.solver = osqp.OSQP()
-        setup_solver(self.solver, self.what, *self._data, **self.settings)
-        raw = getattr(self.solver, "_solver", None) if self.prefer_fast else None
-        self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
+        self._enter("setup", writes=True)
+        try:
+            self.solver = osqp.OSQP()
+            setup_solver(self.solver, self.what, *self._data, **self.settings)
+            raw = getattr(self.solver, "_solver", None) if self.prefer_fast else None
+            self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
+        finally:
+            self._token.append(True)
 
     @property
     def fast(self) -> bool:
@@ -245,30 +294,45 @@ class OsqpQP:
             raw = getattr(self.solver, "_solver", None)
             self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
 
-    def update(self, q: Any, l: Any, u: Any, Px: Any = None, Ax: Any = None) -> None:
+    def update(
+        self,
+        q: np.ndarray | None,
+        l: np.ndarray,
+        u: np.ndarray,
+        Px: np.ndarray | None = None,
+        Ax: np.ndarray | None = None,
+    ) -> None:
         """New ``q`` (None keeps it), ``l``, ``u``; optionally new values ``Px`` / ``Ax`` of P's / A's pattern."""
-        raw = self._raw
-        if raw is not None:
-            if raw.update_data_vec(q, l, u) != 0:  # pragma: no cover - sizes are fixed
-                raise RuntimeError("OSQP rejected the vector update")
-            if Px is not None or Ax is not None:
-                raw.update_data_mat(Px, None, Ax, None)
-            return
-        kwargs = {"l": l, "u": u}
-        if q is not None:
-            kwargs["q"] = q
-        if Px is not None:
-            kwargs["Px"] = Px
-        if Ax is not None:
-            kwargs["Ax"] = Ax
-        self.solver.update(**kwargs)
+        self._enter("update", writes=True)
+        try:
+            raw = self._raw
+            if raw is not None:
+                if raw.update_data_vec(q, l, u) != 0:  # pragma: no cover - sizes are fixed
+                    raise RuntimeError("OSQP rejected the vector update")
+                if Px is not None or Ax is not None:
+                    raw.update_data_mat(Px, None, Ax, None)
+                return
+            kwargs = {"l": l, "u": u}
+            if q is not None:
+                kwargs["q"] = q
+            if Px is not None:
+                kwargs["Px"] = Px
+            if Ax is not None:
+                kwargs["Ax"] = Ax
+            self.solver.update(**kwargs)
+        finally:
+            self._token.append(True)
 
-    def warm_start(self, x: Any, y: Any) -> None:
+    def warm_start(self, x: np.ndarray, y: np.ndarray) -> None:
         """Primal ``x (n,)`` and dual ``y (m,)`` starting iterates for the next solve."""
-        if self._raw is not None:
-            self._raw.warm_start(x, y)
-        else:
-            self.solver.warm_start(x=x, y=y)
+        self._enter("warm_start")
+        try:
+            if self._raw is not None:
+                self._raw.warm_start(x, y)
+            else:
+                self.solver.warm_start(x=x, y=y)
+        finally:
+            self._token.append(True)
 
     def update_settings(self, **settings: Any) -> None:
         """Change settings between solves (e.g. tighter ``eps_abs``/``eps_rel`` for one re-solve).
@@ -276,15 +340,23 @@ class OsqpQP:
         Only the settings OSQP allows to change after set-up (tolerances,
         ``max_iter``, ``polishing``, ``time_limit``, …); kept in :attr:`settings`.
         """
-        self.solver.update_settings(**settings)
-        self.settings.update(settings)
+        self._enter("update_settings")
+        try:
+            self.solver.update_settings(**settings)
+            self.settings.update(settings)
+        finally:
+            self._token.append(True)
 
     def update_rho(self, rho: float) -> None:
         """Set the ADMM step ``rho`` (OSQP adapts it between solves when ``adaptive_rho``)."""
-        if self._raw is not None:
-            self._raw.update_rho(rho)
-        else:
-            self.solver.update_settings(rho=rho)
+        self._enter("update_rho")
+        try:
+            if self._raw is not None:
+                self._raw.update_rho(rho)
+            else:
+                self.solver.update_settings(rho=rho)
+        finally:
+            self._token.append(True)
 
     def solve(self) -> tuple[Any, Any]:
         """Solve; returns ``(solution, info)`` (``.x``, ``.y``, ``.prim_inf_cert``; ``.status``, ``.iter``, …).
@@ -292,14 +364,19 @@ class OsqpQP:
         Raises:
             KeyboardInterrupt: OSQP caught Ctrl-C (status ``interrupted``): the interruption ends the
                 command, it is never reported as an infeasible or failed solve.
+            ConcurrentUse: another thread is inside this object, or made the latest update.
         """
-        raw = self._raw
-        if raw is not None:
-            raw.solve()
-            info = raw.info
-        else:
-            sol = self.solver.solve(raise_error=False)
-            info = sol.info
+        self._enter("solve")
+        try:
+            raw = self._raw
+            if raw is not None:
+                raw.solve()
+                info = raw.info
+            else:
+                sol = self.solver.solve(raise_error=False)
+                info = sol.info
+        finally:
+            self._token.append(True)
         if info.status_val == _OSQP_SIGINT:
             raise KeyboardInterrupt("OSQP solve interrupted")
         return (raw.solution if raw is not None else sol), info

@@ -37,14 +37,14 @@ zero and the state bounds are hard). The decision vector is
 inequality rows form one matrix ``A_con`` with ``l ≤ A_con z ≤ u`` (OSQP's
 form ``min ½ zᵀ P z + qᵀ z``).
 
-``P`` and ``A_con`` are built once as CSC matrices (``controllers/qp/sparse.py``)
-and handed to one OSQP object (``controllers/_osqp.py``). A call writes the
-measured state into the initial-state rows of
-``l``/``u`` (and the previous input into the first rate rows), rewrites ``q``
-only when the reference changes, warm-starts primal and dual variables from
-the previous solution shifted by one stage, and solves.
+``P`` and ``A_con`` are built once as CSC matrices (``controllers/qp/sparse.py``).
 
-**Backends** (``solver=``). ``"osqp"`` solves the sparse form above; its
+**Backends** (``solver=``), one object each behind one interface
+(``controllers/qp/dispatch.py``: ``BACKENDS``), each owning its buffers and
+solver object: :class:`~.qp.backend_osqp.OsqpBackend` and
+:class:`~.qp.backend_daqp.DaqpBackend`; ``LinearMPC`` keeps the policy (the
+backend choice, the referee of an inexact OSQP solve, the previous input, the
+fallback and the result). ``"osqp"`` solves the sparse form above; its
 default settings polish the ADMM solution (an exact solve of the KKT system
 on the identified active set), and a solve that ends "solved inaccurate",
 unpolished or at the iteration limit is re-solved from its own iterate with
@@ -64,27 +64,45 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
+import threading
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
-from shinro_ctrl.controllers._mpc_solve import MPCSolve
+from shinro_ctrl.analysis.design import finite_horizon_gain
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqr import riccati
 from shinro_ctrl.controllers.offset_free import offset_free_call
-from shinro_ctrl.controllers.qp.condensed import CondensedQP
+from shinro_ctrl.controllers.qp.backend_daqp import DaqpBackend
+from shinro_ctrl.controllers.qp.backend_osqp import OsqpBackend
+from shinro_ctrl.controllers.qp.condensed import MAX_DENSE_SIZE, CondensedQP
 from shinro_ctrl.controllers.qp.diagnose import fmt
-from shinro_ctrl.controllers.qp.dispatch import AUTO_DAQP_MAX_VARIABLES, choose_solver
-from shinro_ctrl.controllers.qp.options import DEFAULT_OSQP_SETTINGS, PLANT_GIVEN, MPCOptions
-from shinro_ctrl.controllers.qp.solution import MPCSolution
-from shinro_ctrl.controllers.qp.sparse import MAX_QP_SIZE, QP, RowGroup, qp_size
-from shinro_ctrl.errors import InvalidArgument, NonFiniteError
+from shinro_ctrl.controllers.qp.dispatch import (
+    AUTO_DAQP_MAX_VARIABLES,
+    BACKENDS,
+    MPCBackend,
+    choose_solver,
+    dense_size,
+)
+from shinro_ctrl.controllers.qp.options import DEFAULT_OSQP_SETTINGS, PLANT_GIVEN, MPCOptions, MPCProblem
+from shinro_ctrl.controllers.qp.solution import MPCSolution, clip_input
+from shinro_ctrl.controllers.qp.sparse import (
+    MAX_QP_SIZE,
+    QP,
+    RowGroup,
+    build_sparse,
+    fill_linear_cost,
+    fill_rate_rows,
+    qp_size,
+)
+from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
 from shinro_ctrl.validation import as_vector, state_space, weight_matrix
 
 __all__ = [
     "AUTO_DAQP_MAX_VARIABLES",
+    "BACKENDS",
     "DEFAULT_OSQP_SETTINGS",
     "MAX_QP_SIZE",
     "QP",
@@ -95,10 +113,10 @@ __all__ = [
     "choose_solver",
 ]
 
-_fmt = fmt
+_SOLVED = ("solved", "solved (soft constraints violated)")
 
 
-class LinearMPC(MPCSolve, Controller):
+class LinearMPC(Controller):
     r"""Linear MPC solved exactly: a condensed QP by DAQP, or the sparse QP by one warm-started OSQP object.
 
     With ``δx = x − x0``, ``δu = u − u0`` and references ``r_k``, ``ū`` (in
@@ -114,13 +132,26 @@ class LinearMPC(MPCSolve, Controller):
     ``u_min <= u_k <= u_max`` (k = 0..N−1), ``|u_k − u_{k−1}| <= du_max``
     (``u_{−1}`` the previously applied input), ``x_min − s_k <= x_k <= x_max + s_k``
     (k = 1..N; ``s_k >= 0`` only when ``soft``, else ``s_k = 0``). The module
-    docstring spells out the sparse form. ``P`` and ``A_con`` are built once;
-    a call only updates the initial-state rows, the first rate-bound rows,
-    and (when the reference changes) the linear cost ``q``.
+    docstring spells out the sparse form.
+
+    State bounds the input cannot affect at a stage (the rows of the
+    prediction w.r.t. the inputs vanish: the cart position at stage 1 of an
+    explicit-Euler model is ``x + dt·v`` whatever ``u_0``) are not
+    constraints of the plan: no input changes them. When the measured state
+    violates one, both backends leave that bound out of the step (it holds
+    again from the next step on) and report it in ``last.dropped_rows``
+    instead of declaring the problem infeasible.
+
+    Threads: a call, :meth:`reset` and :meth:`build` hold the controller's
+    lock, so concurrent calls from several threads are correct (each one a
+    whole step on the shared warm start and previous input, in the order the
+    threads get the lock; the lock costs well under 1 % of a call). For
+    independent loops use one controller per thread.
 
     The options (everything after ``horizon``) are the fields of
-    :class:`MPCOptions`, passed as keywords or as one ``options`` object
-    (keywords override its fields).
+    :class:`MPCOptions` (each documented there), passed as keywords or as one
+    ``options`` object (keywords override its fields); the backend gets the
+    resolved options whole.
 
     Args:
         A: Discrete state matrix ``(n, n)``.
@@ -129,56 +160,21 @@ class LinearMPC(MPCSolve, Controller):
             means a diagonal).
         R: Stage input weight ``(m, m)``, symmetric positive definite.
         horizon: Prediction horizon ``N`` >= 1 (steps).
-        options: An :class:`MPCOptions` holding the options below.
-        **kwargs: The options below as keywords (they override ``options``).
-
-    Keyword Args:
-        x0: Operating-point state ``(n,)`` [absolute units]; default zeros.
-        u0: Operating-point input ``(m,)``; default zeros.
-        dt: Sampling time [s] (informational; used by :meth:`describe`).
-        u_min: Lower input bounds ``(m,)`` (a scalar broadcasts; -inf = none).
-        u_max: Upper input bounds ``(m,)``.
-        x_min: Lower state bounds ``(n,)`` on ``x_1 … x_N`` (never on the
-            measured ``x_0``).
-        x_max: Upper state bounds ``(n,)``.
-        du_max: Input-rate bounds ``(m,)``, ``|u_k − u_{k−1}| <= du_max`` per
-            step, ``u_{−1}`` the previously applied input (the first call
-            after construction or :meth:`reset` has no previous input unless
-            ``reset(u_prev=...)`` provides one).
-        soft: Make the state bounds soft with slack variables.
-        soft_weight_l1: Linear slack weight ``w_1`` (an exact penalty when it
-            exceeds the bound's multiplier; keep it moderate, OSQP converges
-            slowly with huge weights).
-        soft_weight_quad: Quadratic slack weight ``w_2`` (> 0 keeps the
-            slack problem strongly convex).
-        terminal_cost: ``"dare"`` (default; ``P_f`` from the discrete
-            algebraic Riccati equation, so with no active constraint the
-            first move equals the LQR input), ``"Q"``, or a matrix ``(n, n)``.
-        u_ref: Default input reference ``(m,)`` in absolute units (default
-            ``u0``).
-        offset: Affine term ``d`` ``(n,)`` of the model; zero at an
-            equilibrium.
-        fallback: None (raise on failure) or ``"shift"`` (apply the previous
-            plan shifted by one step and flag it).
-        solver: QP backend: ``"auto"`` (default; :func:`choose_solver`:
-            ``"daqp"`` up to 250 condensed variables ``N·m`` + slacks, else ``"osqp"``),
-            ``"daqp"`` (condensed input-only QP, dense dual active set,
-            exact) or ``"osqp"`` (sparse QP, ADMM + polishing, exact unless a
-            polish fails on a problem too large for the condensed check).
-        osqp_settings: Overrides of :data:`DEFAULT_OSQP_SETTINGS`; unknown
-            keys raise ``ValueError`` listing the valid ones.
-        state_names: Names of the states for messages (default ``x[i]``).
-        input_names: Names of the inputs for messages (default ``u[i]``).
+        options: An :class:`MPCOptions`.
+        **kwargs: Fields of :class:`MPCOptions` as keywords (they override ``options``).
 
     Attributes:
         options: The resolved :class:`MPCOptions` (validated arrays, merged OSQP settings).
         K: LQR gain ``(m, n)`` of the DARE (None for another terminal cost).
+        K_mpc: The unconstrained first-move gain ``(m, n)``: with no constraint active
+            ``u − u0 = −K_mpc (x − x0)`` (+ reference and offset terms); ``K`` for ``terminal_cost="lqr"``.
         u_min, u_max, x_min, x_max: The bounds ``(m,)`` / ``(n,)`` in absolute
             units (±inf where unbounded).
         P_f: Terminal cost matrix ``(n, n)``.
         last: :class:`MPCSolution` of the latest call (None before the first).
         groups: The :class:`RowGroup` blocks of ``A_con``, by name.
         solver: The backend in use, ``"osqp"`` or ``"daqp"`` (``"auto"`` resolved).
+        backend: The backend object (``BACKENDS[solver]``).
         dense: The :class:`~.qp.condensed.CondensedQP` (None on the OSQP backend).
 
     Raises:
@@ -187,8 +183,10 @@ class LinearMPC(MPCSolve, Controller):
             QP exceeds :data:`MAX_QP_SIZE` variables or nonzeros, crossed
             bounds, unknown or invalid OSQP settings.
         NonFiniteError: NaN or inf where a finite number is needed.
-        NotStabilizable: ``terminal_cost="dare"`` but the DARE has no
-            stabilizing solution.
+        NotStabilizable: ``terminal_cost="lqr"`` but the DARE has no
+            stabilizing solution; or the unconstrained MPC law does not
+            stabilize the model (a short horizon with ``terminal_cost="Q"``
+            or a matrix): the message names the spectral radius and the fixes.
 
     Example:
         >>> from shinro_ctrl.plants import CartPole
@@ -201,7 +199,15 @@ class LinearMPC(MPCSolve, Controller):
     stateful = True  # warm start, previous input and plan
 
     def __init__(
-        self, A: Any, B: Any, Q: Any, R: Any, horizon: int, *, options: MPCOptions | None = None, **kwargs: Any
+        self,
+        A: ArrayLike,
+        B: ArrayLike,
+        Q: ArrayLike,
+        R: ArrayLike,
+        horizon: int,
+        *,
+        options: MPCOptions | None = None,
+        **kwargs: Any,
     ):
         A_, B_ = state_space(A, B)
         n, m = B_.shape
@@ -239,7 +245,7 @@ class LinearMPC(MPCSolve, Controller):
         self.K: np.ndarray | None = None
         if isinstance(opts.terminal_cost, str):
             self.terminal_cost = opts.terminal_cost
-            if opts.terminal_cost == "dare":
+            if opts.terminal_cost == "lqr":
                 self.K, self.P_f = riccati(
                     A_, B_, Q_, R_, what="the terminal cost (or pass terminal_cost='Q' or a matrix)"
                 )
@@ -248,40 +254,80 @@ class LinearMPC(MPCSolve, Controller):
         else:
             self.P_f = opts.terminal_cost
             self.terminal_cost = "matrix"
-        self._warm = bool(self.osqp_settings["warm_starting"])
-        self._build_structure()
+        self.problem = MPCProblem(A_, B_, Q_, R_, self.P_f, self.K, N)
+        self.K_mpc = self._check_nominal_loop()
+        self.sparse = build_sparse(A_, B_, Q_, R_, self.P_f, N, opts)
+        self.groups: dict[str, RowGroup] = {g.name: g for g in self.sparse.groups}
         self.solver = choose_solver(n, m, N, opts)
-        # The OSQP object is set up on first use (``_osqp``): the DAQP backend needs it only as a fallback.
-        # It is set up here when OSQP is the backend, or when the caller gave OSQP settings (OSQP checks
-        # their values at set-up: a bad one raises now, and ``verbose`` prints its banner now).
-        self._osqp_qp = None
-        if self.solver == "osqp" or self.osqp_settings != DEFAULT_OSQP_SETTINGS:
-            self._osqp  # noqa: B018 - set up now
-        self.dense: CondensedQP | None = self._condensed() if self.solver == "daqp" else None
-        self._referee: CondensedQP | None = self.dense  # settles OSQP solves that stay inexact
-        self._dense_ref = False  # the condensed QP holds a reference (not the operating point)
-        self._solved_since_setup = False
+        # An inexact OSQP solve is settled by the condensed solver when the condensed QP fits
+        fits = dense_size(n, m, N, opts) <= MAX_DENSE_SIZE
+        if self.solver == "osqp":
+            self.backend: MPCBackend = OsqpBackend(self.problem, opts, self.sparse, referee=fits)
+        else:
+            self.backend = BACKENDS[self.solver](self.problem, opts)
+            if opts.osqp_settings != DEFAULT_OSQP_SETTINGS:
+                # OSQP checks the values of the caller's settings at set-up: a bad one raises now, not when
+                # the fallback first needs OSQP (and ``verbose`` prints its banner now)
+                OsqpBackend(self.problem, opts, self.sparse)
+        self._referee: DaqpBackend | None = self.backend if isinstance(self.backend, DaqpBackend) else None
+        self._referee_fits = fits
+        self._u_prev_buf = np.zeros(m)  # the previously applied input (when _u_prev is not None)
+        self._lock = threading.RLock()  # one step at a time on the backend's buffers (re-entered by offset_free)
         self.reset()
+
+    def _check_nominal_loop(self) -> np.ndarray:
+        """The unconstrained first-move gain ``K_mpc``; raise unless ``A − B K_mpc`` is strictly stable.
+
+        With no constraint active the MPC is the linear law ``u − u0 = −K_mpc (x − x0)``
+        (plus a constant from the references and the offset), ``K_mpc`` the first
+        block of ``H⁻¹ F`` of the condensed QP, i.e. the backward Riccati
+        recursion over the horizon from the terminal cost
+        (:func:`~shinro_ctrl.analysis.design.finite_horizon_gain`). A short
+        horizon with a terminal cost other than the DARE's may leave that loop
+        unstable on the very model it was designed on; such a controller would
+        run and diverge, so it is refused, as LQR refuses an unstable loop.
+
+        Raises:
+            NotStabilizable: the spectral radius of ``A − B K_mpc`` is >= 1 (margin 1e-9),
+                naming it, the shortest stabilizing horizon when there is one, and the fixes.
+        """
+        A, B, Q, R, N = self.A, self.B, self.Q, self.R, self.N
+        if self.K is not None:  # terminal_cost="lqr": the law is the LQR's, whose loop riccati() checked
+            return self.K
+        K_mpc = finite_horizon_gain(A, B, Q, R, self.P_f, N)
+        radius = float(np.max(np.abs(np.linalg.eigvals(A - B @ K_mpc))))
+        if radius < 1.0 - 1e-9:
+            return K_mpc
+        hint = ""
+        for longer in range(N + 1, max(4 * N, 200) + 1):  # the shortest horizon that stabilizes, if one is near
+            K_long = finite_horizon_gain(A, B, Q, R, self.P_f, longer)
+            if float(np.max(np.abs(np.linalg.eigvals(A - B @ K_long)))) < 1.0 - 1e-9:
+                hint = f" (horizon = {longer} is the shortest that stabilizes it)"
+                break
+        tc = "the given matrix" if self.terminal_cost == "matrix" else f"'{self.terminal_cost}'"
+        raise NotStabilizable(
+            f"LinearMPC with horizon = {N} and terminal_cost = {tc} does not stabilize its own model: "
+            f"with no constraint active its law u = -K_mpc (x - x0) leaves the closed loop A - B K_mpc with "
+            f"spectral radius {radius:.4g} >= 1, so the loop diverges; use a longer horizon{hint} or "
+            "terminal_cost = 'lqr' (the DARE's cost, stabilizing at any horizon)"
+        )
 
     @classmethod
     def option_keys(cls) -> tuple[str, ...]:
         """The keys a scenario's ``[controller]`` table may hold: ``from_plant``'s and the options'."""
         own = ("Q", "R", "horizon", "x0", "u0", "discretization", "method")
-        fields = [f.name for f in dataclasses.fields(MPCOptions)]
+        fields = [f.name for f in dataclasses.fields(MPCOptions) if f.init]
         return own + tuple(k for k in fields if k not in (*own, *PLANT_GIVEN))
 
     @classmethod
     def option_annotations(cls) -> dict[str, Any]:
         """``from_plant``'s annotations and those of the :class:`MPCOptions` fields it forwards."""
-        return {**{f.name: f.type for f in dataclasses.fields(MPCOptions)}, **super().option_annotations()}
+        fields = {f.name: f.type for f in dataclasses.fields(MPCOptions) if f.init}
+        return {**fields, **super().option_annotations()}
 
     # ================================================================ set-up
-    def _qp_size(self) -> tuple[int, int]:
-        """``(decision variables, nonzeros of P and A_con)`` of the QP (see :func:`~.qp.sparse.qp_size`)."""
-        return qp_size(self.A, self.B, self.Q, self.R, self.N, self.options)
-
     def _check_size(self) -> None:
-        nvar, nnz = self._qp_size()
+        nvar, nnz = qp_size(self.A, self.B, self.Q, self.R, self.N, self.options)
         if nvar > MAX_QP_SIZE or nnz > MAX_QP_SIZE:
             raise InvalidArgument(
                 f"horizon {self.N:,} makes an MPC QP too large to build: {nvar:,} decision variables and up to "
@@ -315,9 +361,7 @@ class LinearMPC(MPCSolve, Controller):
             discretization: ``"step"`` (default: the exact linearization of the plant's own
                 discrete step), ``"euler"``, ``"zoh"`` or ``"rk4"``.
             method: Linearization method, ``"exact"`` or ``"fd"``.
-            **options: The other fields of :class:`MPCOptions` (u_min, u_max,
-                x_min, x_max, du_max, soft, soft_weight_l1, soft_weight_quad,
-                terminal_cost, u_ref, fallback, osqp_settings); ``dt``,
+            **options: The other fields of :class:`MPCOptions`; ``dt``,
                 ``offset`` and the names come from the plant.
 
         Raises:
@@ -351,22 +395,46 @@ class LinearMPC(MPCSolve, Controller):
 
     # =============================================================== public
     @property
+    def dense(self) -> CondensedQP | None:
+        """The :class:`~.qp.condensed.CondensedQP` of the DAQP backend (None on the OSQP backend)."""
+        return self.backend.dense if isinstance(self.backend, DaqpBackend) else None
+
+    @property
     def qp(self) -> QP:
-        """The QP as last sent to OSQP (copies; inspect without solving)."""
-        return QP(self._P.copy(), self._q.copy(), self._A.copy(), self._l.copy(), self._u.copy())
+        """The sparse QP as last sent to OSQP (copies), or as the next call would start it on DAQP."""
+        if isinstance(self.backend, OsqpBackend):
+            return self.backend.current_qp()
+        return self.build(self.x0)
 
     @property
     def P(self) -> sp.csc_matrix:
-        """Upper-triangular cost Hessian ``(n_var, n_var)`` (CSC, built once)."""
-        return self._P
+        """Upper-triangular cost Hessian ``(n_var, n_var)`` of the sparse QP (CSC, built once)."""
+        return self.sparse.P
 
     @property
     def A_con(self) -> sp.csc_matrix:
-        """Constraint matrix ``(n_con, n_var)`` (CSC, built once)."""
-        return self._A
+        """Constraint matrix ``(n_con, n_var)`` of the sparse QP (CSC, built once)."""
+        return self.sparse.A
 
-    def build(self, x: Any, ref: Any = None, *, u_ref: Any = None, u_prev: Any = None) -> QP:
-        """The QP one call would solve for state ``x``, without solving it.
+    @property
+    def n_var(self) -> int:
+        """Decision variables of the sparse QP."""
+        return self.sparse.n_var
+
+    @property
+    def n_con(self) -> int:
+        """Constraint rows of the sparse QP."""
+        return self.sparse.n_con
+
+    def build(
+        self,
+        x: ArrayLike,
+        ref: ArrayLike | None = None,
+        *,
+        u_ref: ArrayLike | None = None,
+        u_prev: ArrayLike | None = None,
+    ) -> QP:
+        """The sparse QP one call would solve for state ``x``, without solving it.
 
         Args:
             x: Measured state ``(n,)`` [absolute].
@@ -378,42 +446,41 @@ class LinearMPC(MPCSolve, Controller):
         Returns:
             A :class:`QP` with fresh arrays (the solver is not touched).
         """
+        with self._lock:
+            return self._build(x, ref, u_ref, u_prev)
+
+    def _build(self, x: ArrayLike, ref: ArrayLike | None, u_ref: ArrayLike | None, u_prev: ArrayLike | None) -> QP:
+        s = self.sparse
         x = as_vector("x", x, self.n)
-        q = self._q_default.copy()
-        self._fill_q(self._check_ref(ref), self._check_uref(u_ref), q)
-        l, u = self._l.copy(), self._u.copy()
+        q = s.q.copy()
+        fill_linear_cost(s, self.Q, self.R, self.P_f, self.options, self._check_ref(ref), self._check_uref(u_ref), q)
+        l, u = s.l.copy(), s.u.copy()
         l[: self.n] = u[: self.n] = x - self.x0
         up = self._u_prev if u_prev is None else as_vector("u_prev", u_prev, self.m)
-        self._fill_rate0(up, l, u)
-        return QP(self._P.copy(), q, self._A.copy(), l, u)
+        fill_rate_rows(s, self.options, up, l, u)
+        return QP(s.P.copy(), q, s.A.copy(), l, u)
 
-    def reset(self, *, u_prev: Any = None) -> None:
+    def reset(self, *, u_prev: ArrayLike | None = None) -> None:
         """Forget the warm start, the previous plan and the previous input.
 
         Args:
             u_prev: Optional input ``(m,)`` to treat as previously applied (for
                 the rate bounds of the first move).
         """
-        self._u_prev: np.ndarray | None = None
-        if u_prev is not None:
-            self._u_prev_buf[:] = as_vector("u_prev", u_prev, self.m)
-            self._u_prev = self._u_prev_buf
-        self._fill_rate0(self._u_prev, self._l, self._u)
-        self._zws[:] = 0.0
-        self._yws[:] = 0.0
-        self._plan_u: np.ndarray | None = None
-        self._plan_x: np.ndarray | None = None
-        self._plan_age = 0
-        self.last: MPCSolution | None = None
-        if self._referee is not None:
-            self._referee.reset()  # cold working set (the dense backend's, or the referee's): runs repeat exactly
-        if self._solved_since_setup:
-            # OSQP keeps internal state between solves (adaptive rho and its factorization), so a
-            # reset controller must start from a fresh solver to repeat a run exactly.
-            self._osqp.setup()
-            self._solved_since_setup = False
+        with self._lock:
+            self._u_prev: np.ndarray | None = None
+            if u_prev is not None:
+                self._u_prev_buf[:] = as_vector("u_prev", u_prev, self.m)
+                self._u_prev = self._u_prev_buf
+            self._plan_u: np.ndarray | None = None
+            self._plan_x: np.ndarray | None = None
+            self._plan_age = 0
+            self.last: MPCSolution | None = None
+            self.backend.reset()  # cold working set / warm start: runs repeat exactly
+            if self._referee is not None and self._referee is not self.backend:
+                self._referee.reset()
 
-    def __call__(self, x: Any, ref: Any = None, *, u_ref: Any = None) -> np.ndarray:
+    def __call__(self, x: ArrayLike, ref: ArrayLike | None = None, *, u_ref: ArrayLike | None = None) -> np.ndarray:
         """Solve the MPC problem at state ``x`` and return the first input.
 
         Args:
@@ -430,53 +497,110 @@ class LinearMPC(MPCSolve, Controller):
         Raises:
             ValueError: wrong shape of ``x``, ``ref`` or ``u_ref``.
             NonFiniteError: NaN or inf in ``x``, ``ref`` or ``u_ref``.
-            MPCInfeasible: OSQP reported infeasibility or hit its iteration or
-                time limit (and no ``fallback="shift"`` plan is left).
+            MPCInfeasible: the backend certified infeasibility or failed (and
+                no ``fallback="shift"`` plan is left).
         """
-        if self.disturbance_model is not None and np.shape(x) == (self.n + self.m,):
-            return offset_free_call(self, x, ref, u_ref)  # [x̂; d̂] from a disturbance-augmented estimator
-        t0 = time.perf_counter()
+        with self._lock:
+            if self.disturbance_model is not None and np.shape(x) == (self.n + self.m,):
+                return offset_free_call(self, x, ref, u_ref)  # [x̂; d̂] from a disturbance-augmented estimator
+            return self._step(x, ref, u_ref)
+
+    def _step(self, x: ArrayLike, ref: ArrayLike | None, u_ref: ArrayLike | None) -> np.ndarray:
+        """One MPC step (under the lock): check the arguments, solve, settle, record or fall back."""
         x = np.asarray(x, dtype=float)
         if x.shape != (self.n,):
             x = as_vector("x", x, self.n)  # raises with the standard message
         elif not np.isfinite(x).all():
-            raise NonFiniteError(f"x must be finite, got {_fmt(x)}")
+            raise NonFiniteError(f"x must be finite, got {fmt(x)}")
         if float(np.abs(x).max()) > self._x_overflow:
             raise NonFiniteError(
-                f"x = {_fmt(x)} is beyond the MPC's numeric range |x| <= {self._x_overflow:.2g}: there the QP's "
+                f"x = {fmt(x)} is beyond the MPC's numeric range |x| <= {self._x_overflow:.2g}: there the QP's "
                 f"terms lose every significant digit (and ½ xᵀ Q x over {self.N} stages nears float64 overflow); "
                 "a state this far off means the loop already diverged"
             )
-        if self.dense is not None:
-            return self._call_dense(x, ref, u_ref, t0)
-        return self._call_osqp(x, ref, u_ref, t0)
+        r = None if ref is None else self._check_ref(ref)
+        ur = self._check_uref(u_ref)
+        sol = self.backend.solve(x, r, ur, self._u_prev)
+        if not self.backend.settled and self._referee_fits:
+            # OSQP stayed inexact after its re-solves: the condensed solver settles the step exactly
+            if self._referee is None:
+                self._referee = DaqpBackend(self.problem, self.options)
+            sol = self._referee.solve(x, r, ur, self._u_prev)
+        if sol.status not in _SOLVED:
+            return self._give_up(sol)
+        return self._accept(sol)
+
+    # ============================================================ internals
+    def _accept(self, sol: MPCSolution) -> np.ndarray:
+        """Record a solution: the applied input (for the rate bounds), the plan (for the fallback) and ``last``."""
+        self._u_prev_buf[:] = sol.u  # a private copy: the caller may modify what we return
+        self._u_prev = self._u_prev_buf
+        self._plan_x, self._plan_u, self._plan_age = sol.states, sol.inputs, 0
+        self.last = sol
+        return sol.u
+
+    def _give_up(self, sol: MPCSolution) -> np.ndarray:
+        """Raise :class:`MPCInfeasible` with the backend's message, or apply the shifted previous plan."""
+        message = sol.message
+        age = self._plan_age + 1
+        if self.fallback != "shift" or self._plan_u is None or age >= self.N:
+            if self.fallback == "shift":
+                message += (
+                    "; fallback 'shift' has no previous plan"
+                    if self._plan_u is None
+                    else f"; fallback 'shift' exhausted the previous plan ({self.N} steps)"
+                )
+            self.last = dataclasses.replace(sol, message=message)
+            raise MPCInfeasible(message)
+        u_out = self._plan_u[age].copy()
+        clip_input(u_out, self._u_prev, self.du_max, self.u_min, self.u_max)
+        idx = np.minimum(np.arange(self.N + 1) + age, self.N)
+        plan_x, plan_u = self._plan_x, self._plan_u
+        assert plan_x is not None
+        self._accept(
+            dataclasses.replace(
+                sol, states=plan_x[idx], inputs=plan_u[np.minimum(idx[:-1], self.N - 1)], u=u_out, fallback_used=True
+            )
+        )
+        self._plan_x, self._plan_u, self._plan_age = plan_x, plan_u, age
+        return u_out
+
+    def _check_ref(self, ref: ArrayLike | None) -> np.ndarray | None:
+        if ref is None:
+            return None
+        r = np.asarray(ref, dtype=float)
+        if r.shape == (self.n,) or r.shape == (self.N + 1, self.n) or (self.n == 1 and r.shape == (self.N + 1,)):
+            if not np.isfinite(r).all():
+                raise NonFiniteError("ref must be finite")
+            return r.reshape(-1, self.n) if r.ndim == 1 and r.shape != (self.n,) else r
+        raise InvalidArgument(f"ref: expected ({self.n},) or ({self.N + 1}, {self.n}) but found {r.shape}")
+
+    def _check_uref(self, u_ref: ArrayLike | None) -> np.ndarray | None:
+        if u_ref is None:
+            return self.u_ref
+        return as_vector("u_ref", u_ref, self.m)
 
     # ============================================================= describe
     def describe(self) -> str:
-        """A human-readable summary: sizes, bounds, terminal cost and OSQP settings."""
-        nnzP, nnzA = self._P.nnz, self._A.nnz
+        """A human-readable summary: sizes, bounds, terminal cost, and the sizes and settings of the backend in use."""
         dt = "" if self.dt is None else f", dt = {self.dt:g} s"
         lines = [
             f"LinearMPC: n = {self.n} states, m = {self.m} inputs, horizon N = {self.N}{dt}",
-            f"backend: {self.solver} (solver = '{self.options.solver}')"
-            + (f"; {self.dense.describe()}" if self.dense is not None else ""),
-            f"QP: {self.n_var} variables, {self.n_con} constraints, nnz(P) = {nnzP}, nnz(A) = {nnzA}",
-            "constraint groups: "
-            + ", ".join(f"{g.name} [{g.start}:{g.stop}] ({g.width} x {g.stages} stages)" for g in self._group_list),
-            f"operating point: x0 = {_fmt(self.x0)}, u0 = {_fmt(self.u0)}",
-            f"input bounds: u_min = {_fmt(self.u_min)}, u_max = {_fmt(self.u_max)}",
-            f"state bounds ({'soft' if self.soft else 'hard'}): x_min = {_fmt(self.x_min)}, x_max = {_fmt(self.x_max)}",
+            f"backend: {self.solver} (solver = '{self.options.solver}')",
+            self.backend.describe(),
+            f"operating point: x0 = {fmt(self.x0)}, u0 = {fmt(self.u0)}",
+            f"input bounds: u_min = {fmt(self.u_min)}, u_max = {fmt(self.u_max)}",
+            f"state bounds ({'soft' if self.soft else 'hard'}): x_min = {fmt(self.x_min)}, x_max = {fmt(self.x_max)}",
         ]
         if self.soft:
             lines.append(f"soft weights: l1 = {self.soft_weight_l1:g}, quad = {self.soft_weight_quad:g}")
         if self.du_max is not None:
-            lines.append(f"rate bounds: du_max = {_fmt(self.du_max)}")
+            lines.append(f"rate bounds: du_max = {fmt(self.du_max)}")
         lines.append(f"terminal cost ({self.terminal_cost}):")
         lines.append(np.array2string(self.P_f, precision=4, max_line_width=110))
         if self.K is not None:
-            lines.append(f"LQR gain K = {_fmt(self.K)}")
+            lines.append(f"LQR gain K = {fmt(self.K)}")
         lines.append(f"fallback: {self.fallback}")
-        lines.append("OSQP settings: " + ", ".join(f"{k}={v}" for k, v in sorted(self.osqp_settings.items())))
         return "\n".join(lines)
 
     def __repr__(self) -> str:

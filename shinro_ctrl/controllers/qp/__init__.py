@@ -1,7 +1,9 @@
 """The QP layer under the MPC controllers.
 
-The sparse formulation (states and inputs as variables, solved by OSQP
-through the one adapter in ``controllers/_osqp.py``) and the condensed one
-(inputs only, around a pre-stabilizing feedback, solved by DAQP's dual
-active-set method) live here, each in a module of its own.
+``LinearMPC``'s two backends are objects behind one interface, one file each
+(``backend_osqp.py``: the sparse QP of ``sparse.py`` solved by OSQP through the
+one adapter in ``controllers/_osqp.py``; ``backend_daqp.py``: the condensed,
+input-only QP of ``condensed.py`` around a pre-stabilizing feedback, solved by
+DAQP's dual active-set method), named in ``dispatch.BACKENDS``; ``options.py``
+holds :class:`~.options.MPCOptions` and ``solution.py`` the per-call results.
 """

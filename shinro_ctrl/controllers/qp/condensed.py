@@ -1,7 +1,7 @@
 r"""The condensed (input-only) MPC QP around a pre-stabilizing feedback, solved by DAQP.
 
 The model and the cost are those of :class:`~shinro_ctrl.controllers.mpc.LinearMPC`
-in deviation variables ``e_k = x_k − x_op``, ``δu_k = u_k − u_op``:
+in deviation variables ``e_k = x_k − x_0``, ``δu_k = u_k − u_0`` (``(x_0, u_0)`` the operating point):
 
 .. math::
 
@@ -44,7 +44,8 @@ input), per bounded state and stage ``k = 1..N`` (``S_v`` rows; with soft
 bounds two rows, ``e − s ≤ h`` and ``e + s ≥ ℓ``, sharing one slack, as in the
 sparse formulation). Rows are scaled to unit norm. Rows that do not depend on
 ``z`` (a state the inputs cannot move yet, e.g. a position one Euler step
-ahead) are kept out of the QP and checked directly.
+ahead) are kept out of the QP: no plan changes them, so a violated one is
+reported (:attr:`CondensedQP.dropped_rows`), never declared infeasible.
 
 Everything above is built once per model. A call computes ``e_0``, ``F e_0``,
 ``E e_0`` into preallocated buffers, hands them to one :class:`daqp.Model`
@@ -57,34 +58,39 @@ constraint group and stage from an elastic LP's Farkas certificate.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
 
 import daqp
 import numpy as np
+from numpy.typing import ArrayLike
 
 from shinro_ctrl.controllers.qp.condensed_build import INF as _INF
 from shinro_ctrl.controllers.qp.condensed_build import (
-    CondensedBuild,
+    CondensedMatrices,
     DenseRowGroup,
+    build_condensed,
+    check_matrix,
     condensed_size,
     prestabilizing_gain,
 )
-from shinro_ctrl.controllers.qp.condensed_build import check_matrix as _mat
-from shinro_ctrl.controllers.qp.condensed_build import check_vector as _vec
-from shinro_ctrl.controllers.qp.condensed_infeasibility import CondensedDiagnosis, DenseQP
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.controllers.qp.condensed_infeasibility import DenseQP, explain_infeasibility
+from shinro_ctrl.controllers.qp.options import MPCOptions
+from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 
 __all__ = [
     "DAQP_STATUS",
     "DEFAULT_DAQP_SETTINGS",
     "MAX_DENSE_SIZE",
+    "CondensedMatrices",
     "CondensedQP",
     "DenseQP",
     "DenseRowGroup",
     "DenseSolveInfo",
     "condensed_size",
+    "fixed_rows_note",
     "prestabilizing_gain",
 ]
 
@@ -123,6 +129,16 @@ MAX_DENSE_SIZE = 10_000_000
 #: (``einsum``) instead of BLAS: multithreaded OpenBLAS gemv on a busy machine stalled calls
 #: for ~50 ms at N = 400 (threads waiting for cores), while one thread needs ~0.3 ms.
 _BLAS_MAX = 1 << 17
+
+
+def fixed_rows_note(parts: list[str]) -> str:
+    """The sentence reported in ``MPCSolution.dropped_rows`` for bounds no input can move (empty: none)."""
+    if not parts:
+        return ""
+    return (
+        "; ".join(parts) + " (no input reaches that stage yet, e.g. a position one explicit-Euler step ahead: "
+        "the bound is left out of this step, the plan keeps it from the next stage on)"
+    )
 
 
 def _mv(M: np.ndarray, v: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -165,8 +181,11 @@ class DenseSolveInfo:
         return self.exitflag in (1, 2)
 
 
-class CondensedQP(CondensedBuild, CondensedDiagnosis):
+class CondensedQP:
     r"""The condensed MPC QP of one linear model, built once and solved per state by DAQP.
+
+    Holds the model's :class:`~.condensed_build.CondensedMatrices` (built once)
+    and its own per-call buffers and one :class:`daqp.Model`.
 
     Args:
         A: Discrete state matrix ``(n, n)``.
@@ -177,32 +196,34 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
         horizon: ``N >= 1``.
         K: Pre-stabilizing gain ``(m, n)``; default :func:`prestabilizing_gain`
             of ``(A, B, Q, R)``.
-        x_op: Operating-point state ``(n,)`` [absolute]; default zeros.
-        u_op: Operating-point input ``(m,)``; default zeros.
-        offset: Affine model term ``d`` ``(n,)``; default zeros.
-        u_min, u_max: Input bounds ``(m,)`` [absolute], ±inf where none.
-        x_min, x_max: State bounds ``(n,)`` on ``x_1 … x_N`` [absolute].
-        du_max: Rate bounds ``(m,)`` (``|u_k − u_{k−1}| ≤ du_max``, ``u_{−1}``
-            the ``u_prev`` passed to :meth:`solve`), or None.
-        soft: Soft state bounds (one slack per bounded state and stage).
-        soft_weight_l1: ``w_1 ≥ 0``.
-        soft_weight_quad: ``w_2 > 0``.
-        state_names, input_names: For the row labels.
+        options: The :class:`~.options.MPCOptions` (operating point ``x0``/``u0``,
+            offset, bounds, soft weights, names; resolved here when not yet).
+            The rate bounds' ``u_{−1}`` is the ``u_prev`` passed to :meth:`solve`.
         settings: Overrides of :data:`DEFAULT_DAQP_SETTINGS` (any key DAQP's
             ``Model.settings`` knows).
+        **kwargs: Fields of :class:`~.options.MPCOptions` (override ``options``).
 
     Attributes:
         n, m, N: Sizes.
         K: The pre-stabilizing gain ``(m, n)``.
+        options: The resolved options.
+        matrices: The :class:`~.condensed_build.CondensedMatrices`.
         H: Hessian ``(nz, nz)`` (slacks first).
         F: ``∂f/∂e_0`` ``(nz, n)``.
         G: Constraint rows ``(rows, nz)`` (unscaled; fixed rows included).
         E: ``(rows, n)``: the bounds of row ``r`` are ``ℓ_r − E_r e_0``, ``h_r − E_r e_0``.
         groups: The :class:`DenseRowGroup` blocks of ``G``, by name.
+        cond_H: Condition number of the Hessian's input block.
         n_var: ``nz`` (slacks + ``N m``).
         n_slack: Number of slacks ``ns``.
+        dropped_rows: The bounds no input can move that the latest state violates
+            (predicted values; empty when none): left out, not infeasible.
         z: The latest solution ``(nz,)`` (DAQP's array; None before a solve).
         lam: Its multipliers ``(ns + rows kept,)`` (scaled rows).
+
+    Threads: one object serves one thread; :meth:`solve` entered while
+    another thread is inside it raises :class:`~shinro_ctrl.errors.ConcurrentUse`
+    (``LinearMPC`` serializes its calls with a lock).
 
     Raises:
         InvalidArgument: wrong shapes, NaN bounds, a problem larger than
@@ -211,28 +232,17 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
 
     def __init__(
         self,
-        A: Any,
-        B: Any,
-        Q: Any,
-        R: Any,
-        P_f: Any,
+        A: ArrayLike,
+        B: ArrayLike,
+        Q: ArrayLike,
+        R: ArrayLike,
+        P_f: ArrayLike,
         horizon: int,
         *,
-        K: Any = None,
-        x_op: Any = None,
-        u_op: Any = None,
-        offset: Any = None,
-        u_min: Any = None,
-        u_max: Any = None,
-        x_min: Any = None,
-        x_max: Any = None,
-        du_max: Any = None,
-        soft: bool = False,
-        soft_weight_l1: float = 1e2,
-        soft_weight_quad: float = 1e2,
-        state_names: Any = None,
-        input_names: Any = None,
+        K: ArrayLike | None = None,
+        options: MPCOptions | None = None,
         settings: dict[str, Any] | None = None,
+        **kwargs: Any,
     ):
         B_ = np.asarray(B, dtype=float)
         if B_.ndim != 2:
@@ -242,33 +252,26 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
         if N < 1:
             raise InvalidArgument(f"horizon must be >= 1, got {horizon!r}")
         self.n, self.m, self.N = n, m, N
-        self.A = _mat("A", A, (n, n))
-        self.B = _mat("B", B_, (n, m))
-        self.Q = _mat("Q", Q, (n, n))
-        self.R = _mat("R", R, (m, m))
-        self.P_f = _mat("P_f", P_f, (n, n))
-        self.K = prestabilizing_gain(self.A, self.B, self.Q, self.R) if K is None else _mat("K", K, (m, n))
-        self.x_op = _vec("x_op", x_op, n, 0.0)
-        self.u_op = _vec("u_op", u_op, m, 0.0)
-        self.offset = _vec("offset", offset, n, 0.0)
-        self.u_min, self.u_max = _vec("u_min", u_min, m, -np.inf), _vec("u_max", u_max, m, np.inf)
-        self.x_min, self.x_max = _vec("x_min", x_min, n, -np.inf), _vec("x_max", x_max, n, np.inf)
-        self.du_max = None if du_max is None else _vec("du_max", du_max, m, np.inf)
-        self.soft = bool(soft)
-        self.w1, self.w2 = float(soft_weight_l1), float(soft_weight_quad)
-        if self.soft and not (self.w2 > 0 and math.isfinite(self.w2) and self.w1 >= 0 and math.isfinite(self.w1)):
-            raise InvalidArgument(f"soft weights must be w1 >= 0, w2 > 0 and finite, got {self.w1!r}, {self.w2!r}")
-        self.state_names = tuple(state_names) if state_names is not None else tuple(f"x[{i}]" for i in range(n))
-        self.input_names = tuple(input_names) if input_names is not None else tuple(f"u[{i}]" for i in range(m))
-
-        self._xb = np.flatnonzero(np.isfinite(self.x_min) | np.isfinite(self.x_max))
-        self._ub = np.flatnonzero(np.isfinite(self.u_min) | np.isfinite(self.u_max))
-        self._rb = np.zeros(0, dtype=int) if self.du_max is None else np.flatnonzero(np.isfinite(self.du_max))
-        w = self._xb.size
-        ns = N * w if self.soft else 0
+        self.A = check_matrix("A", A, (n, n))
+        self.B = check_matrix("B", B_, (n, m))
+        self.Q = check_matrix("Q", Q, (n, n))
+        self.R = check_matrix("R", R, (m, m))
+        self.P_f = check_matrix("P_f", P_f, (n, n))
+        self.K = prestabilizing_gain(self.A, self.B, self.Q, self.R) if K is None else check_matrix("K", K, (m, n))
+        opts = options if options is not None else MPCOptions()
+        if kwargs:
+            opts = dataclasses.replace(opts, **kwargs)  # TypeError names a misspelt option
+        opts = self.options = opts.resolve(n, m)
+        fin = np.isfinite
+        xb = np.flatnonzero(fin(opts.x_min) | fin(opts.x_max))
+        ub = np.flatnonzero(fin(opts.u_min) | fin(opts.u_max))
+        rb = np.zeros(0, dtype=int) if opts.du_max is None else np.flatnonzero(fin(opts.du_max))
+        self._rb = rb
+        w = xb.size
+        ns = N * w if opts.soft else 0
         nv = N * m
-        rows = N * self._ub.size + N * self._rb.size + N * w * (2 if self.soft else 1)
-        size = condensed_size(n, m, N, u_rows=self._ub.size, rate_rows=self._rb.size, x_rows=w, soft=self.soft)
+        rows = N * ub.size + N * rb.size + N * w * (2 if opts.soft else 1)
+        size = condensed_size(n, m, N, u_rows=ub.size, rate_rows=rb.size, x_rows=w, soft=opts.soft)
         if size > MAX_DENSE_SIZE:
             raise InvalidArgument(
                 f"horizon {N} makes the condensed QP too large: {size:,} dense matrix entries "
@@ -279,9 +282,48 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
         self._settings = dict(DEFAULT_DAQP_SETTINGS)
         if settings:
             self._settings.update(settings)
-        self._build()
+        mat = self.matrices = build_condensed(self.A, self.B, self.Q, self.R, self.P_f, N, self.K, opts, (ub, rb, xb))
+        self.H, self.F, self.G, self.E, self.cond_H = mat.H, mat.F, mat.G, mat.E, mat.cond_H
+        self.groups: dict[str, DenseRowGroup] = {g.name: g for g in mat.groups}
+        self._buffers()
         self._setup()
         self.set_reference()
+
+    def _buffers(self) -> None:
+        """Preallocated per-call buffers (bounds, gradient, KKT residual, plan)."""
+        n, N, mat = self.n, self.N, self.matrices
+        ns, nv, nz = self.n_slack, N * self.m, self.n_var
+        mk = mat.kept.size
+        self._mtot = ns + mk
+        self._e0 = np.zeros(n)
+        self._f = np.zeros(nz)
+        self._f[:ns] = self.options.soft_weight_l1
+        self._fv = self._f[ns:]
+        self._fr = np.zeros(nv)  # reference + offset part of f on v
+        self._bu = np.empty(self._mtot)
+        self._bl = np.empty(self._mtot)
+        self._bu[:ns] = _INF
+        self._bl[:ns] = 0.0
+        self._bu_g = self._bu[ns:]
+        self._bl_g = self._bl[ns:]
+        self._tmp = np.empty(mk)
+        self._tmp_f = np.empty(2 * mat.fixed.size)
+        self._fviol = np.empty(2 * mat.fixed.size, dtype=bool)
+        self._zl = np.zeros(nz + mk)
+        self._rb_buf = np.zeros(nz + 3 * mk + 2 * ns)
+        self._gz = np.empty(mk)
+        self._lp = np.empty(mk)
+        self._ev = np.zeros(n + nv)
+        self._nX = (N + 1) * n
+        self.X: np.ndarray | None = None
+        self.U: np.ndarray | None = None
+        self._sense0 = np.zeros(self._mtot, dtype=np.intc)
+        self.z: np.ndarray | None = None
+        self.lam: np.ndarray | None = None
+        self._w_lin = np.zeros(n)
+        self._c0 = 0.0
+        self.dropped_rows = ""
+        self._busy = [True]  # the token of solve(): a second thread inside it finds none (ConcurrentUse)
 
     def _setup(self) -> None:
         # A throwaway state-independent set-up (bounds at e0 = 0, no u_prev); every solve updates them.
@@ -291,11 +333,16 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
         bad = [k for k in self._settings if k not in self._model.settings]
         if bad:
             raise InvalidArgument(f"unknown DAQP setting '{bad[0]}'; valid settings: {', '.join(self._model.settings)}")
-        flag, _ = self._model.setup(self.H, self._f, self._Gk, self._bu, self._bl, self._sense0.copy())
+        flag, _ = self._model.setup(self.H, self._f, self.matrices.Gk, self._bu, self._bl, self._sense0.copy())
         if flag < 0:
             raise InvalidArgument(f"DAQP rejected the condensed MPC problem (setup exit flag {flag})")
         self._model.settings = self._settings
         self._fresh = True
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """The DAQP settings in use (defaults merged with the overrides; a copy)."""
+        return dict(self._settings)
 
     # ============================================================ per call
     def set_reference(self, ref: np.ndarray | None = None, u_ref: np.ndarray | None = None) -> None:
@@ -305,27 +352,28 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
             ref: State reference ``(n,)`` or trajectory ``(N + 1, n)``.
             u_ref: Input reference ``(m,)``.
         """
-        n, m, N = self.n, self.m, self.N
-        fr = self._f_d.copy()
+        n, m, N, mat = self.n, self.m, self.N, self.matrices
+        x0, u0 = self.options.x0, self.options.u0
+        fr = mat.f_d.copy()
         rho = np.zeros((N + 1) * n)
         if ref is not None:
             r = np.asarray(ref, dtype=float)
             if r.shape == (n,):
-                fr += self._Grho_const @ (r - self.x_op)
-                rho = np.tile(r - self.x_op, N + 1)
+                fr += mat.Grho_const @ (r - x0)
+                rho = np.tile(r - x0, N + 1)
             else:
-                rho = (r.reshape(N + 1, n) - self.x_op).ravel()
-                fr -= self._QSv.T @ rho
+                rho = (r.reshape(N + 1, n) - x0).ravel()
+                fr -= mat.QSv.T @ rho
         nu = np.zeros(N * m)
         if u_ref is not None:
-            nu1 = np.asarray(u_ref, dtype=float) - self.u_op
-            fr += self._Gnu @ nu1
+            nu1 = np.asarray(u_ref, dtype=float) - u0
+            fr += mat.Gnu @ nu1
             nu = np.tile(nu1, N)
         self._fr[:] = fr
         # const(e0) = ½‖Sx e0 + c − ρ‖²_Q̄ + ½‖Ux e0 + c_u − ν̄‖²_R̄ = ½ e0ᵀWe0 + wᵀe0 + c0
-        dx = self._c - rho
-        du = self._cu - nu
-        self._w_lin = self._QSx.T @ dx + self._RUx.T @ du
+        dx = mat.c - rho
+        du = mat.cu - nu
+        self._w_lin = mat.QSx.T @ dx + mat.RUx.T @ du
         Qb_dx = dx.reshape(N + 1, n).copy()
         Qb_dx[:N] = Qb_dx[:N] @ self.Q.T
         Qb_dx[N] = self.P_f @ Qb_dx[N]
@@ -334,18 +382,19 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
 
     def _fill(self, e0: np.ndarray, u_prev_dev: np.ndarray | None) -> None:
         """Write ``f`` and the bound vectors for ``e0`` (and the previous input) into the buffers."""
-        _mv(self._Fv, e0, self._fv)
+        mat = self.matrices
+        _mv(mat.Fv, e0, self._fv)
         np.add(self._fv, self._fr, out=self._fv)
-        _mv(self._Ek, e0, self._tmp)
-        np.subtract(self._hi_k, self._tmp, out=self._bu_g)
-        np.subtract(self._lo_k, self._tmp, out=self._bl_g)
-        if self._rate0_k is not None:
-            ix = self._rate0_k
+        _mv(mat.Ek, e0, self._tmp)
+        np.subtract(mat.hi_k, self._tmp, out=self._bu_g)
+        np.subtract(mat.lo_k, self._tmp, out=self._bl_g)
+        if mat.rate0_k is not None:
+            ix = mat.rate0_k
             if u_prev_dev is None:
                 self._bu[ix] = _INF
                 self._bl[ix] = -_INF
             else:
-                shift = u_prev_dev[self._rate0_comp] * self._rate0_scale
+                shift = u_prev_dev[self._rb] * mat.rate0_scale
                 self._bu[ix] += shift
                 self._bl[ix] += shift
 
@@ -362,14 +411,31 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
             the plan :attr:`X` ``(N + 1, n)``, :attr:`U` ``(N, m)`` (absolute
             units, new arrays) hold the solution; on failure they are None.
         """
+        busy = self._busy
+        try:
+            busy.pop()  # atomic under the GIL: one token, taken by the thread inside solve()
+        except IndexError:
+            raise ConcurrentUse(
+                "CondensedQP.solve called while another thread is solving it; use one per thread"
+            ) from None
+        try:
+            return self._solve(x, u_prev)
+        finally:
+            busy.append(True)
+
+    def _solve(self, x: np.ndarray, u_prev: np.ndarray | None) -> DenseSolveInfo:
+        mat, x0 = self.matrices, self.options.x0
         e0 = self._e0
-        np.subtract(x, self.x_op, out=e0)
-        self._fill(e0, None if u_prev is None else u_prev - self.u_op)
+        np.subtract(x, x0, out=e0)
+        self._fill(e0, None if u_prev is None else u_prev - self.options.u0)
         self.z = self.lam = self.X = self.U = None
-        if self._fixed.size:
-            _mv(self._Ef2, e0, self._tmp_f)
-            if np.greater(self._tmp_f, self._bf2, out=self._fviol).any():
-                return DenseSolveInfo(DAQP_STATUS[-1], -1, 0, 0, math.nan, 0.0, math.nan)
+        self.dropped_rows = ""
+        if mat.fixed.size:
+            # bounds no input can move at their stage (x_1's position under explicit Euler): not in the QP;
+            # violated ones are reported, not declared infeasible (nothing the plan does changes them)
+            _mv(mat.Ef2, e0, self._tmp_f)
+            if np.greater(self._tmp_f, mat.bf2, out=self._fviol).any():
+                self.dropped_rows = self._describe_fixed(e0)
         model = self._model
         if self._mtot:
             model.update(f=self._f, bupper=self._bu, blower=self._bl)
@@ -390,11 +456,11 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
         ev = self._ev
         ev[: self.n] = e0
         ev[self.n :] = z[self.n_slack :]
-        XU = _mv(self._PM, ev, np.empty(self._PM.shape[0]))
-        XU += self._pc
+        XU = _mv(mat.PM, ev, np.empty(mat.PM.shape[0]))
+        XU += mat.pc
         self.X = XU[: self._nX].reshape(self.N + 1, self.n)
         self.U = XU[self._nX :].reshape(self.N, self.m)
-        objective = fval + 0.5 * float(e0 @ self._W @ e0) + float(self._w_lin @ e0) + self._c0
+        objective = fval + 0.5 * float(e0 @ mat.W @ e0) + float(self._w_lin @ e0) + self._c0
         return DenseSolveInfo(
             DAQP_STATUS[flag],
             flag,
@@ -405,6 +471,21 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
             objective,
         )
 
+    def _describe_fixed(self, e0: np.ndarray) -> str:
+        """The violated bounds among the rows no input moves (hard state bounds), with their predicted values."""
+        mat, opts, parts = self.matrices, self.options, []
+        bounded = np.flatnonzero(np.isfinite(opts.x_min) | np.isfinite(opts.x_max))
+        for row in mat.fixed:
+            value = float(mat.E[row] @ e0)  # deviation minus the offset's constant part
+            if mat.lo[row] - 1e-9 <= value <= mat.hi[row] + 1e-9:
+                continue
+            group = next(g for g in mat.groups if g.start <= row < g.stop)
+            stage, label = group.locate(int(row))
+            i = bounded[(int(row) - group.start) % group.width]
+            shift = opts.x_max[i] - mat.hi[row] if np.isfinite(opts.x_max[i]) else opts.x_min[i] - mat.lo[row]
+            parts.append(f"{label} at stage {stage}: predicted {value + shift:.4g} whatever the input")
+        return fixed_rows_note(parts)
+
     def kkt_residual(self) -> float:
         """KKT residual of the latest solution (see :class:`DenseSolveInfo`); NaN without one.
 
@@ -413,15 +494,15 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
         complementarity products ``λ⁺_i (h_i − g_iᵀz) + λ⁻_i (ℓ_i − g_iᵀz)``,
         ``−s``, ``−λ_s s``); the residual is its largest entry (at least 0).
         """
-        z, lam = self.z, self.lam
+        z, lam, mat = self.z, self.lam, self.matrices
         if z is None or lam is None:
             return math.nan
-        ns, nz, mk = self.n_slack, self.n_var, self._kept.size
+        ns, nz, mk = self.n_slack, self.n_var, mat.kept.size
         zl, rb = self._zl, self._rb_buf
         zl[:nz] = z
         zl[nz:] = lam[ns:]
         stat = rb[:nz]
-        _mv(self._HG, zl, stat)
+        _mv(mat.HG, zl, stat)
         stat += self._f
         if ns:
             stat[:ns] += lam[:ns]
@@ -432,7 +513,7 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
             t2 = rb[nz + mk : nz + 2 * mk]
             comp = rb[nz + 2 * mk : nz + 3 * mk]
             lg = zl[nz:]
-            _mv(self._Gk, z, gz)
+            _mv(mat.Gk, z, gz)
             np.subtract(gz, self._bu_g, out=t1)
             np.subtract(self._bl_g, gz, out=t2)
             np.maximum(lg, 0.0, out=lp)
@@ -464,9 +545,42 @@ class CondensedQP(CondensedBuild, CondensedDiagnosis):
             self._model.update(sense=self._sense0.copy())
         self._fresh = True
 
+    def problem(self, x: ArrayLike, u_prev: ArrayLike | None = None) -> DenseQP:
+        """The condensed QP for state ``x`` (fresh arrays, unscaled rows; nothing is solved)."""
+        mat, opts = self.matrices, self.options
+        e0 = np.asarray(x, dtype=float) - opts.x0
+        ns, nz = self.n_slack, self.n_var
+        f = np.empty(nz)
+        f[:ns] = opts.soft_weight_l1
+        f[ns:] = mat.F[ns:] @ e0 + self._fr
+        Ee = mat.E @ e0
+        lo, hi = mat.lo - Ee, mat.hi - Ee
+        lo[mat.fixed], hi[mat.fixed] = -np.inf, np.inf  # rows no input moves are not part of the QP
+        if mat.rate0 is not None:
+            sl = mat.rate0
+            if u_prev is None:
+                lo[sl], hi[sl] = -np.inf, np.inf
+            else:
+                d = (np.asarray(u_prev, dtype=float) - opts.u0)[self._rb]
+                lo[sl] += d
+                hi[sl] += d
+        Aall = np.vstack([np.eye(ns, nz), mat.G])
+        lower = np.concatenate([np.zeros(ns), lo])
+        upper = np.concatenate([np.full(ns, np.inf), hi])
+        const = 0.5 * float(e0 @ mat.W @ e0) + float(self._w_lin @ e0) + self._c0
+        return DenseQP(self.H.copy(), f, Aall, lower, upper, const)
+
+    def explain_infeasibility(self, x: ArrayLike, u_prev: ArrayLike | None = None) -> str | None:
+        """Name the constraint group and stage that make the QP at ``x`` infeasible (an elastic LP's certificate).
+
+        See :func:`~.condensed_infeasibility.explain_infeasibility`; None when
+        the LP finds the problem feasible (the failure was numerical).
+        """
+        return explain_infeasibility(self.problem(x, u_prev), self.n_slack, self.matrices.groups)
+
     def describe(self) -> str:
         """One line: sizes, conditioning and the rows kept."""
         return (
             f"condensed QP (DAQP): {self.n_var} variables ({self.n_slack} slacks), {self.G.shape[0]} rows "
-            f"({self._fixed.size} fixed), cond(H_v) = {self.cond_H:.3g}"
+            f"({self.matrices.fixed.size} fixed), cond(H_v) = {self.cond_H:.3g}"
         )

@@ -7,19 +7,26 @@ otherwise from the largest constraint violation of the last iterate.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from shinro_ctrl.controllers.qp.sparse import RowGroup
 
-__all__ = ["diagnose", "explain_certificate", "fmt"]
+__all__ = ["describe_groups", "diagnose", "explain_certificate", "fmt"]
 
 
-def fmt(v: Any) -> str:
+def fmt(v: ArrayLike) -> str:
     """A short rendering of a vector for messages."""
     return np.array2string(np.asarray(v), precision=4, suppress_small=True)
+
+
+def describe_groups(groups: Sequence[RowGroup]) -> str:
+    """The row groups of a QP in one line: name, rows, width and stages."""
+    return ", ".join(f"{g.name} [{g.start}:{g.stop}] ({g.width} x {g.stages} stages)" for g in groups)
 
 
 def diagnose(

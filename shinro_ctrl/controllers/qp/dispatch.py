@@ -1,13 +1,51 @@
-"""Which QP backend ``LinearMPC(solver="auto")`` uses: DAQP on the condensed QP while it is small, else OSQP."""
+"""The QP backends of ``LinearMPC`` by name, and which one ``solver="auto"`` uses.
+
+Every backend is a class with the same interface (the qpsolvers pattern: one
+file per backend, one signature, this dispatch table): built from an
+:class:`~.options.MPCProblem` and resolved :class:`~.options.MPCOptions`, it
+owns its buffers and solver object and offers ``solve(x, ref, u_ref, u_prev)
+-> MPCSolution``, ``reset()``, ``describe()`` and ``settled``. ``"auto"`` picks
+DAQP on the condensed QP while it is small, else OSQP on the sparse QP.
+"""
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
+from shinro_ctrl.controllers.qp.backend_daqp import DaqpBackend
+from shinro_ctrl.controllers.qp.backend_osqp import OsqpBackend
 from shinro_ctrl.controllers.qp.condensed import MAX_DENSE_SIZE, condensed_size
 from shinro_ctrl.controllers.qp.options import MPCOptions
+from shinro_ctrl.controllers.qp.solution import MPCSolution
 
-__all__ = ["AUTO_DAQP_MAX_VARIABLES", "choose_solver", "dense_size"]
+__all__ = ["AUTO_DAQP_MAX_VARIABLES", "BACKENDS", "MPCBackend", "choose_solver", "dense_size"]
+
+
+class MPCBackend(Protocol):
+    """What ``LinearMPC`` needs of a QP backend."""
+
+    name: str
+    settled: bool
+
+    def solve(
+        self, x: np.ndarray, ref: np.ndarray | None, u_ref: np.ndarray | None, u_prev: np.ndarray | None
+    ) -> MPCSolution:
+        """One MPC step from the measured state ``x`` (checked references, previous input)."""
+        ...
+
+    def reset(self) -> None:
+        """Forget warm starts (the next solve repeats a fresh controller's)."""
+        ...
+
+    def describe(self) -> str:
+        """Sizes and settings of the QP and the solver."""
+        ...
+
+
+#: The backends by name (``LinearMPC(solver=...)``).
+BACKENDS: dict[str, type[OsqpBackend] | type[DaqpBackend]] = {"osqp": OsqpBackend, "daqp": DaqpBackend}
 
 #: ``solver="auto"`` uses DAQP while the condensed QP has at most this many
 #: variables ``N·m`` plus slacks (and fits :data:`~shinro_ctrl.controllers.qp.condensed.MAX_DENSE_SIZE`).

@@ -22,7 +22,7 @@ import numpy as np
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.validation import as_vector, bound_pair, bound_vector, check_positive, weight_matrix
 
-__all__ = ["DEFAULT_OSQP_SETTINGS", "PLANT_GIVEN", "SOLVERS", "MPCOptions"]
+__all__ = ["DEFAULT_OSQP_SETTINGS", "PLANT_GIVEN", "SOLVERS", "MPCOptions", "MPCProblem"]
 
 #: Defaults tuned for closed-loop control of the cart-pole benchmark (see
 #: benchmarks/mpc.py and docs/mpc.md). eps <= 1e-4 keeps the first move within
@@ -70,7 +70,9 @@ class MPCOptions:
         soft: Make the state bounds soft with slack variables.
         soft_weight_l1: Linear slack weight ``w_1`` >= 0.
         soft_weight_quad: Quadratic slack weight ``w_2`` > 0.
-        terminal_cost: ``"dare"``, ``"Q"`` or a matrix ``(n, n)``.
+        terminal_cost: ``"lqr"`` (the DARE's solution, so with no active
+            constraint the first move equals the LQR input; ``"dare"``, its
+            former name, is read as ``"lqr"``), ``"Q"``, or a matrix ``(n, n)``.
         u_ref: Default input reference ``(m,)`` in absolute units (default ``u0``).
         offset: Affine term ``d`` ``(n,)`` of the model; zero at an equilibrium.
         fallback: None (raise on failure) or ``"shift"``.
@@ -96,7 +98,7 @@ class MPCOptions:
     soft: bool = False
     soft_weight_l1: float = 1e2
     soft_weight_quad: float = 1e2
-    terminal_cost: str | Any = "dare"
+    terminal_cost: str | Any = "lqr"
     u_ref: Any = None
     offset: Any = None
     fallback: str | None = None
@@ -105,6 +107,7 @@ class MPCOptions:
     osqp_settings: Mapping[str, Any] | None = None
     state_names: Any = None
     input_names: Any = None
+    _resolved: tuple[int, int] | None = dataclasses.field(default=None, init=False, repr=False, compare=False)
 
     def resolve(self, n: int, m: int) -> MPCOptions:
         """A validated copy for ``n`` states and ``m`` inputs.
@@ -112,6 +115,7 @@ class MPCOptions:
         Vectors become float arrays of their sizes (bounds ±inf where absent),
         names become tuples, a matrix terminal cost a symmetric PSD ``(n, n)``
         array, and ``osqp_settings`` the defaults merged with the overrides.
+        A copy resolved for the same sizes is returned as is.
 
         Raises:
             InvalidArgument: wrong shapes, crossed bounds, ``du_max <= 0``,
@@ -121,6 +125,8 @@ class MPCOptions:
         """
         from shinro_ctrl.controllers._osqp import merge_settings  # OSQP's setting names, on demand
 
+        if self._resolved == (n, m):
+            return self
         u_min, u_max = bound_pair("u_min", "u_max", self.u_min, self.u_max, m)
         x_min, x_max = bound_pair("x_min", "x_max", self.x_min, self.x_max, n)
         du_max = None
@@ -141,11 +147,12 @@ class MPCOptions:
             raise InvalidArgument(f"solver must be one of {', '.join(map(repr, SOLVERS))}, got {self.solver!r}")
         tc = self.terminal_cost
         if isinstance(tc, str):
-            if tc not in ("dare", "Q"):
-                raise InvalidArgument(f"terminal_cost must be 'dare', 'Q' or an (n, n) matrix, got {tc!r}")
+            tc = "lqr" if tc == "dare" else tc
+            if tc not in ("lqr", "Q"):
+                raise InvalidArgument(f"terminal_cost must be 'lqr', 'Q' or an (n, n) matrix, got {tc!r}")
         else:
             tc = weight_matrix("terminal_cost", tc, n)
-        return dataclasses.replace(
+        out = dataclasses.replace(
             self,
             x0=np.zeros(n) if self.x0 is None else as_vector("x0", self.x0, n),
             u0=np.zeros(m) if self.u0 is None else as_vector("u0", self.u0, m),
@@ -165,6 +172,8 @@ class MPCOptions:
             state_names=_names("state_names", self.state_names, n, "x"),
             input_names=_names("input_names", self.input_names, m, "u"),
         )
+        object.__setattr__(out, "_resolved", (n, m))  # replace() of it starts unresolved again
+        return out
 
 
 def _names(arg: str, names: Any, size: int, prefix: str) -> tuple[str, ...]:
@@ -174,3 +183,36 @@ def _names(arg: str, names: Any, size: int, prefix: str) -> tuple[str, ...]:
     if len(names) != size:
         raise InvalidArgument(f"{arg}: expected {size} names but found {len(names)}")
     return names
+
+
+@dataclass(frozen=True, eq=False)
+class MPCProblem:
+    """The validated model, weights and horizon of a linear MPC: what its backends solve, with :class:`MPCOptions`.
+
+    Attributes:
+        A: Discrete state matrix ``(n, n)``.
+        B: Discrete input matrix ``(n, m)``.
+        Q: Stage state weight ``(n, n)``.
+        R: Stage input weight ``(m, m)``.
+        P_f: Terminal weight ``(n, n)``.
+        K: The DARE's LQR gain ``(m, n)`` (None for another terminal cost).
+        N: Horizon.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    P_f: np.ndarray
+    K: np.ndarray | None
+    N: int
+
+    @property
+    def n(self) -> int:
+        """States."""
+        return self.B.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Inputs."""
+        return self.B.shape[1]

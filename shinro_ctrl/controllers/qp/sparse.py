@@ -24,12 +24,25 @@ permutations that shift a solution one stage for the next warm start.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["INF", "MAX_QP_SIZE", "QP", "RowGroup", "SparseQP", "build_sparse", "qp_size"]
+if TYPE_CHECKING:
+    from shinro_ctrl.controllers.qp.options import MPCOptions
+
+__all__ = [
+    "INF",
+    "MAX_QP_SIZE",
+    "QP",
+    "RowGroup",
+    "SparseQP",
+    "build_sparse",
+    "fill_linear_cost",
+    "fill_rate_rows",
+    "qp_size",
+]
 
 INF = 1e30  # OSQP_INFTY: what OSQP treats as an absent bound
 
@@ -109,6 +122,7 @@ class SparseQP:
         iu: Slice of ``δu_0 … δu_{N-1}`` in ``z``.
         islack: Slice of the slacks in ``z`` (empty without soft bounds).
         rate_idx: Inputs with a finite rate bound ``(r,)``.
+        rate0: Rows of the first-stage rate bounds (None without rate bounds).
         zshift: Primal shift map ``(n_var,)``: stage ``k`` takes stage ``k + 1``, the last repeats.
         yshift: Dual shift map ``(n_con,)``, the same for the rows.
     """
@@ -123,6 +137,7 @@ class SparseQP:
     iu: slice
     islack: slice
     rate_idx: np.ndarray
+    rate0: slice | None
     zshift: np.ndarray
     yshift: np.ndarray
 
@@ -190,7 +205,7 @@ class _Rows:
         self.r0 += l.size
 
 
-def qp_size(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, N: int, opts: Any) -> tuple[int, int]:
+def qp_size(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, N: int, opts: MPCOptions) -> tuple[int, int]:
     """``(decision variables, nonzeros of P and A_con)`` of the QP :func:`build_sparse` makes.
 
     Exact for the variables; for the nonzeros an upper bound (the terminal
@@ -211,7 +226,7 @@ def qp_size(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, N: int, 
 
 
 def build_sparse(
-    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, P_f: np.ndarray, N: int, opts: Any
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, P_f: np.ndarray, N: int, opts: MPCOptions
 ) -> SparseQP:
     """Assemble ``P``, ``A_con``, ``q``, ``l``, ``u`` and the index maps (once).
 
@@ -253,12 +268,90 @@ def build_sparse(
     l = np.clip(np.concatenate(rows.lo), -INF, INF)
     u = np.clip(np.concatenate(rows.hi), -INF, INF)
     zshift, yshift = _shift_maps(rows.groups, n, m, N, nsb)
+    rate = next((g for g in rows.groups if g.name == "rate bounds"), None)
     return SparseQP(
-        P, Acon, q, l, u, rows.groups, slice(0, nx), slice(nx, nx + nu), slice(nx + nu, nvar), rate_idx, zshift, yshift
+        P=P,
+        A=Acon,
+        q=q,
+        l=l,
+        u=u,
+        groups=rows.groups,
+        ix=slice(0, nx),
+        iu=slice(nx, nx + nu),
+        islack=slice(nx + nu, nvar),
+        rate_idx=rate_idx,
+        rate0=None if rate is None else slice(rate.start, rate.start + rate.width),
+        zshift=zshift,
+        yshift=yshift,
     )
 
 
-def _dynamics_rows(rows: _Rows, A: np.ndarray, B: np.ndarray, N: int, opts: Any) -> None:
+def fill_linear_cost(
+    s: SparseQP,
+    Q: np.ndarray,
+    R: np.ndarray,
+    P_f: np.ndarray,
+    opts: MPCOptions,
+    ref: np.ndarray | None,
+    u_ref: np.ndarray | None,
+    q: np.ndarray,
+) -> float:
+    """Write the linear cost of the references into ``q`` (the slack entries untouched); return the constant term.
+
+    Args:
+        s: The sparse QP (index maps).
+        Q, R, P_f: Stage and terminal weights.
+        opts: Resolved options (operating point).
+        ref: State reference ``(n,)`` or ``(N + 1, n)`` [absolute]; None = the operating point.
+        u_ref: Input reference ``(m,)`` [absolute]; None = the operating point.
+        q: The linear cost ``(n_var,)`` written in place.
+    """
+    n, m = Q.shape[0], R.shape[0]
+    N = (s.ix.stop - s.ix.start) // n - 1
+    qx = q[s.ix].reshape(N + 1, n)
+    qu = q[s.iu].reshape(N, m)
+    const = 0.0
+    if ref is None:
+        qx[:] = 0.0
+    elif ref.ndim == 1:
+        rho = ref - opts.x0
+        g = Q @ rho
+        qx[:N] = -g
+        gN = P_f @ rho
+        qx[N] = -gN
+        const += 0.5 * (N * float(rho @ g) + float(rho @ gN))
+    else:
+        rho = ref - opts.x0
+        G = rho[:N] @ Q
+        qx[:N] = -G
+        gN = P_f @ rho[N]
+        qx[N] = -gN
+        const += 0.5 * (float(np.sum(G * rho[:N])) + float(rho[N] @ gN))
+    if u_ref is None:
+        qu[:] = 0.0
+    else:
+        nu = u_ref - opts.u0
+        g = R @ nu
+        qu[:] = -g
+        const += 0.5 * N * float(nu @ g)
+    return const
+
+
+def fill_rate_rows(s: SparseQP, opts: MPCOptions, u_prev: np.ndarray | None, l: np.ndarray, u: np.ndarray) -> None:
+    """Write the first-stage rate rows of ``l``/``u`` for the previously applied input (None: open rows)."""
+    if s.rate0 is None:
+        return
+    ri = s.rate_idx
+    if u_prev is None:
+        l[s.rate0] = -INF
+        u[s.rate0] = INF
+    else:
+        c = u_prev[ri] - opts.u0[ri]
+        l[s.rate0] = c - opts.du_max[ri]
+        u[s.rate0] = c + opts.du_max[ri]
+
+
+def _dynamics_rows(rows: _Rows, A: np.ndarray, B: np.ndarray, N: int, opts: MPCOptions) -> None:
     n = A.shape[0]
     nx = (N + 1) * n
     In = np.eye(n)
@@ -274,7 +367,7 @@ def _dynamics_rows(rows: _Rows, A: np.ndarray, B: np.ndarray, N: int, opts: Any)
     rows.add("dynamics", d, d.copy(), n, 1, opts.state_names)
 
 
-def _input_rows(rows: _Rows, m: int, nx: int, N: int, opts: Any) -> None:
+def _input_rows(rows: _Rows, m: int, nx: int, N: int, opts: MPCOptions) -> None:
     """Input bounds on u_0 … u_{N-1}."""
     ui = np.flatnonzero(np.isfinite(opts.u_min) | np.isfinite(opts.u_max))
     if not ui.size:
@@ -286,7 +379,7 @@ def _input_rows(rows: _Rows, m: int, nx: int, N: int, opts: Any) -> None:
     rows.add("input bounds", lo, hi, ui.size, 0, labels)
 
 
-def _rate_rows(rows: _Rows, m: int, nx: int, N: int, opts: Any) -> np.ndarray:
+def _rate_rows(rows: _Rows, m: int, nx: int, N: int, opts: MPCOptions) -> np.ndarray:
     """Rate bounds δu_k - δu_{k-1}; stage 0 uses the previously applied input (in l/u). Returns their inputs."""
     if opts.du_max is None:
         return np.zeros(0, dtype=int)
@@ -303,7 +396,7 @@ def _rate_rows(rows: _Rows, m: int, nx: int, N: int, opts: Any) -> np.ndarray:
     return ri
 
 
-def _state_rows(rows: _Rows, n: int, s0: int, N: int, xi: np.ndarray, opts: Any) -> None:
+def _state_rows(rows: _Rows, n: int, s0: int, N: int, xi: np.ndarray, opts: MPCOptions) -> None:
     """State bounds on x_1 … x_N (the measured x_0 is never bounded); slacks start at column ``s0``."""
     if not xi.size:
         return
