@@ -10,6 +10,7 @@ boundary and re-raised as one of these, with context.
 from __future__ import annotations
 
 __all__ = [
+    "ConcurrentUse",
     "ConfigError",
     "InvalidArgument",
     "MPCInfeasible",
@@ -59,3 +60,7 @@ class SimulationDiverged(ShinroError, RuntimeError):
 
 class PlanningFailed(ShinroError, RuntimeError):
     """A trajectory optimization did not converge; the message names the solver status and the worst constraint."""
+
+
+class ConcurrentUse(ShinroError, RuntimeError):
+    """A call entered an object that another thread is using; use one object per thread."""

@@ -60,25 +60,26 @@ def test_stage_jacobians_equal_complex_step(make):
     rng = np.random.default_rng(3)
     x = plant.equilibrium()[0] + 0.3 * rng.standard_normal(n)
     ctrl(x)  # the call ends with the preparation for the next one: Jacobians at the shifted trajectory
-    X, U = ctrl._X.copy(), ctrl._U.copy()
+    rti = ctrl.strategy
+    X, U = rti.X.copy(), rti.U.copy()
     assert np.ptp(X, axis=0).max() > 1e-3  # a genuine trajectory, not one point
     for k in range(N):
         Fk, A, B = complex_step_rk4_jacobians(plant, X[k], U[k], ctrl.dt)
-        np.testing.assert_allclose(ctrl._A[k], A, rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(ctrl._B[k], B, rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(ctrl._D[k], Fk - X[k + 1], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(rti.A[k], A, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(rti.B[k], B, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(rti.D[k], Fk - X[k + 1], rtol=1e-10, atol=1e-12)
 
 
 def test_rti_near_upright_equals_linear_mpc_rk4():
     """Inactive bounds, near upright: RTI (converged over calls at one state) = LinearMPC on the RK4 model.
 
     At the upright equilibrium the Jacobians of the nonlinear RK4 step equal the RK4 discretization of
-    the linearization (the drift vanishes there), and ``Qf="lqr"`` is the same DARE terminal cost; the
+    the linearization (the drift vanishes there), and ``terminal_cost="lqr"`` is the same DARE terminal cost; the
     cart-pole's nonlinearity at upright is cubic, so at 1e-3 rad the two optima differ by ~1e-9.
     """
     plant = cartpole()
     kw = dict(horizon=40, u_min=-40.0, u_max=40.0)
-    nmpc = NonlinearMPC.from_plant(plant, Q_CP, R_CP, Qf="lqr", **kw)
+    nmpc = NonlinearMPC.from_plant(plant, Q_CP, R_CP, terminal_cost="lqr", **kw)
     lmpc = LinearMPC.from_plant(
         plant, Q_CP, R_CP, discretization="rk4", terminal_cost="dare",
         osqp_settings={"eps_abs": 1e-12, "eps_rel": 1e-12, "polishing": True, "max_iter": 100000},
@@ -193,8 +194,8 @@ def test_hold_and_argument_errors():
         NonlinearMPC.from_plant(fine, Q_CP, R_CP, horizon=10, dt=0.06)
     with pytest.raises(InvalidArgument, match="solver"):
         NonlinearMPC.from_plant(plant, Q_CP, R_CP, horizon=10, solver="qpoases")
-    with pytest.raises(InvalidArgument, match="Qf"):
-        NonlinearMPC.from_plant(plant, Q_CP, R_CP, horizon=10, Qf="dare")
+    with pytest.raises(InvalidArgument, match="terminal_cost"):
+        NonlinearMPC.from_plant(plant, Q_CP, R_CP, horizon=10, terminal_cost="dare")
 
 
 def test_sparse_osqp_path_matches_condensed_daqp():
