@@ -133,14 +133,14 @@ def test_build_qp_matches_the_formula(arm, ik, rng):
         idx = 0
         for j in range(n):
             for i in range(j + 1):
-                Pu[i, j] = Pu[j, i] = ik._Hu[idx]
+                Pu[i, j] = Pu[j, i] = ik.kernel.Hu[idx]
                 idx += 1
         np.testing.assert_allclose(Pu, prob.P, atol=1e-12)
 
 
 def test_step_solves_the_qp(arm, ik, rng):
     """One OSQP object, updated in place, against scipy's bounded least squares on the same QP."""
-    solver = ik._qp.solver
+    solver = ik.kernel.qp.solver
     sw = np.sqrt(ik.weights)
     active = 0
     for trial in range(30):
@@ -160,7 +160,7 @@ def test_step_solves_the_qp(arm, ik, rng):
         assert np.all(np.abs(dq) <= ik.max_step) and inside(arm, q + dq)
         active += int(np.any(np.isclose(np.abs(ref), ik.max_step)) or np.any(np.isclose(q + ref, arm.joint_limits.T)))
     assert active >= 10  # the bounds were exercised
-    assert ik._qp.solver is solver
+    assert ik.kernel.qp.solver is solver
 
 
 def test_step_never_leaves_the_limits(arm, ik):
