@@ -221,3 +221,66 @@ def test_sparse_osqp_path_matches_condensed_daqp():
     )  # fmt: skip
     np.testing.assert_allclose(sqp(x), ipopt(x), rtol=1e-5)
     assert sqp.last.status == "solved"
+
+
+FAR_OUTSIDE = {  # plant -> (Q, R, |u| bound, x_min, x_max, initial states far outside the bounds)
+    "cartpole": (
+        Q_CP, R_CP, 40.0, [-0.5, -1.0, -0.3, -np.inf], [0.5, 1.0, 0.3, np.inf],
+        [[3.0, 0.0, 0.0, 0.0], [-4.0, -6.0, 1.0, 3.0], [0.45, 3.0, 0.0, 0.0], [0.0, 0.0, np.pi, 0.0]],
+    ),
+    "pendulum": ([10.0, 0.1], [1.0], 0.3, [-1.0, -2.0], [np.inf, 2.0], [[-3.0, 0.0], [0.0, 50.0], [-20.0, -100.0]]),
+}  # fmt: skip
+
+
+def _far_plant(name: str):
+    if name == "cartpole":
+        return cartpole()
+    from shinro_ctrl.plants import InvertedPendulum
+
+    return InvertedPendulum(mass=0.1, length=0.5, damping=0.01, dt=0.05)
+
+
+@pytest.mark.parametrize("plant_name", sorted(FAR_OUTSIDE))
+@pytest.mark.parametrize(
+    ("solver", "cold_start"),
+    [("daqp", "sqp"), ("daqp", "ipopt"), ("osqp", "sqp"), ("osqp", "ipopt"), ("ipopt", "ipopt")],
+)
+def test_soft_state_bounds_are_never_infeasible(plant_name, solver, cold_start):
+    """Issue 23 §3: with soft = true no initial state, however far outside the state bounds, is infeasible.
+
+    Every solver mode runs a closed loop from each far-away state; the hard-bounded twin of the first
+    case raises (so the states really are outside what hard bounds allow), and the soft objective
+    charges every violated stage (the slack of each row is its violation).
+    """
+    Q, R, umax, lo, hi, starts = FAR_OUTSIDE[plant_name]
+    kw = dict(horizon=15, u_min=-umax, u_max=umax, x_min=lo, x_max=hi, solver=solver, cold_start=cold_start)
+    ctrl = NonlinearMPC.from_plant(_far_plant(plant_name), Q, R, soft=True, **kw)
+    for x_start in starts:
+        plant = _far_plant(plant_name)
+        plant.set_state(x_start)
+        ctrl.reset()
+        for _ in range(8):
+            u = ctrl(plant.get_state())
+            assert np.all(np.isfinite(u)) and np.all(np.abs(u) <= umax)
+            assert not ctrl.last.message
+            plant.step(u)
+    hard = NonlinearMPC.from_plant(_far_plant(plant_name), Q, R, **kw)
+    with pytest.raises(MPCInfeasible):
+        hard(np.array(starts[0], dtype=float))
+
+
+def test_soft_penalty_is_per_row():
+    """The slack penalty is w1 Σ s + ½ w2 Σ s² over every violated (stage, component) row."""
+    plant = cartpole()
+    ctrl = NonlinearMPC.from_plant(
+        plant, Q_CP, R_CP, horizon=4, x_min=[-1.0, -np.inf, -np.inf, -np.inf], x_max=[1.0, np.inf, np.inf, np.inf],
+        soft=True, soft_weight_l1=3.0, soft_weight_quad=5.0,
+    )  # fmt: skip
+    X = np.zeros((5, 4))
+    X[1:, 0] = [1.5, 0.5, -3.0, 2.0]  # violations 0.5, 0, 2, 1 (x_0 is never charged)
+    X[0, 0] = 10.0
+    U = np.zeros((4, 1))
+    cost = 0.5 * sum(X[k] @ np.diag(Q_CP) @ X[k] for k in range(5))  # Q_f = Q, the target 0
+    viol = np.array([0.5, 0.0, 2.0, 1.0])
+    expected = cost + 3.0 * viol.sum() + 0.5 * 5.0 * viol @ viol
+    np.testing.assert_allclose(ctrl.objective(X, U), expected, rtol=1e-12)

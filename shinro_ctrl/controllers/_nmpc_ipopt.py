@@ -38,7 +38,8 @@ class IpoptSolver:
         X = cs.MX.sym("X", n, N + 1)
         U = cs.MX.sym("U", m, N)
         bounded = np.flatnonzero(np.isfinite(o.x_min) | np.isfinite(o.x_max))
-        ns = bounded.size if o.soft else 0
+        self._bounded = bounded if o.soft else bounded[:0]
+        ns = self._bounded.size * N  # one slack per state-bound row (stage and bounded component)
         S = cs.MX.sym("S", ns)
         P = cs.MX.sym("P", 2 * n)
         x_meas, r = P[:n], P[n:]
@@ -56,13 +57,14 @@ class IpoptSolver:
         lbx_X = np.full((N + 1, n), -np.inf)
         ubx_X = np.full((N + 1, n), np.inf)
         if ns:
-            for j, i in enumerate(bounded):
+            Sm = cs.reshape(S, N, self._bounded.size)  # Sm[k, j]: the slack of x_{k+1}[bounded[j]]
+            for j, i in enumerate(self._bounded):
                 if np.isfinite(o.x_max[i]):
-                    g.append(X[i, 1:].T - S[j])
+                    g.append(X[i, 1:].T - Sm[:, j])
                     lbg.append(np.full(N, -np.inf))
                     ubg.append(np.full(N, o.x_max[i]))
                 if np.isfinite(o.x_min[i]):
-                    g.append(X[i, 1:].T + S[j])
+                    g.append(X[i, 1:].T + Sm[:, j])
                     lbg.append(np.full(N, o.x_min[i]))
                     ubg.append(np.full(N, np.inf))
         else:
@@ -138,6 +140,10 @@ class IpoptSolver:
             Xg[:-1] = Xg[1:].copy()
             Ug[:-1] = Ug[1:].copy()
             Xg[0] = x
+        if self._bounded.size:  # slacks that make the guess meet the soft bounds: a feasible start for them
+            Xg = guess[:nX].reshape(N + 1, n)[1:, self._bounded]
+            viol = np.maximum(Xg - o.x_max[self._bounded], o.x_min[self._bounded] - Xg)
+            guess[nX + N * m :] = np.maximum(viol, 0.0).ravel(order="F")
         sol = self._nlp(
             x0=guess, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg, p=np.concatenate([x, ref])
         )

@@ -224,8 +224,9 @@ class NMPCProblem:
         J = 0.5 * float(np.einsum("ki,ij,kj->", E[:-1], self.Q, E[:-1]))
         J += 0.5 * float(E[-1] @ self.Qf @ E[-1])
         J += 0.5 * float(np.einsum("ki,ij,kj->", dU, self.R, dU))
-        if o.soft:
-            s = np.maximum(np.max(X[1:] - o.x_max, axis=0), np.max(o.x_min - X[1:], axis=0))
+        if o.soft:  # the optimal slack of each state-bound row is its violation
+            with np.errstate(invalid="ignore"):
+                s = np.maximum(X[1:] - o.x_max, o.x_min - X[1:])
             s = np.maximum(s[np.isfinite(s)], 0.0)
             J += o.soft_weight_l1 * float(s.sum()) + 0.5 * o.soft_weight_quad * float(s @ s)
         return J

@@ -10,8 +10,9 @@ The optimal control problem, over a horizon of ``N`` steps of ``dt``, is
 subject to ``x_0 = x`` (measured), ``x_{k+1} = F(x_k, u_k)`` (``F`` one RK4 step
 of the plant's own dynamics ``plant.symbolic()``, or its semi-implicit Euler
 step), ``u_min <= u_k <= u_max`` and ``x_min - s <= x_k <= x_max + s``
-(k = 1..N; ``s = 0`` unless ``soft``, then one slack per bounded state
-component shared by the stages).
+(k = 1..N; ``s = 0`` unless ``soft``, then one slack ``s ≥ 0`` per
+state-bound row, i.e. per stage and bounded component, so that no state bound
+can make the problem infeasible).
 
 The controller keeps only the policy (input checks, the reference, ``hold``,
 the record of the last call); the OCP (:class:`~._nmpc_ocp.NMPCProblem`, with
