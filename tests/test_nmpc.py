@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 
 from shinro_ctrl.backend import NumpyBackend
 from shinro_ctrl.controllers.mpc import LinearMPC
 from shinro_ctrl.controllers.nmpc import NonlinearMPC
-from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError
+from shinro_ctrl.errors import ConcurrentUse, InvalidArgument, MPCInfeasible, NonFiniteError
 from shinro_ctrl.plants import CartPole, Quadrotor
 from shinro_ctrl.sim import RobotSim
 
@@ -342,3 +345,82 @@ def test_ctrl_c_during_an_ipopt_solve_exits_130(tmp_path):
     assert "Traceback" not in err and "NonIpopt" not in err
     assert "interrupted" in err
     assert "rms_error" not in out  # the run did not finish
+
+
+class _Blocking:
+    """A state that holds the call converting it (``np.asarray``) until released: a call provably in progress."""
+
+    def __init__(self, value):
+        self.value = np.asarray(value, dtype=float)
+        self.entered = threading.Event()
+        self.release = threading.Event()
+
+    def __array__(self, dtype=None, copy=None):
+        self.entered.set()
+        assert self.release.wait(60)
+        return self.value if dtype is None else self.value.astype(dtype)
+
+
+def _small_nmpc() -> NonlinearMPC:
+    kw = dict(horizon=10, u_min=-40.0, u_max=40.0, x_min=X_BOUND[0], x_max=X_BOUND[1], soft=True)
+    return NonlinearMPC.from_plant(cartpole(), Q_CP, R_CP, cold_start="sqp", **kw)
+
+
+def _closed_loop(ctrl: NonlinearMPC, x0: np.ndarray, calls: int) -> np.ndarray:
+    plant = cartpole()
+    plant.set_state(x0)
+    out = []
+    for _ in range(calls):
+        u = ctrl(plant.get_state())
+        out.append(np.concatenate([u, ctrl.last.inputs.ravel()]))
+        plant.step(u)
+    return np.array(out)
+
+
+def test_threads_one_controller_per_thread_equals_serial_and_sharing_is_refused():
+    """Thread policy (ConcurrentUse): 4 threads x 1,000 calls, one controller each, equal the serial runs;
+    a call entering a controller another thread is inside raises ConcurrentUse, and the held call is unharmed.
+    """
+    starts = [np.array([0.1 * i, 0.0, 0.2 - 0.05 * i, 0.0]) for i in range(4)]
+    serial = [_closed_loop(_small_nmpc(), x0, 1000) for x0 in starts]
+    ctrls = [_small_nmpc() for _ in starts]
+    with ThreadPoolExecutor(4) as pool:
+        threaded = list(pool.map(lambda c, x0: _closed_loop(c, x0, 1000), ctrls, starts))
+    for a, b in zip(serial, threaded, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+    shared = _small_nmpc()
+    x = starts[1]
+    blocker = _Blocking(x)
+    with ThreadPoolExecutor(1) as pool:
+        first = pool.submit(shared, blocker)
+        assert blocker.entered.wait(60)
+        with pytest.raises(ConcurrentUse, match="another thread"):
+            shared(x)
+        with pytest.raises(ConcurrentUse):
+            shared.feedback(x)
+        with pytest.raises(ConcurrentUse):
+            shared.prepare()
+        blocker.release.set()
+        u = first.result(timeout=60)
+    np.testing.assert_array_equal(u, _small_nmpc()(x))  # the held call is the serial first call
+
+
+def test_threads_hammering_one_controller_gives_answers_or_concurrent_use():
+    """4 threads x 100 calls on one shared controller: each call returns a finite input or raises ConcurrentUse."""
+    shared = _small_nmpc()
+    x = np.array([0.0, 0.0, 0.1, 0.0])
+
+    def hammer(_):
+        outcomes = []
+        for _ in range(100):
+            try:
+                outcomes.append(bool(np.all(np.isfinite(shared(x)))))
+            except ConcurrentUse:
+                outcomes.append(None)
+        return outcomes
+
+    with ThreadPoolExecutor(4) as pool:
+        results = [o for batch in pool.map(hammer, range(4)) for o in batch]
+    assert all(o is None or o is True for o in results)
+    assert any(o is True for o in results)

@@ -103,6 +103,13 @@ class IKQP(Controller):
         osqp_settings: OSQP settings overriding :data:`DEFAULT_OSQP_SETTINGS`.
         control_iters: QP iterations per control step in :meth:`track` (>= 1).
 
+    Threads: one object may be shared. A lock serializes the calls that use the kernel's
+    buffers (:meth:`solve`, :meth:`step`, :meth:`track`, :meth:`build_qp`, ``__call__``,
+    :meth:`reset`), so concurrent calls give the answers of some serial order (the lock
+    costs about 0.1 µs of an iteration's 50–100 µs). :meth:`solve` resets the warm start,
+    so its answer does not depend on that order beyond OSQP's tolerance; :attr:`last` is
+    the last call's of any thread.
+
     Attributes:
         last: :class:`IKStep` of the last control call, or None.
         lo, hi: Joint limits ``(n,)`` [rad].
