@@ -214,3 +214,30 @@ def test_threads_at_time_is_correct_and_a_concurrent_call_is_refused(plant, tvlq
     np.testing.assert_array_equal(u, tvlqr.at_time(0.0, x))  # the held call went on as step 0
     assert tvlqr.step == 1  # the refused call did not advance the counter
     tvlqr.reset()
+
+
+def test_a_tvlqr_run_plots_its_plan_as_the_reference_and_reports_plan_tracking_rms():
+    """Issue 23 §5: the run's reference line follows the plan over its span; plan_tracking_rms measures x − x_plan."""
+    from shinro_ctrl.plots import run_figure
+
+    sim = RobotSim.from_config("cartpole_swingup_mujoco", engine="standalone")
+    traj = sim.controller.trajectory
+    res = sim.run(duration=traj.duration + 1.0)
+    inside = res.t <= traj.duration
+    assert inside.sum() >= 10 and not inside.all()
+    # the plan, sampled independently from the trajectory's own interpolation
+    x_plan = traj.x_at(traj.t[0] + res.t[inside])
+    np.testing.assert_allclose(res.plan[inside], x_plan, rtol=0, atol=1e-12)
+    assert np.all(np.isnan(res.plan[~inside]))
+    tracked = [res.state_names.index(s) for s in res.tracked]
+    err = res.x[inside][:, tracked] - x_plan[:, tracked]
+    expected = np.sqrt(np.mean(np.sum(err**2, axis=1)))
+    assert res.metrics["plan_tracking_rms"] == pytest.approx(expected, rel=1e-12)
+    assert 0 < res.metrics["plan_tracking_rms"] < 0.2 < res.metrics["rms_error"]  # it tracks the plan, not the goal
+    fig = run_figure(res)
+    theta = res.state_names.index("theta")
+    lines = [ln for ax in fig.axes for ln in ax.get_lines() if ln.get_label() == "reference"]
+    ys = [ln.get_ydata() for ln in lines if len(ln.get_ydata()) == len(res.t)]
+    assert any(
+        np.allclose(y[inside], x_plan[:, theta]) and np.allclose(y[~inside], res.ref[~inside, theta]) for y in ys
+    )

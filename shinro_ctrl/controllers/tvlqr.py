@@ -329,6 +329,21 @@ class TVLQR(Controller):
         """The input at time ``t`` [s] (step ``round(t / dt)``) for state ``x (n,)``; no counter change."""
         return self._law(max(0, round(float(t) / self.dt)), as_vector("x", x, self.state_dim))
 
+    def plan_states(self, t: ArrayLike) -> np.ndarray:
+        """The plan's state at run times ``t`` ``(T,)`` [s] (0 = the first call), NaN rows past the plan.
+
+        Run time ``t`` is the plan's time ``trajectory.t[0] + t`` (call ``k`` uses sample ``k dt``); the
+        rows with ``t`` beyond the plan's duration, where the goal's LQR takes over, are NaN. A run
+        plots these as its reference and reports ``plan_tracking_rms`` from them.
+        """
+        ts = np.atleast_1d(np.asarray(t, dtype=float))
+        traj = self.trajectory
+        inside = ts <= traj.duration + 1e-9 * max(1.0, traj.duration)
+        out = np.full((ts.size, self.state_dim), np.nan)
+        if np.any(inside):
+            out[inside] = traj.x_at(traj.t[0] + np.clip(ts[inside], 0.0, traj.duration))
+        return out
+
     def _law(self, k: int, x: np.ndarray) -> np.ndarray:
         if k >= self.horizon:
             return self.final(x)
