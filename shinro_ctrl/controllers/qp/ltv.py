@@ -210,6 +210,8 @@ class CondensedLTV:
             else:
                 self.bu[nv:] = self._xhi - off
                 self.bl[nv:] = self._xlo - off
+        if self.soft:  # start with every slack at its bound s = 0 (DAQP's ACTIVE | LOWER): only violated rows leave
+            self.sense[self.nu : nv] = 3
         z, _, flag, info = daqp.solve(self.H, self.g, self.A, self.bu, self.bl, self.sense, **self.settings)
         self.lam = info["lam"]
         self.flag = int(flag)
