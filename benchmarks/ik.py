@@ -147,12 +147,14 @@ def breakdown(arm: ArmRobot, ik: IKQP, T: np.ndarray, n: int = 2000) -> dict[str
             out = min(out, (time.perf_counter() - t0) / n * 1e6)
         return out
 
-    ik._evaluate(q)
-    ik._error(pt, Rt)
+    kernel = ik.kernel
+    s = np.full(ik.n, ik.max_step)
+    kernel.evaluate(q)
+    kernel.error(pt, Rt)
     return {
-        "FK + J + P (compiled)": best(lambda: ik._evaluate(q)),
-        "pose error (log map)": best(lambda: ik._error(pt, Rt)),
-        "QP (bounds, OSQP, clip)": best(lambda: ik._qp_step(q, ik.lo, ik.hi, ik._s_solve, ik._neg_s_solve, 1.0)),
+        "FK + J + P (compiled)": best(lambda: kernel.evaluate(q)),
+        "pose error (log map)": best(lambda: kernel.error(pt, Rt)),
+        "QP (bounds, OSQP, clip)": best(lambda: kernel.qp_step(q, ik.lo, ik.hi, s, -s, 1.0)),
         "solve() fixed cost": best(lambda: ik.solve(T_q, q, tol=TOL)),
     }
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -133,14 +134,14 @@ def test_build_qp_matches_the_formula(arm, ik, rng):
         idx = 0
         for j in range(n):
             for i in range(j + 1):
-                Pu[i, j] = Pu[j, i] = ik._Hu[idx]
+                Pu[i, j] = Pu[j, i] = ik.kernel.Hu[idx]
                 idx += 1
         np.testing.assert_allclose(Pu, prob.P, atol=1e-12)
 
 
 def test_step_solves_the_qp(arm, ik, rng):
     """One OSQP object, updated in place, against scipy's bounded least squares on the same QP."""
-    solver = ik._qp.solver
+    solver = ik.kernel.qp.solver
     sw = np.sqrt(ik.weights)
     active = 0
     for trial in range(30):
@@ -162,7 +163,7 @@ def test_step_solves_the_qp(arm, ik, rng):
         assert np.all(np.abs(dq) <= ik.max_step) and inside(arm, q + dq)
         active += int(np.any(np.isclose(np.abs(ref), ik.max_step)) or np.any(np.isclose(q + ref, arm.joint_limits.T)))
     assert active >= 10  # the bounds were exercised
-    assert ik._qp.solver is solver
+    assert ik.kernel.qp.solver is solver
 
 
 def test_step_never_leaves_the_limits(arm, ik):
@@ -328,3 +329,34 @@ def test_standalone_scenario_runs():
     res = sim.run(duration=0.5)
     assert res.metrics["rms_error"] < 1e-4
     assert res.metrics["constraint_violations"] == 0
+
+
+def test_threads_one_ikqp_shared_by_four_threads_equals_a_serial_run(arm, near_targets):
+    """Thread policy: IKQP serializes its kernel's buffers, so 4 threads x 1,000 solves on one object equal serial.
+
+    ``solve`` resets the warm start first, so its answer depends only on its arguments (to 1e-8: OSQP's
+    factorization and adaptive rho keep a trace of the previous solve); without the lock the threads overwrite each
+    other's kinematics buffers and QP data mid-iteration.
+    """
+    ik = IKQP(arm)
+    rng = np.random.default_rng(99)
+    lo, hi = arm.joint_limits.T
+    jobs = [
+        [(near_targets[int(i)], np.clip(rng.uniform(-0.5, 0.5, 6), lo, hi)) for i in rng.integers(0, N_TARGETS, 1000)]
+        for _ in range(4)
+    ]
+
+    def run(batch):
+        out = []
+        for T, q0 in batch:
+            res = ik.solve(T, q0, max_iters=20)
+            out.append(np.concatenate([res.q, [res.iterations, res.pos_err, res.ori_err]]))
+            out.append(ik.build_qp(q0, T).c)
+        return out
+
+    serial = [run(batch) for batch in jobs]
+    with ThreadPoolExecutor(4) as pool:
+        threaded = list(pool.map(run, jobs))
+    for a, b in zip(serial, threaded, strict=True):
+        for ra, rb in zip(a, b, strict=True):
+            np.testing.assert_allclose(ra, rb, rtol=0, atol=1e-8)

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 
 from shinro_ctrl.controllers import LQR, controller_class
 from shinro_ctrl.controllers.tvlqr import TVLQR, trajectory_jacobians
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.linearization import complex_step_jacobians, discretize
 from shinro_ctrl.planning import TrajectoryOptimizer
 from shinro_ctrl.plants import CartPole, DoublePendulum
@@ -171,3 +174,76 @@ def test_quadrotor_point_to_point_in_mujoco_under_two_seconds_with_the_thrust_bo
     assert np.all(res.u[:, 0] >= 0.0) and np.all(res.u[:, 0] <= two_mg)
     assert np.isclose(res.u[:, 0].max(), two_mg)  # the bound is reached, never exceeded
     np.testing.assert_allclose(res.x[-1, :3], [3.0, 0.0, 1.0], atol=0.05)
+
+
+class _Blocking:
+    """A state that holds the call converting it (``np.asarray``) until released: a call provably in progress."""
+
+    def __init__(self, value):
+        self.value = np.asarray(value, dtype=float)
+        self.entered = threading.Event()
+        self.release = threading.Event()
+
+    def __array__(self, dtype=None, copy=None):
+        self.entered.set()
+        assert self.release.wait(60)
+        return self.value if dtype is None else self.value.astype(dtype)
+
+
+def test_threads_at_time_is_correct_and_a_concurrent_call_is_refused(plant, tvlqr, rng):
+    """Thread policy: 4 threads x 1,000 at_time calls on one object equal a serial run; __call__ detects reentry."""
+    samples = [
+        [
+            (float(t), x)
+            for t, x in zip(
+                rng.uniform(0, 1.2 * tvlqr.trajectory.duration, 1000), rng.normal(size=(1000, 4)), strict=True
+            )
+        ]
+        for _ in range(4)
+    ]
+    serial = [[tvlqr.at_time(t, x) for t, x in jobs] for jobs in samples]
+    with ThreadPoolExecutor(4) as pool:
+        threaded = list(pool.map(lambda jobs: [tvlqr.at_time(t, x) for t, x in jobs], samples))
+    for a, b in zip(serial, threaded, strict=True):
+        np.testing.assert_array_equal(np.array(a), np.array(b))
+
+    tvlqr.reset()
+    x = np.array([0.1, 0.0, np.pi - 0.1, 0.0])
+    blocker = _Blocking(x)
+    with ThreadPoolExecutor(1) as pool:
+        first = pool.submit(tvlqr, blocker)
+        assert blocker.entered.wait(60)
+        with pytest.raises(ConcurrentUse, match="another thread"):
+            tvlqr(x)
+        blocker.release.set()
+        u = first.result(timeout=60)
+    np.testing.assert_array_equal(u, tvlqr.at_time(0.0, x))  # the held call went on as step 0
+    assert tvlqr.step == 1  # the refused call did not advance the counter
+    tvlqr.reset()
+
+
+def test_a_tvlqr_run_plots_its_plan_as_the_reference_and_reports_plan_tracking_rms():
+    """Issue 23 §5: the run's reference line follows the plan over its span; plan_tracking_rms measures x − x_plan."""
+    from shinro_ctrl.plots import run_figure
+
+    sim = RobotSim.from_config("cartpole_swingup_mujoco", engine="standalone")
+    traj = sim.controller.trajectory
+    res = sim.run(duration=traj.duration + 1.0)
+    inside = res.t <= traj.duration
+    assert inside.sum() >= 10 and not inside.all()
+    # the plan, sampled independently from the trajectory's own interpolation
+    x_plan = traj.x_at(traj.t[0] + res.t[inside])
+    np.testing.assert_allclose(res.plan[inside], x_plan, rtol=0, atol=1e-12)
+    assert np.all(np.isnan(res.plan[~inside]))
+    tracked = [res.state_names.index(s) for s in res.tracked]
+    err = res.x[inside][:, tracked] - x_plan[:, tracked]
+    expected = np.sqrt(np.mean(np.sum(err**2, axis=1)))
+    assert res.metrics["plan_tracking_rms"] == pytest.approx(expected, rel=1e-12)
+    assert 0 < res.metrics["plan_tracking_rms"] < 0.2 < res.metrics["rms_error"]  # it tracks the plan, not the goal
+    fig = run_figure(res)
+    theta = res.state_names.index("theta")
+    lines = [ln for ax in fig.axes for ln in ax.get_lines() if ln.get_label() == "reference"]
+    ys = [ln.get_ydata() for ln in lines if len(ln.get_ydata()) == len(res.t)]
+    assert any(
+        np.allclose(y[inside], x_plan[:, theta]) and np.allclose(y[~inside], res.ref[~inside, theta]) for y in ys
+    )

@@ -1,137 +1,201 @@
-"""The reference solver of :class:`~shinro_ctrl.controllers.nmpc.NonlinearMPC`: the OCP by IPOPT.
+"""The reference strategy of :class:`~shinro_ctrl.controllers.nmpc.NonlinearMPC`: the OCP solved by IPOPT.
 
-:class:`NMPCIpopt` (a mixin of ``NonlinearMPC``) writes the multiple-shooting
-OCP as one ``casadi.nlpsol`` problem (the measured state and the reference as
-parameters) and solves it warm-started from the previous solution shifted by
-one stage: ``solver="ipopt"`` at every call, and the ``cold_start="ipopt"``
-first trajectory of the real-time iteration.
+:class:`IpoptSolver` writes the multiple-shooting OCP of an
+:class:`~shinro_ctrl.controllers._nmpc_ocp.NMPCProblem` as one
+``casadi.nlpsol`` problem (the measured state and the reference as
+parameters) and solves it warm-started from its previous solution shifted by
+one stage: ``solver="ipopt"`` at every call, and (held by the real-time
+iteration) the ``cold_start="ipopt"`` first trajectory.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
+import threading
 import time
+from collections.abc import Iterator
+from types import FrameType
 from typing import Any
 
 import casadi as cs
 import numpy as np
 
+from shinro_ctrl.controllers._nmpc_ocp import NMPCProblem, failed_solution
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import MPCInfeasible
 
-__all__ = ["NMPCIpopt"]
+__all__ = ["IpoptSolver"]
 
 
-class NMPCIpopt:
-    """The OCP solved by IPOPT (a mixin of ``NonlinearMPC``)."""
+class IpoptSolver:
+    """The OCP solved to convergence by IPOPT at every call (an :class:`~._nmpc_ocp.NMPCStrategy`).
 
-    n: int
-    m: int
-    N: int
-    last: NMPCSolution | None
+    Args:
+        ocp: The problem (its options are read whole).
+    """
 
-    def _build_ipopt(self) -> None:
-        n, m, N = self.n, self.m, self.N
+    def __init__(self, ocp: NMPCProblem):
+        self.ocp = ocp
+        o = ocp.options
+        n, m, N = ocp.n, ocp.m, ocp.N
         X = cs.MX.sym("X", n, N + 1)
         U = cs.MX.sym("U", m, N)
-        bounded = np.flatnonzero(np.isfinite(self.x_min) | np.isfinite(self.x_max))
-        ns = bounded.size if self.soft else 0
+        bounded = np.flatnonzero(np.isfinite(o.x_min) | np.isfinite(o.x_max))
+        self._bounded = bounded if o.soft else bounded[:0]
+        ns = self._bounded.size * N  # one slack per state-bound row (stage and bounded component)
         S = cs.MX.sym("S", ns)
         P = cs.MX.sym("P", 2 * n)
         x_meas, r = P[:n], P[n:]
         E = X - cs.repmat(r, 1, N + 1)
-        dU = U - cs.repmat(cs.DM(self.u0), 1, N)
-        J = 0.5 * cs.sum2(cs.sum1(E[:, :N] * cs.mtimes(cs.DM(self.Q), E[:, :N])))
-        J += 0.5 * cs.bilin(cs.DM(self.Qf), E[:, N], E[:, N])
-        J += 0.5 * cs.sum2(cs.sum1(dU * cs.mtimes(cs.DM(self.R), dU)))
+        dU = U - cs.repmat(cs.DM(ocp.u0), 1, N)
+        J = 0.5 * cs.sum2(cs.sum1(E[:, :N] * cs.mtimes(cs.DM(ocp.Q), E[:, :N])))
+        J += 0.5 * cs.bilin(cs.DM(ocp.Qf), E[:, N], E[:, N])
+        J += 0.5 * cs.sum2(cs.sum1(dU * cs.mtimes(cs.DM(ocp.R), dU)))
         if ns:
-            J += self.soft_weights[0] * cs.sum1(S) + 0.5 * self.soft_weights[1] * cs.sumsqr(S)
-        Fk = self.F.map(N)(X[:, :N], U)
+            J += o.soft_weight_l1 * cs.sum1(S) + 0.5 * o.soft_weight_quad * cs.sumsqr(S)
+        Fk = ocp.F.map(N)(X[:, :N], U)
         g = [X[:, 0] - x_meas, cs.vec(Fk - X[:, 1:])]
         lbg = [np.zeros(n), np.zeros(n * N)]
         ubg = [np.zeros(n), np.zeros(n * N)]
         lbx_X = np.full((N + 1, n), -np.inf)
         ubx_X = np.full((N + 1, n), np.inf)
         if ns:
-            for j, i in enumerate(bounded):
-                if np.isfinite(self.x_max[i]):
-                    g.append(X[i, 1:].T - S[j])
+            Sm = cs.reshape(S, N, self._bounded.size)  # Sm[k, j]: the slack of x_{k+1}[bounded[j]]
+            for j, i in enumerate(self._bounded):
+                if np.isfinite(o.x_max[i]):
+                    g.append(X[i, 1:].T - Sm[:, j])
                     lbg.append(np.full(N, -np.inf))
-                    ubg.append(np.full(N, self.x_max[i]))
-                if np.isfinite(self.x_min[i]):
-                    g.append(X[i, 1:].T + S[j])
-                    lbg.append(np.full(N, self.x_min[i]))
+                    ubg.append(np.full(N, o.x_max[i]))
+                if np.isfinite(o.x_min[i]):
+                    g.append(X[i, 1:].T + Sm[:, j])
+                    lbg.append(np.full(N, o.x_min[i]))
                     ubg.append(np.full(N, np.inf))
         else:
-            lbx_X[1:] = self.x_min
-            ubx_X[1:] = self.x_max
+            lbx_X[1:] = o.x_min
+            ubx_X[1:] = o.x_max
         w = cs.vertcat(cs.vec(X), cs.vec(U), S)
         nlp = {"x": w, "f": J, "g": cs.vertcat(*g), "p": P}
         opts = {
             "print_time": False,
-            "ipopt": {"print_level": 0, "sb": "yes", "tol": self.tol, "max_iter": 3000},
+            "ipopt": {"print_level": 0, "sb": "yes", "tol": o.tol, "max_iter": 3000},
         }
-        self._ipopt = cs.nlpsol("nmpc", "ipopt", nlp, opts)
-        self._lbw = np.concatenate([lbx_X.ravel(), np.tile(self.u_min, N), np.zeros(ns)])
-        self._ubw = np.concatenate([ubx_X.ravel(), np.tile(self.u_max, N), np.full(ns, np.inf)])
+        self._nlp = cs.nlpsol("nmpc", "ipopt", nlp, opts)
+        self._lbw = np.concatenate([lbx_X.ravel(), np.tile(o.u_min, N), np.zeros(ns)])
+        self._ubw = np.concatenate([ubx_X.ravel(), np.tile(o.u_max, N), np.full(ns, np.inf)])
         self._lbg = np.concatenate(lbg)
         self._ubg = np.concatenate(ubg)
+        self._guess: np.ndarray | None = None
+        self.status = ""  # IPOPT's return status of the last solve
 
-    def _solve_ipopt(self, x: np.ndarray, t_start: float) -> np.ndarray:
-        t0 = time.perf_counter()
-        X, U, stats, obj = self._ipopt_solve(x)
-        t_qp = time.perf_counter() - t0
-        u = np.clip(U[0], self.u_min, self.u_max)
-        total = time.perf_counter() - t_start
+    def reset(self) -> None:
+        """Forget the warm start: the next solve starts from the measured state held over the horizon."""
+        self._guess = None
+
+    def prepare(self) -> None:
+        """Nothing to prepare: IPOPT solves the whole OCP when the state arrives."""
+        return None
+
+    def solve(self, x: np.ndarray, ref: np.ndarray) -> NMPCSolution:
+        """The OCP from ``x (n,)`` towards ``ref (n,)`` to convergence (a failure is returned, not raised)."""
+        t_start = time.perf_counter()
+        o = self.ocp.options
+        try:
+            X, U, stats, obj = self.trajectory(x, ref)
+        except MPCInfeasible as exc:
+            total = time.perf_counter() - t_start
+            return failed_solution(self.ocp, str(exc), self.status, total)
+        t_qp = time.perf_counter() - t_start
+        u = np.clip(U[0], o.u_min, o.u_max)
         iters = int(stats.get("iter_count", 0))
-        self.last = NMPCSolution(
+        total = time.perf_counter() - t_start
+        return NMPCSolution(
             status="solved", iterations=iters, kkt_residual=math.nan, qp_status=str(stats.get("return_status")),
             qp_iterations=iters, time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=t_qp,
             time_other_s=total - t_qp, solve_time_s=total, states=X.copy(), inputs=U.copy(), u=u,
             objective=obj,
         )  # fmt: skip
-        self._started = True
-        return u
 
-    def _ipopt_solve(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, Any], float]:
+    def trajectory(self, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, Any], float]:
         """The OCP from ``x`` solved by IPOPT, warm-started from the previous solution shifted.
 
         Returns:
             ``(X (N + 1, n), U (N, m), IPOPT's stats, objective)``.
 
         Raises:
-            MPCInfeasible: IPOPT did not succeed.
+            MPCInfeasible: IPOPT did not succeed (the warm start is then forgotten).
         """
-        if self._ipopt is None:
-            self._build_ipopt()
-        n, m, N = self.n, self.m, self.N
+        ocp = self.ocp
+        o = ocp.options
+        n, m, N = ocp.n, ocp.m, ocp.N
         nX = n * (N + 1)
-        if self._ipopt_guess is None:
+        if self._guess is None:
             guess = np.concatenate(
                 [
                     np.tile(x, N + 1),
-                    np.tile(np.clip(self.u0, self.u_min, self.u_max), N),
+                    np.tile(np.clip(ocp.u0, o.u_min, o.u_max), N),
                     np.zeros(self._lbw.size - nX - N * m),
                 ]
             )
         else:
-            guess = self._ipopt_guess.copy()
+            guess = self._guess.copy()
             Xg = guess[:nX].reshape(N + 1, n)
             Ug = guess[nX : nX + N * m].reshape(N, m)
             Xg[:-1] = Xg[1:].copy()
             Ug[:-1] = Ug[1:].copy()
             Xg[0] = x
-        sol = self._ipopt(
-            x0=guess, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg, p=np.concatenate([x, self._ref])
-        )
-        stats = self._ipopt.stats()
+        if self._bounded.size:  # slacks that make the guess meet the soft bounds: a feasible start for them
+            Xg = guess[:nX].reshape(N + 1, n)[1:, self._bounded]
+            viol = np.maximum(Xg - o.x_max[self._bounded], o.x_min[self._bounded] - Xg)
+            guess[nX + N * m :] = np.maximum(viol, 0.0).ravel(order="F")
+        with _interrupts() as interrupted:
+            sol = self._nlp(
+                x0=guess, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg, p=np.concatenate([x, ref])
+            )
+        if interrupted:  # CasADi caught the KeyboardInterrupt and returned 'NonIpopt_Exception_Thrown'
+            self._guess = None
+            raise KeyboardInterrupt
+        stats = self._nlp.stats()
+        self.status = str(stats.get("return_status", ""))
         w = np.asarray(sol["x"], dtype=float).ravel()
         if not stats.get("success", False) or not np.all(np.isfinite(w)):
-            status = str(stats.get("return_status", "failed"))
-            self._ipopt_guess = None
-            self._started = False
+            status = self.status = str(stats.get("return_status", "failed"))
+            self._guess = None
             raise MPCInfeasible(f"NonlinearMPC (ipopt): {status} at x = {np.array2string(x, precision=4)}")
-        self._ipopt_guess = w
+        self._guess = w
         X = w[:nX].reshape(N + 1, n)
         U = w[nX : nX + N * m].reshape(N, m)
         return X, U, stats, float(sol["f"])
+
+
+@contextlib.contextmanager
+def _interrupts() -> Iterator[list[bool]]:
+    """Record a Ctrl-C (SIGINT) that arrives inside the block; the list yielded becomes ``[True]``.
+
+    CasADi polls Python's signal handlers during an IPOPT solve: the handler's
+    ``KeyboardInterrupt`` stops IPOPT, but CasADi swallows it and reports the
+    return status ``NonIpopt_Exception_Thrown`` (the same status as any other
+    exception inside a callback). This wraps the current SIGINT handler so the
+    interrupt is recorded and the caller can re-raise it. Only the main thread
+    receives signals in Python; elsewhere (or when SIGINT is not handled by a
+    Python callable) nothing is changed.
+    """
+    hit: list[bool] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield hit
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    if not callable(previous):  # SIG_IGN, SIG_DFL or None: no Python handler runs
+        yield hit
+        return
+
+    def record(signum: int, frame: FrameType | None) -> None:
+        hit.append(True)
+        previous(signum, frame)
+
+    signal.signal(signal.SIGINT, record)
+    try:
+        yield hit
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -1,98 +1,150 @@
-"""The real-time iteration of :class:`~shinro_ctrl.controllers.nmpc.NonlinearMPC`: prepare, feedback, SQP merit.
+"""The real-time iteration strategy of :class:`~shinro_ctrl.controllers.nmpc.NonlinearMPC`: prepare, feedback, SQP.
 
-:class:`NMPCRealTime` is a mixin of ``NonlinearMPC`` (it reads the controller's
-model, weights, buffers and QP). **prepare** shifts the previous solution,
-linearizes all stages in one compiled call and condenses the QP; **feedback**
-solves the QP for the measured state and takes the step (with ``iterations >
-1`` an ℓ1-merit Armijo line search and more SQP iterations follow). The module
-docstring of ``controllers/nmpc.py`` states the OCP.
+:class:`RealTimeIteration` owns the trajectory ``(X̄, Ū)``, the stage
+matrices ``G_k = [A_k, B_k, d_k]`` the compiled linearization writes into, and
+the LTV QP (condensed with DAQP, or sparse with OSQP). **prepare** shifts the
+previous solution, linearizes all stages in one compiled call and condenses
+the QP; **solve** (the feedback) solves the QP for the measured state and takes
+the step (with ``iterations > 1`` an ℓ1-merit Armijo line search and more SQP
+iterations follow). The module docstring of ``controllers/nmpc.py`` states the
+OCP.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from typing import Any
 
 import numpy as np
 
+from shinro_ctrl.controllers._nmpc_ipopt import IpoptSolver
+from shinro_ctrl.controllers._nmpc_ocp import NMPCProblem, failed_solution
+from shinro_ctrl.controllers.qp.ltv import CondensedLTV, SparseLTV
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import MPCInfeasible
 
-__all__ = ["NMPCRealTime"]
+__all__ = ["RealTimeIteration"]
 
 
-class NMPCRealTime:
-    """Prepare/feedback phases and the SQP line search of ``NonlinearMPC`` (a mixin)."""
+class RealTimeIteration:
+    """Real-time iterations (or SQP) on the LTV QP of the OCP (an :class:`~._nmpc_ocp.NMPCStrategy`).
 
-    n: int
-    m: int
-    N: int
-    last: NMPCSolution | None
+    Args:
+        ocp: The problem (its options are read whole: ``solver`` picks the QP,
+            ``iterations``, ``tol``, ``cold_start`` … the iteration).
 
-    def _linearize(self) -> None:
-        """Defects and Jacobians of all stages at ``(X̄, Ū)`` (one compiled call)."""
-        self._eval()
+    Attributes:
+        X: The trajectory's states ``(N + 1, n)`` (the linearization point).
+        U: Its inputs ``(N, m)``.
+        A: Stage Jacobians ``∂F/∂x`` ``(N, n, n)`` at ``(X, U)`` (views of one buffer).
+        B: Stage Jacobians ``∂F/∂u`` ``(N, n, m)``.
+        D: Shooting defects ``F(x̄_k, ū_k) − x̄_{k+1}`` ``(N, n)``.
+        qp: The LTV QP (:class:`CondensedLTV` or :class:`SparseLTV`).
+    """
 
+    def __init__(self, ocp: NMPCProblem):
+        self.ocp = ocp
+        o = ocp.options
+        n, m, N = ocp.n, ocp.m, ocp.N
+        self.X = np.zeros((N + 1, n))
+        self.U = np.zeros((N, m))
+        self._G = np.zeros((N, n, n + m + 1))  # [A_k, B_k, d_k] of every stage
+        self.A = self._G[:, :, :n]
+        self.B = self._G[:, :, n : n + m]
+        self.D = self._G[:, :, n + m]
+        self._buf, self._eval = ocp.linearization.buffer()
+        self._buf.set_arg(0, memoryview(self.X))
+        self._buf.set_arg(1, memoryview(self.U))
+        self._buf.set_res(0, memoryview(self._G))
+        self._e = np.zeros(N * n)
+        self._du = np.zeros(N * m)
+        self._ref = ocp.x0.copy()
+        self.qp: CondensedLTV | SparseLTV
+        soft = dict(soft=o.soft, soft_weights=(o.soft_weight_l1, o.soft_weight_quad))
+        if o.solver == "osqp":
+            settings = dict(o.osqp_settings) if o.osqp_settings is not None else None
+            self.qp = SparseLTV(
+                self._G, ocp.Q, ocp.W, ocp.R, o.u_min, o.u_max, o.x_min, o.x_max, osqp_settings=settings, **soft
+            )
+        else:
+            self.qp = CondensedLTV(self._G, ocp.W, ocp.R, o.u_min, o.u_max, o.x_min, o.x_max, **soft)
+        self._ipopt: IpoptSolver | None = None  # the cold start's, built on first use
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the trajectory: the next solve starts cold (see ``cold_start``)."""
+        self._started = False
+        self._prepared = False
+        self._mu = 0.0
+
+    # ================================================================ phases
     def _condense(self) -> None:
-        N, n = self.N, self.n
-        np.subtract(self._X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
-        np.subtract(self._U, self.u0, out=self._du.reshape(N, self.m))
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by feedback
+        N, n = self.ocp.N, self.ocp.n
+        np.subtract(self.X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
+        np.subtract(self.U, self.ocp.u0, out=self._du.reshape(N, self.ocp.m))
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by solve
             self.qp.build(self._e, self._du)
-        self.qp.set_bounds(self._U, self._X[1:])
+        self.qp.set_bounds(self.U, self.X[1:])
 
     def _shift(self) -> None:
-        X, U = self._X, self._U
+        X, U = self.X, self.U
         X[:-1] = X[1:]
         U[:-1] = U[1:]
 
-    def prepare(self) -> None:
-        """Preparation phase: shift the previous solution and linearize/condense for the next state.
+    def prepare(self) -> tuple[float, float, float] | None:
+        """Shift the previous solution and linearize/condense for the next state.
 
-        Called by :meth:`~shinro_ctrl.controllers.nmpc.NonlinearMPC.__call__` after each feedback; call it yourself to
-        overlap it with the time before the next measurement.
+        Returns:
+            ``(linearization, condensing, other)`` seconds, or None when there
+            is nothing to prepare (before the first solve).
         """
         t0 = time.perf_counter()
-        if self.solver == "ipopt" or not self._started:
-            return
+        if not self._started:
+            return None
         if not self._prepared:
             self._shift()
         t1 = time.perf_counter()
-        self._linearize()
+        self._eval()
         t2 = time.perf_counter()
         self._condense()
         t3 = time.perf_counter()
         self._prepared = True
-        self._t_prep = (t2 - t1, t3 - t2, t1 - t0)
+        return t2 - t1, t3 - t2, t1 - t0
 
-    def feedback(self, x: Any, ref: Any = None) -> np.ndarray:
-        """Feedback phase: solve the prepared QP for the measured ``x (n,)`` and take the step.
+    def solve(self, x: np.ndarray, ref: np.ndarray) -> NMPCSolution:
+        """Feedback: solve the prepared QP for the measured ``x (n,)`` and take the step.
 
         With ``iterations > 1`` SQP iterations follow until the KKT residual is
-        below ``tol``. The first call after :meth:`~shinro_ctrl.controllers.nmpc.NonlinearMPC.reset` starts cold (see
-        ``cold_start``).
+        below ``tol``. The first call after :meth:`reset` starts cold (see
+        ``cold_start``). A failed QP is returned (``message`` set), and the
+        next call starts cold.
 
-        Returns:
-            The input ``u (m,)`` clipped to ``[u_min, u_max]``.
+        A failed IPOPT cold start is returned likewise.
         """
         t_start = time.perf_counter()
-        x = self._check_x(x, ref)
-        if self.solver == "ipopt":
-            return self._solve_ipopt(x, t_start)
+        ocp = self.ocp
+        o = ocp.options
+        if not np.array_equal(ref, self._ref):
+            self._ref[:] = ref
+            if self._prepared:  # re-condense for the new reference
+                self._condense()
         t_lin = t_cond = 0.0
         fresh = not self._started
-        budget, cold, t_qp = self._begin(x) if fresh else (self.iterations, False, 0.0)
+        try:
+            budget, cold, t_qp = self._begin(x) if fresh else (o.iterations, False, 0.0)
+        except MPCInfeasible as exc:  # the IPOPT cold start failed
+            status = self._ipopt.status if self._ipopt is not None else "failed"
+            return failed_solution(ocp, str(exc), status, time.perf_counter() - t_start)
         if not self._prepared:
             if not fresh:
                 self._shift()
             t0 = time.perf_counter()
-            self._linearize()
+            self._eval()
             t1 = time.perf_counter()
             self._condense()
             t_lin, t_cond = t1 - t0, time.perf_counter() - t1
         self._prepared = False
-        dx0 = x - self._X[0]
+        dx0 = x - self.X[0]
         status = "rti"
         kkt = math.inf
         it = 0
@@ -104,24 +156,24 @@ class NMPCRealTime:
             t_qp += time.perf_counter() - t0
             it += 1
             if not ok:
-                self._fail(x, qp_status, t_start)
-            kkt = max(self.qp.kkt(z), float(np.max(np.abs(self._D))), float(np.max(np.abs(dx0))))
-            if it > 1 and kkt < self.tol:
+                return self._fail(x, qp_status, t_start)
+            kkt = max(self.qp.kkt(z), float(np.max(np.abs(self.D))), float(np.max(np.abs(dx0))))
+            if it > 1 and kkt < o.tol:
                 status = "solved"
                 break
             self._step(x, z, dx0, line_search=it > 1 or cold)
             if it >= budget:
                 break
-            dx0 = np.zeros(self.n)
+            dx0 = np.zeros(ocp.n)
             t0 = time.perf_counter()
-            self._linearize()
+            self._eval()
             t1 = time.perf_counter()
             self._condense()
             t_lin += t1 - t0
             t_cond += time.perf_counter() - t1
-        u = np.clip(self._U[0], self.u_min, self.u_max)
+        u = np.clip(self.U[0], o.u_min, o.u_max)
         total = time.perf_counter() - t_start
-        self.last = NMPCSolution(
+        return NMPCSolution(
             status=status,
             iterations=it,
             kkt_residual=kkt,
@@ -132,109 +184,94 @@ class NMPCRealTime:
             time_qp_s=t_qp,
             time_other_s=total - t_lin - t_cond - t_qp,
             solve_time_s=total,
-            states=self._X.copy(),
-            inputs=self._U.copy(),
+            states=self.X.copy(),
+            inputs=self.U.copy(),
             u=u,
-            objective=self.objective(self._X, self._U),
+            objective=ocp.objective(self.X, self.U, self._ref),
         )
-        return u
 
     def _begin(self, x: np.ndarray) -> tuple[int, bool, float]:
         """The first trajectory after ``reset()``: ``(SQP budget, cold, IPOPT time)`` (see ``cold_start``)."""
+        o = self.ocp.options
         t_qp = 0.0
         self._prepared = False
-        if self.cold_start == "ipopt":
+        if o.cold_start == "ipopt":
             t0 = time.perf_counter()
-            self._ipopt_guess = None
-            X, U, _, _ = self._ipopt_solve(x)
+            if self._ipopt is None:
+                self._ipopt = IpoptSolver(self.ocp)
+            self._ipopt.reset()
+            X, U, _, _ = self._ipopt.trajectory(x, self._ref)
             t_qp += time.perf_counter() - t0
-            self._X[:] = X
-            self._U[:] = U
-            budget, cold = self.iterations, False
+            self.X[:] = X
+            self.U[:] = U
+            budget, cold = o.iterations, False
         else:
-            self._X[:] = x
-            self._U[:] = np.clip(self.u0, self.u_min, self.u_max)
-            budget, cold = self.init_iterations, True
+            self.X[:] = x
+            self.U[:] = np.clip(self.ocp.u0, o.u_min, o.u_max)
+            budget, cold = o.init_iterations, True
         self._started = True
         return budget, cold, t_qp
 
     def _step(self, x: np.ndarray, z: np.ndarray, dx0: np.ndarray, *, line_search: bool) -> None:
-        N, m = self.N, self.m
+        N, m = self.ocp.N, self.ocp.m
         dU, dX = self.qp.step(z, dx0)
         if line_search:
-            alpha = self._line_search(dX, dU.reshape(N, m), z)
+            alpha = self._line_search(dX, dU.reshape(N, m))
         else:
             alpha = 1.0
-        self._X[0] = x
-        self._X[1:] += alpha * dX
-        self._U += alpha * dU.reshape(N, m)
+        self.X[0] = x
+        self.X[1:] += alpha * dX
+        self.U += alpha * dU.reshape(N, m)
 
     # ============================================================= SQP merit
-    def objective(self, X: np.ndarray, U: np.ndarray) -> float:
-        """The OCP cost of a trajectory ``X (N + 1, n)``, ``U (N, m)`` (slack terms included)."""
-        E = X - self._ref
-        dU = U - self.u0
-        J = 0.5 * float(np.einsum("ki,ij,kj->", E[:-1], self.Q, E[:-1]))
-        J += 0.5 * float(E[-1] @ self.Qf @ E[-1])
-        J += 0.5 * float(np.einsum("ki,ij,kj->", dU, self.R, dU))
-        if self.soft:
-            s = np.maximum(np.max(X[1:] - self.x_max, axis=0), np.max(self.x_min - X[1:], axis=0))
-            s = np.maximum(s[np.isfinite(s)], 0.0)
-            J += self.soft_weights[0] * float(s.sum()) + 0.5 * self.soft_weights[1] * float(s @ s)
-        return J
-
     def _multiplier_bound(self, dX: np.ndarray) -> float:
         """``‖λ‖_∞`` of the dynamics multipliers of the QP solution (backward recursion)."""
-        N, n = self.N, self.n
+        N, n = self.ocp.N, self.ocp.n
         qp = self.qp
-        if hasattr(qp, "dynamics_multipliers"):  # the sparse QP has them
+        if isinstance(qp, SparseLTV):  # the sparse QP has them
             return float(np.max(np.abs(qp.dynamics_multipliers())))
         nu_rows = qp.state_bound_multipliers()
-        Xp = self._X[1:] + dX - self._ref
+        Xp = self.X[1:] + dX - self._ref
+        W = self.ocp.W
         lam_next = np.zeros(n)
         big = 0.0
         for k in range(N - 1, -1, -1):
-            lam_k = self.W[k] @ Xp[k] + nu_rows[k]
+            lam_k = W[k] @ Xp[k] + nu_rows[k]
             if k + 1 < N:
-                lam_k += lam_next @ self._A[k + 1]
+                lam_k += lam_next @ self.A[k + 1]
             big = max(big, float(np.max(np.abs(lam_k))))
             lam_next = lam_k
         return big
 
-    def _line_search(self, dX: np.ndarray, dU: np.ndarray, z: np.ndarray) -> float:
+    def _line_search(self, dX: np.ndarray, dU: np.ndarray) -> float:
+        ocp = self.ocp
         self._mu = max(self._mu, 1.5 * self._multiplier_bound(dX) + 1e-6)
         mu = self._mu
-        X0, U0 = self._X.copy(), self._U.copy()
-        defect0 = float(np.abs(self._D).sum())
-        phi0 = self.objective(X0, U0) + mu * defect0
+        X0, U0 = self.X.copy(), self.U.copy()
+        defect0 = float(np.abs(self.D).sum())
+        phi0 = ocp.objective(X0, U0, self._ref) + mu * defect0
         E = X0 - self._ref
-        grad = float(np.einsum("ki,ij,kj->", E[1:-1], self.Q, dX[:-1])) + float(E[-1] @ self.Qf @ dX[-1])
-        grad += float(np.einsum("ki,ij,kj->", U0 - self.u0, self.R, dU))
+        grad = float(np.einsum("ki,ij,kj->", E[1:-1], ocp.Q, dX[:-1])) + float(E[-1] @ ocp.Qf @ dX[-1])
+        grad += float(np.einsum("ki,ij,kj->", U0 - ocp.u0, ocp.R, dU))
         slope = grad - mu * defect0
         alpha = 1.0
         for _ in range(30):
-            self._X[1:] = X0[1:] + alpha * dX
-            self._U[:] = U0 + alpha * dU
-            self._linearize()
-            phi = self.objective(self._X, self._U) + mu * float(np.abs(self._D).sum())
+            self.X[1:] = X0[1:] + alpha * dX
+            self.U[:] = U0 + alpha * dU
+            self._eval()
+            phi = ocp.objective(self.X, self.U, self._ref) + mu * float(np.abs(self.D).sum())
             # the last term absorbs rounding of phi near convergence (else tiny steps stall the iteration)
             if phi <= phi0 + 1e-4 * alpha * min(slope, 0.0) + 1e-12 * max(1.0, abs(phi0)):
                 break
             alpha *= 0.5
-        self._X[:] = X0
-        self._U[:] = U0
+        self.X[:] = X0
+        self.U[:] = U0
         return alpha
 
-    def _fail(self, x: np.ndarray, status: str, t_start: float) -> None:
+    def _fail(self, x: np.ndarray, status: str, t_start: float) -> NMPCSolution:
         message = f"NonlinearMPC: the QP failed ({status}) at x = {np.array2string(x, precision=4)}"
         reason = self.qp.explain()
         if reason:
             message += f"; {reason}"
-        self.last = NMPCSolution(
-            status=status, iterations=0, kkt_residual=math.nan, qp_status=status, qp_iterations=0,
-            time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=0.0, time_other_s=0.0,
-            solve_time_s=time.perf_counter() - t_start, states=self._X.copy(), inputs=self._U.copy(),
-            u=np.full(self.m, np.nan), objective=math.nan, message=message,
-        )  # fmt: skip
         self._started = False  # the next call starts cold
-        raise MPCInfeasible(message)
+        return failed_solution(self.ocp, message, status, time.perf_counter() - t_start, self.X, self.U)

@@ -220,13 +220,14 @@ class OsqpQP:
         fast: Whether calls go through the compiled solver.
 
     Threads: one object serves one thread at a time. A method entered while
-    another thread is inside one, or a ``warm_start``/``solve`` from a thread
-    other than the one that made the latest ``update``, raises
+    another thread is inside one, or a ``solve`` from a thread other than
+    the one that made the latest write (``update``, ``warm_start``,
+    ``update_rho``), raises
     :class:`~shinro_ctrl.errors.ConcurrentUse` instead of letting OSQP's C
     workspace be written by two threads (which crashed the process). An
     owner that serializes its calls (``LinearMPC`` holds a lock around its
-    whole step) never sees it; a thread that takes over an idle object
-    starts with ``update``.
+    whole step, ``IKQP`` around its kernel) never sees it; a thread that
+    takes over an idle object starts with a write.
     """
 
     _NEEDED = ("update_data_vec", "update_data_mat", "warm_start", "update_rho", "solve", "info", "solution")
@@ -325,7 +326,7 @@ class OsqpQP:
 
     def warm_start(self, x: np.ndarray, y: np.ndarray) -> None:
         """Primal ``x (n,)`` and dual ``y (m,)`` starting iterates for the next solve."""
-        self._enter("warm_start")
+        self._enter("warm_start", writes=True)
         try:
             if self._raw is not None:
                 self._raw.warm_start(x, y)
@@ -349,7 +350,7 @@ class OsqpQP:
 
     def update_rho(self, rho: float) -> None:
         """Set the ADMM step ``rho`` (OSQP adapts it between solves when ``adaptive_rho``)."""
-        self._enter("update_rho")
+        self._enter("update_rho", writes=True)
         try:
             if self._raw is not None:
                 self._raw.update_rho(rho)

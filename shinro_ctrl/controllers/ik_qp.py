@@ -30,24 +30,25 @@ Every joint vector this module returns is clipped to the joint limits exactly
 from __future__ import annotations
 
 import math
-from typing import Any
+import threading
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
-import casadi as cs
 import numpy as np
 import osqp
 
-from shinro_ctrl.controllers._ik_loops import IKLoops
-from shinro_ctrl.controllers._ik_parts import IKProblem, IKStep, _BoxQP
+from shinro_ctrl.controllers._ik_loops import solve_to_tolerance, track_step
+from shinro_ctrl.controllers._ik_parts import IKKernel, IKProblem, IKStep
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.kinematics import (
-    IKResult,
-    euler_zyx_from_matrix,
-    euler_zyx_to_matrix,
-    so3_log_flat,
-    wrap_angle,
-)
-from shinro_ctrl.validation import as_matrix, as_vector, check_nonnegative, check_positive
+from shinro_ctrl.kinematics import IKResult, euler_zyx_from_matrix, wrap_angle
+from shinro_ctrl.validation import as_vector, check_nonnegative, check_positive
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from shinro_ctrl.plants.armrobot import ArmRobot
 
 __all__ = ["IKQP", "IKProblem", "IKResult", "IKStep"]
 
@@ -63,16 +64,8 @@ DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
     "adaptive_rho": True,
 }
 
-_SOLVED = int(osqp.SolverStatus.OSQP_SOLVED)
-_USABLE = {
-    int(osqp.SolverStatus.OSQP_SOLVED),
-    int(osqp.SolverStatus.OSQP_SOLVED_INACCURATE),
-    int(osqp.SolverStatus.OSQP_MAX_ITER_REACHED),
-    int(osqp.SolverStatus.OSQP_TIME_LIMIT_REACHED),
-}
 
-
-class IKQP(IKLoops, Controller):
+class IKQP(Controller):
     r"""Joint-limit-aware differential IK for an :class:`~shinro_ctrl.plants.ArmRobot`.
 
     Three entry points share one QP (see the module docstring):
@@ -110,6 +103,13 @@ class IKQP(IKLoops, Controller):
         osqp_settings: OSQP settings overriding :data:`DEFAULT_OSQP_SETTINGS`.
         control_iters: QP iterations per control step in :meth:`track` (>= 1).
 
+    Threads: one object may be shared. A lock serializes the calls that use the kernel's
+    buffers (:meth:`solve`, :meth:`step`, :meth:`track`, :meth:`build_qp`, ``__call__``,
+    :meth:`reset`), so concurrent calls give the answers of some serial order (the lock
+    costs about 0.1 µs of an iteration's 50–100 µs). :meth:`solve` resets the warm start,
+    so its answer does not depend on that order beyond OSQP's tolerance; :attr:`last` is
+    the last call's of any thread.
+
     Attributes:
         last: :class:`IKStep` of the last control call, or None.
         lo, hi: Joint limits ``(n,)`` [rad].
@@ -121,16 +121,18 @@ class IKQP(IKLoops, Controller):
             setting. (``InvalidArgument`` is a ``ValueError``.)
     """
 
+    stateful = True  # the QP's warm start and the last control step
+
     def __init__(
         self,
-        arm: Any,
+        arm: ArmRobot,
         *,
         damping: float = 1e-4,
-        velocity_limit: Any = math.pi,
+        velocity_limit: float | Sequence[float] | np.ndarray = math.pi,
         dt: float | None = None,
         max_step: float = 0.5,
         task: str = "pose",
-        weights: Any = None,
+        weights: float | Sequence[float] | np.ndarray | None = None,
         osqp_settings: dict[str, Any] | None = None,
         control_iters: int = 3,
     ):
@@ -148,60 +150,16 @@ class IKQP(IKLoops, Controller):
         self.velocity_limit, self.weights, self.control_iters = _check_options(
             n, k, velocity_limit, weights, control_iters
         )
-        w = self.weights
-        limits = np.asarray(arm.joint_limits, dtype=float)
-        self.lo = limits[:, 0].copy()
-        self.hi = limits[:, 1].copy()
-        # Restarts sample here: the limits, or ±π where a joint is unlimited.
-        self._sample_lo = np.maximum(self.lo, -math.pi)
-        self._sample_hi = np.minimum(self.hi, math.pi)
-
-        self._compile_terms(arm, w)
-
-        self._e = np.zeros(6)
-        self._ek = self._e[:k]  # the task rows of e (a view)
-        self._et = (0.0,) * 6  # e as Python floats (the last _error)
-        self._clu = np.zeros((3, n))  # QP vectors c, l, u as rows of one buffer (scaled in one call)
-        self._c, self._l, self._u = self._clu
-        self._evaluated: np.ndarray | None = None  # the array whose kinematics the buffers hold
-        self._evaluate(np.clip(np.zeros(n), self.lo, self.hi))
         settings = dict(DEFAULT_OSQP_SETTINGS)
         settings.update(osqp_settings or {})
-        self._qp = _BoxQP(n, self._Hu, settings)
-        self._osqp_update = self._qp.qp.update  # bound once: the hot path calls them per iteration
-        self._osqp_solve = self._qp.qp.solve
+        #: The kinematics, task error and box QP of one iteration, with their buffers.
+        self.kernel = IKKernel(arm, k, self.weights, self.damping, settings)
+        self.lo, self.hi = self.kernel.lo, self.kernel.hi
+        self._lock = threading.Lock()  # the kernel's buffers serve one call at a time
         self.last: IKStep | None = None
         self.preview = 1
         self.u_min = None
         self.u_max = None
-
-    def _compile_terms(self, arm: Any, w: np.ndarray) -> None:
-        """Compile ``q -> p, R, J, upper(P), (Jᵀ W)ᵀ`` once and bind its CasADi buffer to arrays of ours."""
-        n, k = self.n, self.k
-        qs, p, R, J = arm.chain.symbolic()  # the core SerialChain's CasADi FK and geometric Jacobian
-        Jt = J[:k, :]
-        ws = cs.SX.sym("w", k)
-        lam = cs.SX.sym("lam")
-        WJ = cs.diag(ws) @ Jt  # (k, n); the column-major nonzeros of -WJ are -Jᵀ W row-major
-        H = Jt.T @ WJ + lam * cs.SX.eye(n)
-        Hu = cs.vertcat(*[H[i, j] for j in range(n) for i in range(j + 1)])
-        f = cs.Function("ik_terms", [qs, ws, lam], [p, R.T, J.T, Hu, -WJ])
-        f = cs.Function("ik_terms", [qs, ws, lam], [cs.densify(e) for e in f(qs, ws, lam)])
-        self._qb = np.zeros(n)
-        self._wb = w.copy()
-        self._lamb = np.array([self.damping])
-        self._p = np.zeros(3)
-        self._R = np.zeros((3, 3))
-        self._J = np.zeros((6, n))
-        self._Hu = np.zeros(n * (n + 1) // 2)
-        self._negJtW = np.zeros((n, k))
-        self._M = np.zeros((3, 3))
-        self._buf, self._eval = f.buffer()
-        for i, a in enumerate((self._qb, self._wb, self._lamb)):
-            self._buf.set_arg(i, memoryview(a))
-        for i, a in enumerate((self._p, self._R, self._J, self._Hu, self._negJtW)):
-            self._buf.set_res(i, memoryview(a.reshape(-1)))
-        self._function = f
 
     @property
     def max_step(self) -> float:
@@ -218,14 +176,14 @@ class IKQP(IKLoops, Controller):
     @classmethod
     def from_plant(
         cls,
-        plant: Any,
+        plant: ArmRobot,
         *,
         damping: float = 1e-4,
-        velocity_limit: Any = math.pi,
+        velocity_limit: float | Sequence[float] | np.ndarray = math.pi,
         dt: float | None = None,
         max_step: float = 0.5,
         task: str = "pose",
-        weights: Any = None,
+        weights: float | Sequence[float] | np.ndarray | None = None,
         osqp_settings: dict[str, Any] | None = None,
         control_iters: int = 3,
     ) -> IKQP:
@@ -236,7 +194,7 @@ class IKQP(IKLoops, Controller):
         is built with it as its IK (``ArmRobot(ik=lambda arm: IKQP.from_plant(arm, ...))``);
         :class:`~shinro_ctrl.sim.RobotSim` builds a scenario's arm that way.
         """
-        ik = cls(
+        return cls(
             plant,
             damping=damping,
             velocity_limit=velocity_limit,
@@ -247,106 +205,86 @@ class IKQP(IKLoops, Controller):
             osqp_settings=osqp_settings,
             control_iters=control_iters,
         )
-        return ik
-
-    # ------------------------------------------------------------- internals
-    def _evaluate(self, q: np.ndarray) -> None:
-        """Fill p, R, J, upper(P), JᵀW at ``q`` (buffers owned by this object).
-
-        ``q`` is remembered (by identity) as the evaluated point; the arrays this module
-        evaluates are never modified afterwards.
-        """
-        self._qb[:] = q
-        self._eval()
-        self._evaluated = q
-
-    def _error(self, pt: Any, Rt: np.ndarray) -> tuple[float, float]:
-        """Fill the task error ``e`` (and ``_et``, its Python floats) from the last evaluation.
-
-        Returns ``(pos_err, ori_err)``. ``pt`` is the target position (3 floats: a list is
-        fastest), ``Rt`` the target rotation ``(3, 3)``.
-        """
-        px, py, pz = self._p.tolist()
-        ex, ey, ez = pt[0] - px, pt[1] - py, pt[2] - pz
-        np.matmul(Rt, self._R.T, out=self._M)
-        wx, wy, wz = so3_log_flat(self._M.ravel().tolist())
-        et = self._et = (ex, ey, ez, wx, wy, wz)
-        self._e[:] = et
-        return math.sqrt(ex * ex + ey * ey + ez * ez), math.sqrt(wx * wx + wy * wy + wz * wz)
-
-    def _qp_step(
-        self, q: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, s: np.ndarray, neg_s: np.ndarray, scale: float
-    ) -> tuple[np.ndarray, int]:
-        """Solve the QP at the last evaluation; return new joints (a fresh array inside the box) and the status.
-
-        The QP is posed for ``z = Δq / scale`` with ``scale`` the task error norm: ``c`` and
-        the bounds are divided by it, so the solution is of order one and OSQP's absolute
-        tolerance acts as a relative one (otherwise steps below ``eps_abs`` come out as noise
-        and the iteration stalls near that size). ``s`` and ``neg_s`` are the step bound and
-        its negative as ``(n,)`` arrays. This is the hot path: every operand is an array
-        (a Python scalar costs a ufunc call about 0.5 µs more) and OSQP's compiled solver is
-        called directly when available.
-        """
-        c, l, u = self._c, self._l, self._u
-        np.dot(self._negJtW, self._ek, out=c)
-        np.subtract(box_lo, q, out=l)
-        np.maximum(l, neg_s, out=l)
-        np.subtract(box_hi, q, out=u)
-        np.minimum(u, s, out=u)
-        self._clu *= 1.0 / scale
-        self._osqp_update(c, l, u, self._Hu)
-        sol, info = self._osqp_solve()
-        status = int(info.status_val)
-        x = sol.x
-        # "solved" means converged residuals, hence a finite x: only other statuses need the check.
-        if status != _SOLVED and (status not in _USABLE or not math.isfinite(x.sum())):
-            # A box QP with P ≻ 0 is always feasible; should OSQP still fail, fall back on the
-            # box projection of the unconstrained minimizer so the iteration can go on.
-            x = np.linalg.lstsq(self._dense_P(), -c, rcond=None)[0]
-        # OSQP meets bounds to ~eps: clip the step, then the joints (rounding of q + dq).
-        np.minimum(x, u, out=x)
-        np.maximum(x, l, out=x)
-        x *= scale
-        x += q
-        np.maximum(x, box_lo, out=x)
-        return np.minimum(x, box_hi, out=x), status
-
-    def _dense_P(self) -> np.ndarray:
-        n = self.n
-        P = np.zeros((n, n))
-        idx = 0
-        for j in range(n):
-            for i in range(j + 1):
-                P[i, j] = P[j, i] = self._Hu[idx]
-                idx += 1
-        return P
-
-    def _target(self, target: Any, name: str = "target") -> tuple[np.ndarray, np.ndarray]:
-        """``(p (3,), R (3, 3))`` of a transform (4, 4), a pose (6,) or (position task) a point (3,)."""
-        a = np.asarray(target, dtype=float)
-        if a.shape == (4, 4):
-            if not math.isfinite(float(a.sum())):
-                as_matrix(name, a, (4, 4))  # raises NonFiniteError naming the target
-            return a[:3, 3].copy(), a[:3, :3].copy()
-        if a.shape == (6,):
-            a = as_vector(name, a, 6)
-            return a[:3].copy(), euler_zyx_to_matrix(a[3:])
-        if a.shape == (3,) and self.task == "position":
-            return as_vector(name, a, 3).copy(), np.eye(3)
-        shapes = "(4, 4) or (6,)" + (" or (3,)" if self.task == "position" else "")
-        raise InvalidArgument(f"{name}: expected shape {shapes} but found {a.shape}")
-
-    def _joints(self, q: Any, name: str) -> np.ndarray:
-        """``q`` as a fresh ``(n,)`` array clipped to the limits (validated: shape, finite)."""
-        if not (type(q) is np.ndarray and q.shape == (self.n,) and math.isfinite(float(q.sum()))):
-            q = as_vector(name, q, self.n)
-        return np.minimum(np.maximum(q, self.lo), self.hi)
-
-    def _converged(self, pos_err: float, ori_err: float, tol: float) -> bool:
-        return pos_err < tol and (self.k == 3 or ori_err < tol)
 
     # ------------------------------------------------------------------ API
-    def build_qp(self, q: Any, target: Any, *, max_step: Any = None) -> IKProblem:
+    def solve(
+        self,
+        T_target: ArrayLike,
+        q0: ArrayLike,
+        *,
+        max_iters: int = 100,
+        tol: float = 1e-4,
+        restarts: int = 0,
+        seed: int | None = None,
+    ) -> IKResult:
+        """Iterate QP steps from ``q0`` until the pose error is below ``tol``.
+
+        Each iteration may move a joint by at most :attr:`max_step`. If the first attempt
+        does not converge, up to ``restarts`` further attempts start from random joint vectors
+        drawn uniformly inside the limits (``numpy.random.default_rng(seed)``;
+        ``seed=None`` means seed 0, so results are reproducible); the best attempt (converged,
+        else the smallest weighted error) is returned. An attempt also stops early when its
+        error has not decreased for 10 iterations (a limit or a local minimum).
+
+        Args:
+            T_target: Target transform ``(4, 4)`` (or pose ``(6,)``; a point ``(3,)`` for the
+                position task).
+            q0: Start joints ``(n,)`` [rad] (clipped to the limits).
+            max_iters: Iterations per attempt.
+            tol: Tolerance on the position [m] and orientation [rad] errors.
+            restarts: Extra attempts from random starts (>= 0).
+            seed: Seed of the restart generator.
+
+        Returns:
+            :class:`IKResult`; ``q`` is inside the limits even when not converged (then it is
+            the closest configuration found). An unreachable target is not an error. The
+            solver's warm start is reset first, so the result depends only on the arguments.
+        """
+        kernel = self.kernel
+        q0 = kernel.joints(q0, "q0")
+        pt, Rt = kernel.target(T_target, "T_target")
+        if not isinstance(max_iters, int) or max_iters < 0:
+            raise InvalidArgument(f"max_iters must be a non-negative integer, got {max_iters!r}")
+        if not isinstance(restarts, int) or restarts < 0:
+            raise InvalidArgument(f"restarts must be a non-negative integer, got {restarts!r}")
+        tol = check_positive("tol", tol)
+        with self._lock:
+            return solve_to_tolerance(
+                kernel, q0, pt.tolist(), Rt, self._s_solve, self._neg_s_solve,
+                max_iters=max_iters, tol=tol, restarts=restarts, seed=seed,
+            )  # fmt: skip
+
+    def track(self, q: ArrayLike, target: ArrayLike, *, iters: int | None = None, tol: float = 1e-9) -> np.ndarray:
+        """Joint targets for one control step: move from ``q`` towards ``target``.
+
+        Up to ``iters`` (default :attr:`control_iters`) QP iterations, all inside the box
+        ``|q' − q| ≤ velocity_limit · dt`` and the joint limits; stops early below ``tol``.
+        The outcome is stored in :attr:`last`.
+
+        Args:
+            q: Joint angles at the start of the step ``(n,)`` [rad].
+            target: Transform ``(4, 4)``, pose ``(6,)``, or (position task) point ``(3,)``.
+
+        Returns:
+            Joint targets ``(n,)`` [rad], inside the limits.
+        """
+        with self._lock:
+            return self._track(q, target, iters, tol)
+
+    def _track(self, q: ArrayLike, target: ArrayLike, iters: int | None, tol: float) -> np.ndarray:
+        t0 = time.perf_counter()
+        kernel = self.kernel
+        q0 = kernel.joints(q, "q")
+        pt, Rt = kernel.target(target)
+        n_iters = self.control_iters if iters is None else int(iters)
+        q_new, it, status, pos_err, ori_err = track_step(
+            kernel, q0, pt.tolist(), Rt, self.velocity_limit * self.dt, iters=n_iters, tol=tol
+        )
+        name = osqp.SolverStatus(status).name if status >= 0 else "not run"
+        self.last = IKStep(q_new.copy(), q_new - q0, it, pos_err, ori_err, name, time.perf_counter() - t0)
+        return q_new
+
+    def build_qp(self, q: ArrayLike, target: ArrayLike, *, max_step: float | ArrayLike | None = None) -> IKProblem:
         """The QP of one iteration at joints ``q (n,)`` towards ``target``, without solving it.
 
         Args:
@@ -354,14 +292,16 @@ class IKQP(IKLoops, Controller):
             target: Transform ``(4, 4)``, pose ``(6,)``, or (position task) point ``(3,)``.
             max_step: Step bound ``s`` [rad], scalar or ``(n,)`` (default :attr:`max_step`).
         """
-        q = self._joints(q, "q")
-        pt, Rt = self._target(target)
+        kernel = self.kernel
+        q = kernel.joints(q, "q")
+        pt, Rt = kernel.target(target)
         s = self.max_step if max_step is None else np.asarray(max_step, dtype=float)
-        self._evaluate(q)
-        self._error(pt, Rt)
         k = self.k
-        J = self._J[:k].copy()
-        e = self._e[:k].copy()
+        with self._lock:
+            kernel.evaluate(q)
+            kernel.error(pt, Rt)
+            J = kernel.J[:k].copy()
+            e = kernel.e[:k].copy()
         P = J.T @ (self.weights[:, None] * J) + self.damping * np.eye(self.n)
         return IKProblem(
             P=P,
@@ -374,7 +314,7 @@ class IKQP(IKLoops, Controller):
             weights=self.weights.copy(),
         )
 
-    def step(self, q: Any, target: Any, *, max_step: Any = None) -> np.ndarray:
+    def step(self, q: ArrayLike, target: ArrayLike, *, max_step: float | ArrayLike | None = None) -> np.ndarray:
         """Solve one QP: the joint change ``dq (n,)`` [rad] from ``q`` towards ``target``.
 
         ``q + dq`` lies inside the joint limits and ``|dq| ≤ max_step``, both exactly (in
@@ -385,22 +325,24 @@ class IKQP(IKLoops, Controller):
             target: Transform ``(4, 4)``, pose ``(6,)``, or (position task) point ``(3,)``.
             max_step: Step bound [rad], scalar or ``(n,)`` (default :attr:`max_step`).
         """
-        q = self._joints(q, "q")
-        pt, Rt = self._target(target)
+        kernel = self.kernel
+        q = kernel.joints(q, "q")
+        pt, Rt = kernel.target(target)
         if max_step is None:
             s, neg_s = self._s_solve, self._neg_s_solve
         else:
             s = np.broadcast_to(np.asarray(max_step, dtype=float), (self.n,))
             neg_s = -s
-        self._evaluate(q)
-        pos_err, ori_err = self._error(pt.tolist(), Rt)
-        scale = math.hypot(pos_err, ori_err) if self.k == 6 else pos_err
-        if scale == 0.0:
-            return np.zeros(self.n)
-        q_new, _ = self._qp_step(q, self.lo, self.hi, s, neg_s, scale)
+        with self._lock:
+            kernel.evaluate(q)
+            pos_err, ori_err = kernel.error(pt.tolist(), Rt)
+            scale = math.hypot(pos_err, ori_err) if self.k == 6 else pos_err
+            if scale == 0.0:
+                return np.zeros(self.n)
+            q_new, _ = kernel.qp_step(q, self.lo, self.hi, s, neg_s, scale)
         return _bounded_difference(q, q_new, s)
 
-    def __call__(self, x: Any, ref: Any = None) -> np.ndarray:
+    def __call__(self, x: ArrayLike, ref: ArrayLike | None = None) -> np.ndarray:
         """Cartesian twist ``u (6,)`` for the arm's ``step`` (see the class docstring).
 
         Args:
@@ -421,17 +363,20 @@ class IKQP(IKLoops, Controller):
             ref = ref[min(1, ref.shape[0] - 1)]
         if self.task == "position" and ref.shape == (6,):
             ref = ref[:3]
-        q = self.track(self.arm.q_cmd, ref)
-        self._evaluate(q)
-        pose = np.concatenate([self._p, euler_zyx_from_matrix(self._R)])
+        kernel = self.kernel
+        with self._lock:
+            q = self._track(self.arm.q_cmd, ref, None, 1e-9)
+            kernel.evaluate(q)
+            pose = np.concatenate([kernel.p, euler_zyx_from_matrix(kernel.R)])
         u = (pose - x) / self.dt
         u[3:] = wrap_angle(pose[3:] - x[3:]) / self.dt
         return u
 
     def reset(self) -> None:
         """Forget the warm start and :attr:`last`."""
-        self._qp.reset()
-        self.last = None
+        with self._lock:
+            self.kernel.qp.reset()
+            self.last = None
 
     def __repr__(self) -> str:
         return (
@@ -440,7 +385,7 @@ class IKQP(IKLoops, Controller):
         )
 
 
-def _bounded_difference(q: np.ndarray, q_new: np.ndarray, s: Any) -> np.ndarray:
+def _bounded_difference(q: np.ndarray, q_new: np.ndarray, s: float | np.ndarray) -> np.ndarray:
     """``q_new − q`` nudged towards zero until ``|dq| ≤ s`` and ``q + dq`` equals a point inside
     the box ``q_new`` came from, despite rounding (zero satisfies both, so this terminates)."""
     dq = q_new - q
@@ -454,7 +399,13 @@ def _bounded_difference(q: np.ndarray, q_new: np.ndarray, s: Any) -> np.ndarray:
     return np.where(bad, 0.0, dq)
 
 
-def _check_options(n: int, k: int, velocity_limit: Any, weights: Any, control_iters: Any) -> tuple:
+def _check_options(
+    n: int,
+    k: int,
+    velocity_limit: float | Sequence[float] | np.ndarray,
+    weights: float | Sequence[float] | np.ndarray | None,
+    control_iters: int,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """``(velocity_limit (n,), weights (k,), control_iters)`` validated (messages name the argument)."""
     if np.ndim(velocity_limit) == 0:
         vlim = np.full(n, check_positive("velocity_limit", velocity_limit))

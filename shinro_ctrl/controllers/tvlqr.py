@@ -32,8 +32,9 @@ controller keeps a step counter: call ``k`` uses sample ``k``. :meth:`TVLQR.rese
 
 from __future__ import annotations
 
+import threading
 import weakref
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import casadi as cs
@@ -41,21 +42,28 @@ import numpy as np
 
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqr import LQR
-from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, discretize
 from shinro_ctrl.validation import as_vector, bound_pair, check_positive, weight_matrix
 
 if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
     from shinro_ctrl.planning import Trajectory
+    from shinro_ctrl.plants.base import Plant
+
+Weight = float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray
+Bound = float | Sequence[float] | np.ndarray | None
 
 __all__ = ["TVLQR", "riccati_backward", "trajectory_jacobians"]
 
 
 # plant -> {"jac": SX Jacobian Function, K: the MX map over K samples}
-_MAPPED: weakref.WeakKeyDictionary[Any, dict[Any, cs.Function]] = weakref.WeakKeyDictionary()
+_MAPPED: weakref.WeakKeyDictionary[Plant, dict[str | int, cs.Function]] = weakref.WeakKeyDictionary()
+_MAPPED_LOCK = threading.Lock()  # the cache is shared by every TVLQR design
 
 
-def trajectory_jacobians(plant: Any, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def trajectory_jacobians(plant: Plant, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact continuous Jacobians at every sample of a trajectory, in one CasADi ``map`` call.
 
     The Jacobian Function of ``plant.symbolic()`` (SX) is mapped
@@ -74,6 +82,16 @@ def trajectory_jacobians(plant: Any, x: np.ndarray, u: np.ndarray) -> tuple[np.n
     """
     n, m = plant.state_dim, plant.input_dim
     K = x.shape[0]
+    with _MAPPED_LOCK:
+        mapped = _mapped_jacobian(plant, n, m, K)
+    A, B = mapped(np.ascontiguousarray(x.T), np.ascontiguousarray(u.T))
+    A = np.asarray(A).reshape(n, K, n).transpose(1, 0, 2)
+    B = np.asarray(B).reshape(n, K, m).transpose(1, 0, 2)
+    return A, B
+
+
+def _mapped_jacobian(plant: Plant, n: int, m: int, K: int) -> cs.Function:
+    """The cached Jacobian Function of ``plant`` mapped over ``K`` samples (built on first use)."""
     cache = _MAPPED.setdefault(plant, {})
     if K not in cache:
         if "jac" not in cache:
@@ -86,10 +104,7 @@ def trajectory_jacobians(plant: Any, x: np.ndarray, u: np.ndarray) -> tuple[np.n
         if len(cache) > 8:  # keep a few horizons per plant
             cache.pop(next(k for k in cache if k != "jac"))
         cache[K] = cs.Function("jac_traj", [Xm, Um], [A_all, B_all])
-    A, B = cache[K](np.ascontiguousarray(x.T), np.ascontiguousarray(u.T))
-    A = np.asarray(A).reshape(n, K, n).transpose(1, 0, 2)
-    B = np.asarray(B).reshape(n, K, m).transpose(1, 0, 2)
-    return A, B
+    return cache[K]
 
 
 def riccati_backward(
@@ -130,6 +145,12 @@ class TVLQR(Controller):
     Build it with :meth:`from_trajectory` (a plan in hand) or :meth:`from_plant`
     (plans itself from a ``[plan]`` table).
 
+    Threads: :meth:`at_time` reads only arrays fixed at construction and may be
+    called from any number of threads at once. ``__call__`` advances the step
+    counter of one run: a call that enters while another thread is inside one
+    raises :class:`~shinro_ctrl.errors.ConcurrentUse` (use one controller per
+    run and thread).
+
     Attributes:
         trajectory: The tracked plan.
         dt: Control step [s].
@@ -144,7 +165,7 @@ class TVLQR(Controller):
 
     def __init__(
         self,
-        trajectory: Any,
+        trajectory: Trajectory,
         A: np.ndarray,
         B: np.ndarray,
         Q: np.ndarray,
@@ -155,8 +176,8 @@ class TVLQR(Controller):
         x_ref: np.ndarray,
         u_ref: np.ndarray,
         Qf: np.ndarray,
-        u_min: Any = None,
-        u_max: Any = None,
+        u_min: Bound = None,
+        u_max: Bound = None,
     ):
         self.trajectory = trajectory
         self.dt = dt
@@ -170,20 +191,21 @@ class TVLQR(Controller):
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
         self.horizon = x_ref.shape[0]
         self.step = 0
+        self._busy = threading.Lock()
 
     @classmethod
     def from_trajectory(
         cls,
-        plant: Any,
-        traj: Any,
-        Q: Any,
-        R: Any,
-        Qf: Any = None,
+        plant: Plant,
+        traj: Trajectory,
+        Q: Weight,
+        R: Weight,
         *,
+        terminal_cost: str | Weight = "lqr",
         dt: float | None = None,
         discretization: str = "step",
-        u_min: Any = None,
-        u_max: Any = None,
+        u_min: Bound = None,
+        u_max: Bound = None,
     ) -> TVLQR:
         """Design along ``traj`` at the control rate.
 
@@ -192,7 +214,9 @@ class TVLQR(Controller):
             traj: A :class:`~shinro_ctrl.planning.Trajectory` (``x_at``, ``u_at``, ``duration``).
             Q: ``(n, n)`` or diagonal ``(n,)`` state weight.
             R: ``(m, m)`` or diagonal ``(m,)`` input weight.
-            Qf: Terminal weight ``(n, n)``/``(n,)``; default the goal LQR's ``S``.
+            terminal_cost: Terminal weight ``Q_f`` of the recursion: ``"lqr"`` (default:
+                the goal LQR's cost-to-go ``S``), ``"Q"`` (the stage weight) or a matrix
+                ``(n, n)`` (or its diagonal).
             dt: Control step [s]; default ``plant.dt``.
             discretization: ``step`` (default, as LQR: the exact Jacobians of the plant's own
                 discrete step at each knot; needs ``dt == plant.dt``), ``euler``, ``zoh`` or ``rk4``.
@@ -227,7 +251,12 @@ class TVLQR(Controller):
         final = LQR.from_plant(
             plant, Qm, Rm, x0=x_goal, u0=u_goal, discretization=discretization, u_min=u_min, u_max=u_max
         )
-        Qf_m = final.S if Qf is None else weight_matrix("Qf", Qf, n)
+        if isinstance(terminal_cost, str):
+            if terminal_cost not in ("lqr", "Q"):
+                raise InvalidArgument(f"terminal_cost must be 'lqr', 'Q' or an (n, n) matrix, got {terminal_cost!r}")
+            Qf_m = final.S if terminal_cost == "lqr" else Qm.copy()
+        else:
+            Qf_m = weight_matrix("terminal_cost", terminal_cost, n)
         A_c, B_c = trajectory_jacobians(plant, x_ref, u_ref)
         if discretization == "step":
             jac = [plant.step_jacobians(x, u) for x, u in zip(x_ref, u_ref, strict=True)]
@@ -241,11 +270,11 @@ class TVLQR(Controller):
     @classmethod
     def from_plant(
         cls,
-        plant: Any,
-        Q: Any,
-        R: Any,
-        Qf: Any = None,
+        plant: Plant,
+        Q: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+        R: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
         *,
+        terminal_cost: str | Sequence[float] | Sequence[Sequence[float]] | np.ndarray = "lqr",
         plan: Mapping[str, Any] | Trajectory | None = None,
         discretization: str = "step",
     ) -> TVLQR:
@@ -255,7 +284,7 @@ class TVLQR(Controller):
 
         Args:
             plant: The (nominal) plant.
-            Q, R, Qf: As in :meth:`from_trajectory`.
+            Q, R, terminal_cost: As in :meth:`from_trajectory`.
             plan: A mapping with the keys of the scenario's ``[plan]`` table
                 (see :mod:`shinro_ctrl.planning.spec`) or a ready Trajectory.
             discretization: As in :meth:`from_trajectory`.
@@ -279,7 +308,7 @@ class TVLQR(Controller):
             traj,
             Q,
             R,
-            Qf,
+            terminal_cost=terminal_cost,
             discretization=discretization,
             u_min=bounds.get("u_min"),
             u_max=bounds.get("u_max"),
@@ -290,18 +319,42 @@ class TVLQR(Controller):
         """Restart at the beginning of the plan (step 0)."""
         self.step = 0
 
-    def __call__(self, x: Any, ref: Any = None) -> np.ndarray:
+    def __call__(self, x: ArrayLike, ref: ArrayLike | None = None) -> np.ndarray:
         """The input for state ``x (n,)`` at the current step, then advance the step counter.
 
         ``ref`` is ignored: the plan is the reference (and the goal after it).
-        """
-        k = self.step
-        self.step = k + 1
-        return self._law(k, as_vector("x", x, self.state_dim))
 
-    def at_time(self, t: float, x: Any) -> np.ndarray:
+        Raises:
+            ConcurrentUse: another thread is inside a call of this object.
+        """
+        if not self._busy.acquire(blocking=False):
+            raise ConcurrentUse("TVLQR: called while another thread is inside a call; use one controller per thread")
+        try:
+            x = as_vector("x", x, self.state_dim)
+            k = self.step
+            self.step = k + 1
+        finally:
+            self._busy.release()
+        return self._law(k, x)
+
+    def at_time(self, t: float, x: ArrayLike) -> np.ndarray:
         """The input at time ``t`` [s] (step ``round(t / dt)``) for state ``x (n,)``; no counter change."""
         return self._law(max(0, round(float(t) / self.dt)), as_vector("x", x, self.state_dim))
+
+    def plan_states(self, t: ArrayLike) -> np.ndarray:
+        """The plan's state at run times ``t`` ``(T,)`` [s] (0 = the first call), NaN rows past the plan.
+
+        Run time ``t`` is the plan's time ``trajectory.t[0] + t`` (call ``k`` uses sample ``k dt``); the
+        rows with ``t`` beyond the plan's duration, where the goal's LQR takes over, are NaN. A run
+        plots these as its reference and reports ``plan_tracking_rms`` from them.
+        """
+        ts = np.atleast_1d(np.asarray(t, dtype=float))
+        traj = self.trajectory
+        inside = ts <= traj.duration + 1e-9 * max(1.0, traj.duration)
+        out = np.full((ts.size, self.state_dim), np.nan)
+        if np.any(inside):
+            out[inside] = traj.x_at(traj.t[0] + np.clip(ts[inside], 0.0, traj.duration))
+        return out
 
     def _law(self, k: int, x: np.ndarray) -> np.ndarray:
         if k >= self.horizon:

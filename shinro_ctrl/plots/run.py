@@ -102,7 +102,7 @@ def _draw_panel(ax: Any, title: str, members: list[tuple[str, int]], result: Any
         signal_handles += _draw_signal(ax, kind, i, c, grouped, result, runs)
         if kind == "x":
             color = f"C{c % 10}" if grouped else "0.25"
-            ax.plot(result.t, result.ref[:, i], color=color, lw=0.9, ls="--", alpha=0.8, label="reference")
+            ax.plot(result.t, _reference(result, i), color=color, lw=0.9, ls="--", alpha=0.8, label="reference")
             if i in tracked and np.isfinite(tol):
                 ax.fill_between(
                     result.t,
@@ -214,12 +214,20 @@ def _planar_axes(result: Any) -> tuple[int, int] | None:
     return int(axes[0]), int(axes[1])
 
 
+def _reference(result: Any, i: int) -> np.ndarray:
+    """State ``i``'s reference line: a tracked plan where it has one (TVLQR), else the run's reference."""
+    plan = getattr(result, "plan", None)
+    if plan is None:
+        return result.ref[:, i]
+    return np.where(np.isfinite(plan[:, i]), plan[:, i], result.ref[:, i])
+
+
 def _data_limits(ax: Any, result: Any, members: list[tuple[str, int]]) -> None:
     """Y limits from the signals (not from a bound far away); bounds within reach stay visible."""
     values = []
     for kind, i in members:
         if kind == "x":
-            values += [result.x[:, i], result.ref[:, i]]
+            values += [result.x[:, i], _reference(result, i)]
         else:
             values.append(result.u[:, i])
     data = np.concatenate([v[np.isfinite(v)] for v in values]) if values else np.zeros(1)

@@ -32,6 +32,7 @@ __all__ = [
     "format_metric",
     "format_metrics",
     "metric_unit",
+    "plan_tracking_rms",
     "response_metrics",
     "settling_time",
 ]
@@ -338,3 +339,22 @@ class StreamingMetrics:
             if k != "stable":
                 v[~alive] = math.nan
         return metrics
+
+
+def plan_tracking_rms(x: np.ndarray, x_plan: np.ndarray, tracked: list[int]) -> float | None:
+    """RMS over a plan's span of ``‖x_k[tracked] − x_plan,k[tracked]‖₂`` (a plan-tracking controller's error).
+
+    Args:
+        x: States ``(T + 1, n)`` of the run.
+        x_plan: The plan's states at the same times, NaN rows outside the plan's span
+            (:meth:`~shinro_ctrl.controllers.tvlqr.TVLQR.plan_states`).
+        tracked: The state indices the error metrics use.
+
+    Returns:
+        The RMS, or None when no sample lies within the plan's span.
+    """
+    inside = np.all(np.isfinite(x_plan[:, tracked]), axis=1)
+    if not np.any(inside):
+        return None
+    e = np.linalg.norm(x[inside][:, tracked] - x_plan[inside][:, tracked], axis=1)
+    return float(np.sqrt(np.mean(e**2)))

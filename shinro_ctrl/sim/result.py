@@ -39,6 +39,8 @@ class SimResult:
         disturbance: Disturbances ``(T, k)`` held over each step (see
             :mod:`shinro_ctrl.disturbances`); ``disturbance_labels`` names
             the columns.
+        plan: The tracked plan's states ``(T + 1, n)``, NaN past its span, for a
+            plan-tracking controller (TVLQR); plots draw it as the reference.
     """
 
     t: np.ndarray
@@ -62,13 +64,14 @@ class SimResult:
     measured: tuple[str, ...] = ()
     disturbance: np.ndarray | None = None
     disturbance_labels: list[str] = field(default_factory=list)
+    plan: np.ndarray | None = None
 
     def save(self, directory: str | Path) -> Path:
         """Write ``result.npz``, ``metrics.json`` and ``scenario.toml`` into ``directory`` (atomically)."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         arrays = {"t": self.t, "x": self.x, "u": self.u, "ref": self.ref, "solve_times": self.solve_times}
-        for key in ("x_hat", "y", "disturbance"):
+        for key in ("x_hat", "y", "disturbance", "plan"):
             if getattr(self, key) is not None:
                 arrays[key] = getattr(self, key)
         atomic_write(d / "result.npz", lambda f: np.savez(f, **arrays), binary=True)

@@ -14,7 +14,7 @@ import numpy as np
 from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
 from shinro_ctrl.progress import Progress
-from shinro_ctrl.sim.metrics import compute_metrics
+from shinro_ctrl.sim.metrics import compute_metrics, plan_tracking_rms
 from shinro_ctrl.sim.output_feedback import estimation_metrics, loop_signals, uses_estimation
 from shinro_ctrl.sim.reference import Reference
 from shinro_ctrl.sim.result import SimResult
@@ -370,6 +370,10 @@ class RobotSim:
             solve_times=s.solve,
             **bounds,
         )
+        plan_states = getattr(ctrl, "plan_states", None)  # a plan-tracking controller (TVLQR)
+        plan = plan_states(s.t) if plan_states is not None else None
+        if plan is not None:
+            metrics["plan_tracking_rms"] = plan_tracking_rms(s.X, plan, self.tracked)
         if uses_estimation(self.scenario):
             metrics.update(estimation_metrics(s.X, s.X_hat, tuple(plant.state_names)))
         measured = self.estimator.measured if s.measured is not None else range(n)
@@ -391,6 +395,7 @@ class RobotSim:
             measured=tuple(plant.state_names[i] for i in measured),
             disturbance=s.sig.disturbance.values,
             disturbance_labels=list(s.sig.disturbance.labels),
+            plan=plan,
             **bounds,
         )
 

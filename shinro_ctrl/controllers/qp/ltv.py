@@ -29,8 +29,9 @@ that the feedback half only needs a matrix-vector product before the solve
     \quad\text{s.t.}\quad u_{min} \le \bar u_k + \Delta u_k \le u_{max},\;
         x_{min} - s \le \bar x_k + \Delta x_k \le x_{max} + s,\; s \ge 0
 
-(the slack ``s`` only with ``soft``; one slack per bounded state component,
-shared by the stages, i.e. an exact penalty on the largest violation) is
+(the slack ``s`` only with ``soft``: one slack per state-bound row, i.e. per
+stage and bounded component, shared by its upper and lower bound, so that no
+state bound can make the QP infeasible) is
 handed to ``daqp.solve`` with the input bounds as simple bounds and the state
 bounds as dense rows of ``Γ``. Every array is allocated once.
 """
@@ -59,7 +60,7 @@ class CondensedLTV:
         R: Input weight ``(m, m)``.
         u_min, u_max: Input bounds ``(m,)`` (±inf where none).
         x_min, x_max: State bounds ``(n,)`` on ``x_1 … x_N`` (±inf where none).
-        soft: Soften the state bounds with one slack per bounded component.
+        soft: Soften the state bounds with one slack per state-bound row (stage and bounded component).
         soft_weights: ``(w_1, w_2)`` of the slack penalty.
         daqp_settings: Keyword settings for ``daqp.solve`` (``primal_tol``, …).
     """
@@ -92,7 +93,7 @@ class CondensedLTV:
         w = self.bounded.size
         self.rows = (np.arange(N)[:, None] * n + self.bounded[None, :]).ravel()  # (N w,)
         self.soft = bool(soft) and w > 0
-        self.ns = w if self.soft else 0
+        self.ns = N * w if self.soft else 0
         self.nvar = nu + self.ns
         xlo = np.tile(x_min[self.bounded], N)
         xhi = np.tile(x_max[self.bounded], N)
@@ -120,10 +121,10 @@ class CondensedLTV:
         if self.soft:
             w1, w2 = soft_weights
             self.H[:] = 0.0
-            self.H[nu:, nu:] = w2 * np.eye(w)
+            self.H[nu:, nu:] = w2 * np.eye(self.ns)
             self.g0[nu:] = w1
-            # upper rows [Γ_s, -E] <= hi, lower rows [Γ_s, +E] >= lo
-            E = np.tile(np.eye(w), (N, 1))
+            # upper rows [Γ_s, -I] <= hi, lower rows [Γ_s, +I] >= lo: one slack per row
+            E = np.eye(self.ns)
             self.A = np.zeros((2 * N * w, self.nvar))
             self.A[: N * w, nu:] = -E
             self.A[N * w :, nu:] = E
@@ -209,6 +210,8 @@ class CondensedLTV:
             else:
                 self.bu[nv:] = self._xhi - off
                 self.bl[nv:] = self._xlo - off
+        if self.soft:  # start with every slack at its bound s = 0 (DAQP's ACTIVE | LOWER): only violated rows leave
+            self.sense[self.nu : nv] = 3
         z, _, flag, info = daqp.solve(self.H, self.g, self.A, self.bu, self.bl, self.sense, **self.settings)
         self.lam = info["lam"]
         self.flag = int(flag)
@@ -230,7 +233,7 @@ class CondensedLTV:
                 "the predicted trajectory diverged (the QP data are not finite): the model no longer "
                 "describes the plant well enough, or the horizon is too long for it"
             )
-        if self.flag == -1:
+        if self.flag == -1 and not self.soft:
             return "the linearized hard state bounds cannot be met (use soft=True or looser x_min/x_max)"
         if self.flag == -5:
             return (

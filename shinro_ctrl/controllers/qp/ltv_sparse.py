@@ -76,7 +76,7 @@ class SparseLTV:
         self.bounded = np.flatnonzero(np.isfinite(x_min) | np.isfinite(x_max))
         w = self.bounded.size
         self.soft = bool(soft) and w > 0
-        ns = w if self.soft else 0
+        ns = N * w if self.soft else 0  # one slack per state-bound row
         nx, nu = n * (N + 1), N * m
         self.nx, self.nu, self.ns = nx, nu, ns
         nz = nx + nu + ns
@@ -125,7 +125,6 @@ class SparseLTV:
         """``(rows, cols, vals, n_rows)`` of the constraints; the first ``N n (n + m)`` values are ``[A_k, B_k]``."""
         n, m, N = self.n, self.m, self.N
         nx, nu, ns = self.nx, self.nu, self.ns
-        w = self.bounded.size
         rows, cols, vals = [], [], []
         k_idx, i_idx, j_idx = np.meshgrid(np.arange(N), np.arange(n), np.arange(n + m), indexing="ij")
         r_dyn = n + k_idx * n + i_idx
@@ -157,7 +156,7 @@ class SparseLTV:
         cols.append(xr)
         vals.append(np.ones(nb))
         if ns:
-            scol = nx + nu + np.tile(np.arange(w), N)
+            scol = nx + nu + np.arange(nb)
             rows.append(r0 + np.arange(nb))
             cols.append(scol)
             vals.append(-np.ones(nb))  # Δx − s ≤ hi
@@ -226,7 +225,10 @@ class SparseLTV:
         self.osqp.warm_start(self._zero, self.y)
         sol, info = self.osqp.solve()
         self.status = str(info.status)
-        ok = self.status in ("solved", "solved inaccurate") and np.all(np.isfinite(sol.x))
+        usable = ("solved", "solved inaccurate")
+        if self.soft:  # always feasible: an unfinished ADMM iterate is an inexact step, not a failure
+            usable += ("maximum iterations reached",)
+        ok = self.status in usable and np.all(np.isfinite(sol.x))
         if ok:
             self.y = np.array(sol.y, dtype=float)
             self.lam = self.y
@@ -246,7 +248,7 @@ class SparseLTV:
         """Why the last solve failed, for the error message."""
         if not (np.all(np.isfinite(self._vals)) and np.all(np.isfinite(self.q))):
             return "the predicted trajectory diverged (the QP data are not finite)"
-        if "infeasible" in self.status:
+        if "infeasible" in self.status and not self.soft:
             return "the linearized hard state bounds cannot be met (use soft=True or looser x_min/x_max)"
         return ""
 

@@ -1,0 +1,360 @@
+"""The optimal control problem of :class:`~shinro_ctrl.controllers.nmpc.NonlinearMPC`, its options and strategies.
+
+:class:`NMPCOptions` holds every option of the controller (each documented
+once); :meth:`NMPCOptions.resolve` validates it once. :func:`build_ocp` turns
+the dynamics, the weights and the resolved options into one frozen
+:class:`NMPCProblem` (the discrete step ``F``, the compiled linearization of
+all stages, the terminal weight), which is handed whole to a solution strategy:
+:class:`~shinro_ctrl.controllers._nmpc_rti.RealTimeIteration` or
+:class:`~shinro_ctrl.controllers._nmpc_ipopt.IpoptSolver`, both behind the
+:class:`NMPCStrategy` interface. The module docstring of ``controllers/nmpc.py``
+states the OCP.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import casadi as cs
+import numpy as np
+
+from shinro_ctrl.controllers.lqr import riccati_solution
+from shinro_ctrl.controllers.qp.solution import NMPCSolution
+from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.validation import as_vector, bound_pair, check_positive, weight_matrix
+
+__all__ = [
+    "INTEGRATORS",
+    "PLANT_GIVEN",
+    "SOLVERS",
+    "NMPCOptions",
+    "NMPCProblem",
+    "NMPCStrategy",
+    "build_ocp",
+    "failed_solution",
+]
+
+#: Solvers of ``NonlinearMPC``: ``"auto"`` is ``"daqp"``.
+SOLVERS = ("auto", "daqp", "osqp", "ipopt")
+#: Discrete steps ``F`` of the shooting intervals.
+INTEGRATORS = ("rk4", "semi_implicit")
+#: Options ``from_plant`` fills in from the plant (a scenario cannot set them).
+PLANT_GIVEN = ("position_indices", "velocity_indices", "hold", "state_names", "input_names")
+
+
+@dataclass(frozen=True)
+class NMPCOptions:
+    """Options of a nonlinear MPC besides the dynamics, ``(Q, R)``, the horizon and ``dt``.
+
+    Attributes:
+        x0: Target state ``(n,)`` (the default reference ``r``); default zeros
+            (``from_plant``: the plant's equilibrium).
+        u0: Input reference ``ū`` ``(m,)`` (e.g. the hover thrust); default
+            zeros (``from_plant``: the plant's equilibrium).
+        u_min: Hard lower input bounds ``(m,)`` (a scalar broadcasts; -inf = none);
+            the returned input is clipped to the bounds.
+        u_max: Hard upper input bounds ``(m,)``.
+        x_min: Lower state bounds ``(n,)`` on ``x_1 … x_N`` (never on the measured ``x_0``).
+        x_max: Upper state bounds ``(n,)``.
+        soft: Soft state bounds: slack variables with the penalty
+            ``w_1 Σ s + ½ w_2 Σ s²`` (the problem is then never infeasible
+            because of a state bound).
+        soft_weight_l1: Linear slack weight ``w_1`` >= 0.
+        soft_weight_quad: Quadratic slack weight ``w_2`` > 0.
+        terminal_cost: Terminal weight ``Q_f``: ``"Q"`` (the stage weight),
+            ``"lqr"`` (the DARE of the model linearized at ``(x0, u0)``) or a
+            matrix ``(n, n)`` (or its diagonal).
+        iterations: SQP iterations per call (1 = real-time iteration).
+        tol: KKT residual at which SQP (and IPOPT) stop.
+        solver: ``"auto"`` / ``"daqp"`` (condensed QP, DAQP), ``"osqp"`` (the
+            sparse multiple-shooting QP, OSQP with in-place value updates) or
+            ``"ipopt"`` (the OCP to convergence at every call).
+        osqp_settings: Overrides of the sparse QP's OSQP settings (``"osqp"`` only).
+        integrator: ``"rk4"`` or ``"semi_implicit"`` (needs ``position_indices``).
+        position_indices: Position components of the state, for ``"semi_implicit"``.
+        velocity_indices: Their velocities, in the same order.
+        init_iterations: SQP iterations allowed on a cold start with ``cold_start="sqp"``.
+        cold_start: How the first call after construction or ``reset()`` finds
+            its first trajectory: ``"ipopt"`` (the OCP solved to convergence
+            by IPOPT; the swing-ups need it: Gauss-Newton SQP from ``x`` held
+            over the horizon converges slowly there and to a worse local
+            minimum) or ``"sqp"`` (up to ``init_iterations`` SQP iterations
+            from ``x`` held). Later calls never use IPOPT.
+        hold: Calls per solve: the controller re-plans every ``hold`` calls and
+            holds its input in between (``from_plant``: ``dt / plant.dt``).
+        state_names: Names of the states, for messages (default ``x[i]``).
+        input_names: Names of the inputs, for messages (default ``u[i]``).
+    """
+
+    x0: Sequence[float] | np.ndarray | None = None
+    u0: float | Sequence[float] | np.ndarray | None = None
+    u_min: float | Sequence[float] | np.ndarray | None = None
+    u_max: float | Sequence[float] | np.ndarray | None = None
+    x_min: float | Sequence[float] | np.ndarray | None = None
+    x_max: float | Sequence[float] | np.ndarray | None = None
+    soft: bool = False
+    soft_weight_l1: float = 1e2
+    soft_weight_quad: float = 1e2
+    terminal_cost: str | Sequence[float] | Sequence[Sequence[float]] | np.ndarray = "Q"
+    iterations: int = 1
+    tol: float = 1e-6
+    solver: str = "auto"
+    osqp_settings: Mapping[str, Any] | None = None
+    integrator: str = "rk4"
+    position_indices: Sequence[int] = ()
+    velocity_indices: Sequence[int] = ()
+    init_iterations: int = 30
+    cold_start: str = "ipopt"
+    hold: int = 1
+    state_names: Sequence[str] | None = None
+    input_names: Sequence[str] | None = None
+
+    def resolve(self, n: int, m: int) -> NMPCOptions:
+        """A validated copy for ``n`` states and ``m`` inputs.
+
+        Vectors become float arrays of their sizes (bounds ±inf where absent),
+        ``solver="auto"`` becomes ``"daqp"``, indices and names become tuples;
+        a matrix ``terminal_cost`` stays as given (:func:`build_ocp` checks it).
+
+        Raises:
+            InvalidArgument: a value out of its range, a wrong shape, crossed
+                bounds or an unknown name (the message names the option).
+            NonFiniteError: NaN or inf where a finite number is needed.
+        """
+        for name in ("iterations", "hold", "init_iterations"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise InvalidArgument(f"{name} must be an int >= 1, got {value!r}")
+        for name, value, allowed in (
+            ("cold_start", self.cold_start, ("ipopt", "sqp")),
+            ("solver", self.solver, SOLVERS),
+            ("integrator", self.integrator, INTEGRATORS),
+        ):
+            if value not in allowed:
+                raise InvalidArgument(f"{name} must be one of {', '.join(allowed)}, got {value!r}")
+        w1, w2 = float(self.soft_weight_l1), float(self.soft_weight_quad)
+        if not (math.isfinite(w1) and w1 >= 0):
+            raise InvalidArgument(f"soft_weight_l1 must be >= 0 and finite, got {self.soft_weight_l1!r}")
+        if not (math.isfinite(w2) and w2 > 0):
+            raise InvalidArgument(f"soft_weight_quad must be > 0 and finite, got {self.soft_weight_quad!r}")
+        if isinstance(self.terminal_cost, str) and self.terminal_cost not in ("Q", "lqr"):
+            raise InvalidArgument(f"terminal_cost must be 'Q', 'lqr' or an (n, n) matrix, got {self.terminal_cost!r}")
+        u_min, u_max = bound_pair("u_min", "u_max", self.u_min, self.u_max, m)
+        x_min, x_max = bound_pair("x_min", "x_max", self.x_min, self.x_max, n)
+        names = {}
+        for name, value, size, default in (
+            ("state_names", self.state_names, n, "x"),
+            ("input_names", self.input_names, m, "u"),
+        ):
+            names[name] = tuple(value) if value is not None else tuple(f"{default}[{i}]" for i in range(size))
+            if len(names[name]) != size:
+                raise InvalidArgument(f"{name}: expected {size} names but found {len(names[name])}")
+        return dataclasses.replace(
+            self,
+            x0=np.zeros(n) if self.x0 is None else as_vector("x0", self.x0, n),
+            u0=np.zeros(m) if self.u0 is None else as_vector("u0", self.u0, m),
+            u_min=u_min,
+            u_max=u_max,
+            x_min=x_min,
+            x_max=x_max,
+            soft=bool(self.soft),
+            soft_weight_l1=w1,
+            soft_weight_quad=w2,
+            iterations=int(self.iterations),
+            tol=check_positive("tol", self.tol),
+            solver="daqp" if self.solver == "auto" else self.solver,
+            position_indices=tuple(int(i) for i in self.position_indices),
+            velocity_indices=tuple(int(i) for i in self.velocity_indices),
+            init_iterations=int(self.init_iterations),
+            hold=int(self.hold),
+            **names,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class NMPCProblem:
+    """The OCP a strategy solves: sizes, the discrete step, the weights and the resolved options.
+
+    Attributes:
+        n: States.
+        m: Inputs.
+        N: Shooting intervals (the horizon).
+        dt: Shooting interval [s].
+        F: The discrete step ``F(x, u) -> x_next`` (CasADi, SX).
+        linearization: All stages at once: ``X (n, N + 1), U (m, N) -> G`` with
+            ``G_k = [A_k, B_k, d_k]`` stored as ``(N, n, n + m + 1)``.
+        Q: Stage state weight ``(n, n)``.
+        R: Stage input weight ``(m, m)``, positive definite.
+        Qf: Terminal weight ``(n, n)``.
+        W: Stage weights of ``x_1 … x_N`` ``(N, n, n)`` (the last is ``Qf``).
+        options: The resolved :class:`NMPCOptions`.
+    """
+
+    n: int
+    m: int
+    N: int
+    dt: float
+    F: cs.Function
+    linearization: cs.Function
+    Q: np.ndarray
+    R: np.ndarray
+    Qf: np.ndarray
+    W: np.ndarray
+    options: NMPCOptions
+
+    @property
+    def x0(self) -> np.ndarray:
+        """The target state ``(n,)``."""
+        return self.options.x0  # type: ignore[return-value]
+
+    @property
+    def u0(self) -> np.ndarray:
+        """The input reference ``(m,)``."""
+        return self.options.u0  # type: ignore[return-value]
+
+    def objective(self, X: np.ndarray, U: np.ndarray, ref: np.ndarray) -> float:
+        """The OCP cost of a trajectory ``X (N + 1, n)``, ``U (N, m)`` towards ``ref (n,)`` (slack terms included)."""
+        o = self.options
+        E = X - ref
+        dU = U - self.u0
+        J = 0.5 * float(np.einsum("ki,ij,kj->", E[:-1], self.Q, E[:-1]))
+        J += 0.5 * float(E[-1] @ self.Qf @ E[-1])
+        J += 0.5 * float(np.einsum("ki,ij,kj->", dU, self.R, dU))
+        if o.soft:  # the optimal slack of each state-bound row is its violation
+            with np.errstate(invalid="ignore"):
+                s = np.maximum(X[1:] - o.x_max, o.x_min - X[1:])
+            s = np.maximum(s[np.isfinite(s)], 0.0)
+            J += o.soft_weight_l1 * float(s.sum()) + 0.5 * o.soft_weight_quad * float(s @ s)
+        return J
+
+
+class NMPCStrategy(Protocol):
+    """How a :class:`NMPCProblem` is solved at each call: real-time iterations (SQP) or IPOPT.
+
+    A strategy owns its buffers and its warm start; ``NonlinearMPC`` holds one.
+    """
+
+    def solve(self, x: np.ndarray, ref: np.ndarray) -> NMPCSolution:
+        """The OCP from the measured ``x (n,)`` towards ``ref (n,)`` (validated by the caller).
+
+        A failed solve is returned (``message`` not empty, ``u`` NaN), not raised.
+        """
+        ...
+
+    def prepare(self) -> tuple[float, float, float] | None:
+        """Work for the next call done before its state is known; ``(linearize, condense, other)`` seconds."""
+        ...
+
+    def reset(self) -> None:
+        """Forget the warm start: the next call starts cold."""
+        ...
+
+
+def rk4_step(f: cs.Function, x: cs.SX, u: cs.SX, h: float) -> cs.SX:
+    """One classical RK4 step of ``xdot = f(x, u)`` with ``u`` held for ``h``."""
+    k1 = f(x, u)
+    k2 = f(x + 0.5 * h * k1, u)
+    k3 = f(x + 0.5 * h * k2, u)
+    k4 = f(x + h * k3, u)
+    return x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def build_ocp(
+    f: cs.Function,
+    Q: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+    R: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+    horizon: int,
+    dt: float,
+    options: NMPCOptions,
+) -> NMPCProblem:
+    """The OCP of dynamics ``f(x, u) -> xdot`` (CasADi) with the given weights, horizon and (unresolved) options.
+
+    Raises:
+        InvalidArgument: an invalid weight, horizon, ``dt`` or option (the message names it).
+        NotStabilizable: ``terminal_cost="lqr"`` at a target where the DARE has no solution.
+    """
+    n, m = int(f.size1_in(0)), int(f.size1_in(1))
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
+        raise InvalidArgument(f"horizon must be an int >= 1, got {horizon!r}")
+    N = int(horizon)
+    h = check_positive("dt", dt)
+    o = options.resolve(n, m)
+    Qm = weight_matrix("Q", Q, n)
+    Rm = weight_matrix("R", R, m, definite=True)
+    F = _discrete_step(f, n, m, h, o)
+    if isinstance(o.terminal_cost, str):
+        Qf = Qm.copy() if o.terminal_cost == "Q" else _dare(F, n, m, Qm, Rm, o)
+    else:
+        Qf = weight_matrix("terminal_cost", o.terminal_cost, n)
+    return NMPCProblem(
+        n=n,
+        m=m,
+        N=N,
+        dt=h,
+        F=F,
+        linearization=_stage_linearization(F, n, m, N),
+        Q=Qm,
+        R=Rm,
+        Qf=Qf,
+        W=np.stack([Qm] * (N - 1) + [Qf]),
+        options=o,
+    )
+
+
+def _discrete_step(f: cs.Function, n: int, m: int, h: float, o: NMPCOptions) -> cs.Function:
+    xs, us = cs.SX.sym("x", n), cs.SX.sym("u", m)
+    if o.integrator == "rk4":
+        x_next = rk4_step(f, xs, us, h)
+    else:
+        pos, vel = o.position_indices, o.velocity_indices
+        if not pos or len(pos) != len(vel):
+            raise InvalidArgument("integrator 'semi_implicit' needs the plant's position and velocity indices")
+        xd = f(xs, us)
+        new = [xs[i] for i in range(n)]
+        for q, v in zip(pos, vel, strict=True):
+            new[v] = xs[v] + h * xd[v]
+            new[q] = xs[q] + h * new[v]
+        x_next = cs.vertcat(*new)
+    return cs.Function("F", [xs, us], [x_next], ["x", "u"], ["x_next"])
+
+
+def _stage_linearization(F: cs.Function, n: int, m: int, N: int) -> cs.Function:
+    """``G_kᵀ`` of all stages side by side, ``(n + m + 1, N n)`` (stored as ``(N, n, n + m + 1)``)."""
+    xs, us, xn = cs.SX.sym("x", n), cs.SX.sym("u", m), cs.SX.sym("x_next", n)
+    x_next = F(xs, us)
+    # G_k = [A_k, B_k, d_k] (n, n + m + 1), output transposed so that its column-major storage is G_k row-major
+    G = cs.horzcat(cs.jacobian(x_next, xs), cs.jacobian(x_next, us), x_next - xn)
+    stage = cs.Function("stage", [xs, us, xn], [cs.densify(G).T])
+    X = cs.MX.sym("X", n, N + 1)
+    U = cs.MX.sym("U", m, N)
+    return cs.Function("lin", [X, U], [stage.map(N)(X[:, :N], U, X[:, 1:])], ["X", "U"], ["G"])
+
+
+def _dare(F: cs.Function, n: int, m: int, Q: np.ndarray, R: np.ndarray, o: NMPCOptions) -> np.ndarray:
+    xs, us = cs.SX.sym("x", n), cs.SX.sym("u", m)
+    xn = F(xs, us)
+    jac = cs.Function("F_jac", [xs, us], [cs.jacobian(xn, xs), cs.jacobian(xn, us)])
+    A, B = (np.array(M, dtype=float) for M in jac(o.x0, o.u0))
+    return riccati_solution(A, B, Q, R, what="terminal_cost='lqr' at the target")
+
+
+def failed_solution(
+    ocp: NMPCProblem,
+    message: str,
+    status: str,
+    total: float,
+    X: np.ndarray | None = None,
+    U: np.ndarray | None = None,
+) -> NMPCSolution:
+    """The record of a failed call: ``u`` NaN, ``message`` set, the trajectory ``X``, ``U`` (NaN when not given)."""
+    return NMPCSolution(
+        status=status, iterations=0, kkt_residual=math.nan, qp_status=status, qp_iterations=0,
+        time_linearization_s=0.0, time_condensing_s=0.0, time_qp_s=0.0, time_other_s=0.0,
+        solve_time_s=total, states=np.full((ocp.N + 1, ocp.n), np.nan) if X is None else X.copy(),
+        inputs=np.full((ocp.N, ocp.m), np.nan) if U is None else U.copy(),
+        u=np.full(ocp.m, np.nan), objective=math.nan, message=message,
+    )  # fmt: skip
