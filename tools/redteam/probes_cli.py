@@ -60,8 +60,17 @@ def probes(configs: Path) -> list[Probe]:
     add("debug_only", ["--debug"], "ok")
     add("list", ["list"], "ok")
     add("list_extra_arg", ["list", "extra"], "refuse", ("extra",), bad_flag=True)
-    for cmd in ("run", "plan", "design", "regress", "sweep", "linearize", "crosscheck"):
-        add(f"{cmd}_unknown_flag", [cmd, "--frobnicate", "1"], "refuse", ("--frobnicate",), bad_flag=True)
+    valid = {
+        "run": ["run", "cartpole_lqr"],
+        "plan": ["plan", "cartpole_swingup_mujoco"],
+        "design": ["design", "lqr", "cartpole_lqr"],
+        "regress": ["regress"],
+        "sweep": ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=0.05:0.5", "--out", "sw"],
+        "linearize": ["linearize", "cartpole"],
+        "crosscheck": ["crosscheck", "cartpole"],
+    }
+    for cmd, args in valid.items():
+        add(f"{cmd}_unknown_flag", [*args, "--frobnicate", "1"], "refuse", ("--frobnicate",), bad_flag=True)
         add(f"{cmd}_help", [cmd, "--help"], "ok")
 
     # ---- linearize / crosscheck: vectors and eps over every plant
@@ -323,7 +332,7 @@ def probes(configs: Path) -> list[Probe]:
         needles = ("tradeoff", "R", "Q")
         add(
             f"design_tradeoff_{name}",
-            ["design", "lqr", "cartpole_lqr", "--tradeoff", spec, "--points", "3", "--workers", "1"],
+            ["design", "lqr", "cartpole_lqr", "--tradeoff", spec, "--points", "3", "--workers", "1", "--out", "t"],
             expect,
             needles,
         )
@@ -335,7 +344,7 @@ def probes(configs: Path) -> list[Probe]:
     )
     add(
         "design_tradeoff_q_ok",
-        ["design", "lqr", "cartpole_lqr", "--tradeoff", "Q[2]=1:1000", "--points", "3", "--workers", "1"],
+        ["design", "lqr", "cartpole_lqr", "--tradeoff", "Q[2]=1:1000", "--points", "3", "--workers", "1", "--out", "t"],
         "ok",
         timeout=120,
     )
@@ -351,21 +360,43 @@ def probes(configs: Path) -> list[Probe]:
     ):
         add(
             f"design_tradeoff_points_{pts or 'empty'}",
-            ["design", "lqr", "cartpole_lqr", "--tradeoff", "R=1e-2:1", "--points=" + pts, "--workers", "1"],
+            [
+                "design",
+                "lqr",
+                "cartpole_lqr",
+                "--tradeoff",
+                "R=1e-2:1",
+                "--points=" + pts,
+                "--workers",
+                "1",
+                "--out",
+                "t",
+            ],
             expect,
             ("points",),
         )
     for w, expect in (("0", "refuse"), ("-1", "refuse"), ("1000", "either"), ("x", "refuse")):
         add(
             f"design_tradeoff_workers_{w}",
-            ["design", "lqr", "cartpole_lqr", "--tradeoff", "R=1e-2:1", "--points", "3", "--workers=" + w],
+            [
+                "design",
+                "lqr",
+                "cartpole_lqr",
+                "--tradeoff",
+                "R=1e-2:1",
+                "--points",
+                "3",
+                "--workers=" + w,
+                "--out",
+                "t",
+            ],
             expect,
             ("workers",),
             timeout=120,
         )
     add(
         "design_tradeoff_mpc",
-        ["design", "mpc", "cartpole_mpc", "--tradeoff", "R=1e-2:1", "--points", "3"],
+        ["design", "mpc", "cartpole_mpc", "--tradeoff", "R=1e-2:1", "--points", "3", "--out", "t"],
         "either",
         ("tradeoff", "lqr", "mpc"),
     )

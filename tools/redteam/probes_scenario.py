@@ -150,7 +150,7 @@ def probes(configs: Path) -> list[Probe]:
                         expect = "refuse"
                     found = (*needles, f"unknown {keypath[0]}")
                 if expect == "either":  # a valid value whose run diverges may be refused as such
-                    found = (*found, "became non-finite", "diverged")
+                    found = (*found, "became non-finite", "diverged", "infeasible")
                 d = copy.deepcopy(doc)
                 _set(d, keypath, new)
                 add(f"{dotted}={mname}", dump_toml(d), expect, found)
