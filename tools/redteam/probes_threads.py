@@ -19,6 +19,7 @@ from harness import Outcome, Probe
 
 CAT = "threads"
 THREADS = 4
+_CONCURRENCY_WORDS = ("thread", "concurren", "simultaneous", "reentr", "re-entr", "in use")
 
 
 def _concurrent(fn: Callable[[Any], Any], inputs: list[Any]) -> tuple[list[Any], list[BaseException]]:
@@ -49,8 +50,10 @@ def _errors_outcome(errors: list[BaseException]) -> Outcome | None:
         return None
     exc = errors[0]
     text = f"{type(exc).__name__}: {str(exc)[:160]}"
-    if clean_error(exc) or (isinstance(exc, RuntimeError) and "thread" in str(exc).lower()):
+    if any(w in str(exc).lower() for w in _CONCURRENCY_WORDS):
         return Outcome("ok", f"concurrent use detected: {text}")
+    if clean_error(exc):  # a refusal that does not say why: a race surfacing as a spurious error
+        return Outcome("wrong_answer_exit0", f"spurious error under concurrent calls: {text}")
     return Outcome("traceback", f"uncaught {text} in a thread")
 
 
