@@ -64,7 +64,3 @@ class ConcurrentUse(ShinroError, RuntimeError):
 
 class PlanningFailed(ShinroError, RuntimeError):
     """A trajectory optimization did not converge; the message names the solver status and the worst constraint."""
-
-
-class ConcurrentUse(ShinroError, RuntimeError):
-    """A call entered an object that another thread is using; use one object per thread."""
