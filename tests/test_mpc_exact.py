@@ -218,7 +218,7 @@ def test_bounds_no_input_can_move_are_left_out_not_infeasible(cp, solver):
     that bound out, says so in ``dropped_rows``, and its plan is the exact optimum without it."""
     A, B, _, P = cp
     plant = CartPole(dt=0.02)
-    kw = dict(horizon=30, u_min=-10.0, u_max=10.0, solver=solver, **cart_bounds(0.3))
+    kw = dict(horizon=30, u_min=-10.0, u_max=10.0, solver=solver, discretization="euler", **cart_bounds(0.3))
     mpc = LinearMPC.from_plant(plant, Q_CP, R_CP, **kw)
     plant.set_state([0.0, 0.0, 0.3, 0.0])
     dropped = []
