@@ -327,7 +327,7 @@ def test_finite_horizon_gain_tends_to_lqr_and_matches_mpc_first_move():
     A, B = lqr.model.A, lqr.model.B
     # with the DARE terminal cost the finite-horizon gain is the LQR gain for any N
     np.testing.assert_allclose(finite_horizon_gain(A, B, Q, R, lqr.S, 5), lqr.K, rtol=1e-9)
-    # with P_f = Q it converges to it as N grows
+    # with Qf = Q it converges to it as N grows
     assert np.abs(finite_horizon_gain(A, B, Q, R, Q, 400) - lqr.K).max() < 1e-6 * np.abs(lqr.K).max()
     mpc = LinearMPC.from_plant(
         plant, Q, R, horizon=60, terminal_cost="Q", osqp_settings={"eps_abs": 1e-9, "eps_rel": 1e-9}

@@ -53,11 +53,11 @@ def dare_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> tup
     return K, P
 
 
-def condensed(A, B, Q, R, P_f, N, x0, ref=None, u_ref=None):
+def condensed(A, B, Q, R, Qf, N, x0, ref=None, u_ref=None):
     """The input-only QP ``min ½ Uᵀ H U + fᵀ U`` of the MPC cost (deviation variables).
 
     ``X = Φ x0 + Γ U`` stacks ``x_0 … x_N``; the cost is
-    ``½ Σ_{k<N} (x_k − r_k)ᵀ Q (x_k − r_k) + (u_k − ū)ᵀ R (u_k − ū) + ½ (x_N − r_N)ᵀ P_f (x_N − r_N)``.
+    ``½ Σ_{k<N} (x_k − r_k)ᵀ Q (x_k − r_k) + (u_k − ū)ᵀ R (u_k − ū) + ½ (x_N − r_N)ᵀ Qf (x_N − r_N)``.
     """
     n, m = B.shape
     Phi = np.vstack([np.linalg.matrix_power(A, k) for k in range(N + 1)])
@@ -65,7 +65,7 @@ def condensed(A, B, Q, R, P_f, N, x0, ref=None, u_ref=None):
     for k in range(1, N + 1):
         for j in range(k):
             Gam[k * n : (k + 1) * n, j * m : (j + 1) * m] = np.linalg.matrix_power(A, k - 1 - j) @ B
-    Qbar = scipy.linalg.block_diag(*([Q] * N + [P_f]))
+    Qbar = scipy.linalg.block_diag(*([Q] * N + [Qf]))
     Rbar = scipy.linalg.block_diag(*([R] * N))
     H = Gam.T @ Qbar @ Gam + Rbar
     rbar = np.zeros((N + 1) * n) if ref is None else np.broadcast_to(ref, (N + 1, n)).ravel()
@@ -132,7 +132,7 @@ def test_unconstrained_first_move_is_lqr(cartpole, horizon):
     states = rng.normal(scale=[0.2, 0.2, 0.1, 0.2], size=(5, 4))
     tight = LinearMPC(A, B, Q_CP, R_CP, horizon, osqp_settings=TIGHT)
     default = LinearMPC(A, B, Q_CP, R_CP, horizon)
-    np.testing.assert_allclose(tight.P_f, P, rtol=1e-10)
+    np.testing.assert_allclose(tight.Qf, P, rtol=1e-10)
     for x in states:
         u_lqr = -K @ x
         np.testing.assert_allclose(tight(x), u_lqr, rtol=1e-6, atol=1e-7)
@@ -606,11 +606,11 @@ def test_a_non_stabilizing_mpc_is_refused_when_built(horizon):
         m = B.shape[1]
         R = 0.1 * np.eye(m) if R is None else R
         for terminal in ("Q", 2.0 * Q):
-            P_f = Q if isinstance(terminal, str) else terminal
+            Qf = Q if isinstance(terminal, str) else terminal
             # the reference gain: first move of the condensed QP's unconstrained optimum, column by column
-            H, _ = condensed(A, B, Q, R, P_f, horizon, np.zeros(A.shape[0]))
+            H, _ = condensed(A, B, Q, R, Qf, horizon, np.zeros(A.shape[0]))
             K = np.column_stack(
-                [np.linalg.solve(H, condensed(A, B, Q, R, P_f, horizon, e)[1])[:m] for e in np.eye(A.shape[0])]
+                [np.linalg.solve(H, condensed(A, B, Q, R, Qf, horizon, e)[1])[:m] for e in np.eye(A.shape[0])]
             )
             radius = np.max(np.abs(np.linalg.eigvals(A - B @ K)))
             kw = dict(horizon=horizon, terminal_cost=terminal, discretization="euler")

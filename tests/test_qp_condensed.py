@@ -38,7 +38,7 @@ def model() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return A, B, P, K
 
 
-def plain_qp(A, B, Q, R, P_f, N, x0, d=None, ref=None, u_ref=None):
+def plain_qp(A, B, Q, R, Qf, N, x0, d=None, ref=None, u_ref=None):
     """``(H, f, Φ, Γ, c)`` of ``min ½ UᵀHU + fᵀU`` with ``X = Φ x0 + Γ U + c`` (x_0 … x_N) by simulation."""
     n, m = B.shape
     d = np.zeros(n) if d is None else d
@@ -58,7 +58,7 @@ def plain_qp(A, B, Q, R, P_f, N, x0, d=None, ref=None, u_ref=None):
     for k in range(N):
         x = A @ x + d
         c[(k + 1) * n : (k + 2) * n] = x
-    Qb = scipy.linalg.block_diag(*([Q] * N + [P_f]))
+    Qb = scipy.linalg.block_diag(*([Q] * N + [Qf]))
     Rb = np.kron(np.eye(N), R)
     r = np.zeros((N + 1) * n) if ref is None else np.tile(ref, N + 1)
     ur = np.zeros(N * m) if u_ref is None else np.tile(u_ref, N)

@@ -5,9 +5,9 @@ model it was designed on) and returns the pole table, the structure report,
 the loop margins and the step metrics of the *linear* closed loop. For a
 LinearMPC the feedback analysed is its unconstrained first move, which is
 linear: ``δu_0 = −K_N δx`` with ``K_N`` from the backward Riccati recursion
-over the horizon ``N`` from the terminal cost ``P_f``,
+over the horizon ``N`` from the terminal cost ``Qf``,
 
-    P_N = P_f,   P_k = Q + Aᵀ P_{k+1} A − Aᵀ P_{k+1} B (R + Bᵀ P_{k+1} B)⁻¹ Bᵀ P_{k+1} A,
+    P_N = Q_f,   P_k = Q + Aᵀ P_{k+1} A − Aᵀ P_{k+1} B (R + Bᵀ P_{k+1} B)⁻¹ Bᵀ P_{k+1} A,
     K_N = (R + Bᵀ P_1 B)⁻¹ Bᵀ P_1 A
 
 (valid while no constraint is active; equal to the LQR gain with the default
@@ -33,10 +33,10 @@ __all__ = ["DesignAnalysis", "analyze_controller", "feedback_gain", "finite_hori
 
 
 def finite_horizon_gain(
-    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, P_f: np.ndarray, N: int
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, Qf: np.ndarray, N: int
 ) -> np.ndarray:
     """First-move gain ``K_N (m, n)`` of the unconstrained finite-horizon problem (see the module docstring)."""
-    P = np.asarray(P_f, dtype=float)
+    P = np.asarray(Qf, dtype=float)
     K = np.zeros((B.shape[1], A.shape[0]))
     for _ in range(int(N)):
         BtP = B.T @ P
@@ -52,7 +52,7 @@ def feedback_gain(controller: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     LQR: its ``K`` on its own ``(A, B)`` (continuous when designed with
     ``discrete=False``, then ``dt`` is None); with integral action (LQI) the
     model augmented with the integrators and ``[K, K_i]``. LinearMPC: the
-    unconstrained first-move gain :func:`finite_horizon_gain`.
+    unconstrained first-move gain ``K_mpc`` (:func:`finite_horizon_gain`).
 
     Raises:
         InvalidArgument: a controller without a linear model and gain (e.g. IKQP).
@@ -62,10 +62,9 @@ def feedback_gain(controller: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     if A is None or B is None:
         raise InvalidArgument(f"{type(controller).__name__} has no linear model (A, B) to analyse")
     model = getattr(controller, "model", None)
-    if hasattr(controller, "P_f") and hasattr(controller, "horizon"):
-        K = finite_horizon_gain(
-            controller.A, controller.B, controller.Q, controller.R, controller.P_f, controller.horizon
-        )
+    K_mpc = getattr(controller, "K_mpc", None)  # LinearMPC: its unconstrained first-move gain
+    if K_mpc is not None:
+        K = np.asarray(K_mpc)
         dt = getattr(controller, "dt", None) or (model.dt if model is not None else None)
         if dt is None:
             raise InvalidArgument("LinearMPC without dt: build it with from_plant or pass dt=")

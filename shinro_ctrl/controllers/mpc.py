@@ -16,7 +16,7 @@ each call solves
     \min_{\delta x, \delta u, s}\;
       \tfrac12 \sum_{k=0}^{N-1} \big[(\delta x_k - \rho_k)^\top Q (\delta x_k - \rho_k)
         + (\delta u_k - \nu)^\top R (\delta u_k - \nu)\big]
-      + \tfrac12 (\delta x_N - \rho_N)^\top P_f (\delta x_N - \rho_N)
+      + \tfrac12 (\delta x_N - \rho_N)^\top Q_f (\delta x_N - \rho_N)
       + \sum_{k=1}^{N} \big(w_1 \mathbf 1^\top s_k + \tfrac{w_2}{2} \lVert s_k \rVert^2\big)
 
 subject to
@@ -125,7 +125,7 @@ class LinearMPC(Controller):
     .. math::
 
         \min \tfrac12 \sum_{k=0}^{N-1} \big[\lVert x_k - r_k \rVert_Q^2 + \lVert u_k - \bar u \rVert_R^2\big]
-            + \tfrac12 \lVert x_N - r_N \rVert_{P_f}^2
+            + \tfrac12 \lVert x_N - r_N \rVert_{Q_f}^2
             + \sum_{k=1}^{N} \big(w_1 \mathbf 1^\top s_k + \tfrac{w_2}{2} \lVert s_k \rVert^2\big)
 
     subject to ``x_0 = x`` (measured), ``δx_{k+1} = A δx_k + B δu_k + d``,
@@ -170,7 +170,7 @@ class LinearMPC(Controller):
             ``u − u0 = −K_mpc (x − x0)`` (+ reference and offset terms); ``K`` for ``terminal_cost="lqr"``.
         u_min, u_max, x_min, x_max: The bounds ``(m,)`` / ``(n,)`` in absolute
             units (±inf where unbounded).
-        P_f: Terminal cost matrix ``(n, n)``.
+        Qf: Terminal cost matrix ``(n, n)``.
         last: :class:`MPCSolution` of the latest call (None before the first).
         groups: The :class:`RowGroup` blocks of ``A_con``, by name.
         solver: The backend in use, ``"osqp"`` or ``"daqp"`` (``"auto"`` resolved).
@@ -246,17 +246,17 @@ class LinearMPC(Controller):
         if isinstance(opts.terminal_cost, str):
             self.terminal_cost = opts.terminal_cost
             if opts.terminal_cost == "lqr":
-                self.K, self.P_f = riccati(
+                self.K, self.Qf = riccati(
                     A_, B_, Q_, R_, what="the terminal cost (or pass terminal_cost='Q' or a matrix)"
                 )
             else:
-                self.P_f = Q_.copy()
+                self.Qf = Q_.copy()
         else:
-            self.P_f = opts.terminal_cost
+            self.Qf = opts.terminal_cost
             self.terminal_cost = "matrix"
-        self.problem = MPCProblem(A_, B_, Q_, R_, self.P_f, self.K, N)
+        self.problem = MPCProblem(A_, B_, Q_, R_, self.Qf, self.K, N)
         self.K_mpc = self._check_nominal_loop()
-        self.sparse = build_sparse(A_, B_, Q_, R_, self.P_f, N, opts)
+        self.sparse = build_sparse(A_, B_, Q_, R_, self.Qf, N, opts)
         self.groups: dict[str, RowGroup] = {g.name: g for g in self.sparse.groups}
         self.solver = choose_solver(n, m, N, opts)
         # An inexact OSQP solve is settled by the condensed solver when the condensed QP fits
@@ -294,13 +294,13 @@ class LinearMPC(Controller):
         A, B, Q, R, N = self.A, self.B, self.Q, self.R, self.N
         if self.K is not None:  # terminal_cost="lqr": the law is the LQR's, whose loop riccati() checked
             return self.K
-        K_mpc = finite_horizon_gain(A, B, Q, R, self.P_f, N)
+        K_mpc = finite_horizon_gain(A, B, Q, R, self.Qf, N)
         radius = float(np.max(np.abs(np.linalg.eigvals(A - B @ K_mpc))))
         if radius < 1.0 - 1e-9:
             return K_mpc
         hint = ""
         for longer in range(N + 1, max(4 * N, 200) + 1):  # the shortest horizon that stabilizes, if one is near
-            K_long = finite_horizon_gain(A, B, Q, R, self.P_f, longer)
+            K_long = finite_horizon_gain(A, B, Q, R, self.Qf, longer)
             if float(np.max(np.abs(np.linalg.eigvals(A - B @ K_long)))) < 1.0 - 1e-9:
                 hint = f" (horizon = {longer} is the shortest that stabilizes it)"
                 break
@@ -453,7 +453,7 @@ class LinearMPC(Controller):
         s = self.sparse
         x = as_vector("x", x, self.n)
         q = s.q.copy()
-        fill_linear_cost(s, self.Q, self.R, self.P_f, self.options, self._check_ref(ref), self._check_uref(u_ref), q)
+        fill_linear_cost(s, self.Q, self.R, self.Qf, self.options, self._check_ref(ref), self._check_uref(u_ref), q)
         l, u = s.l.copy(), s.u.copy()
         l[: self.n] = u[: self.n] = x - self.x0
         up = self._u_prev if u_prev is None else as_vector("u_prev", u_prev, self.m)
@@ -597,7 +597,7 @@ class LinearMPC(Controller):
         if self.du_max is not None:
             lines.append(f"rate bounds: du_max = {fmt(self.du_max)}")
         lines.append(f"terminal cost ({self.terminal_cost}):")
-        lines.append(np.array2string(self.P_f, precision=4, max_line_width=110))
+        lines.append(np.array2string(self.Qf, precision=4, max_line_width=110))
         if self.K is not None:
             lines.append(f"LQR gain K = {fmt(self.K)}")
         lines.append(f"fallback: {self.fallback}")

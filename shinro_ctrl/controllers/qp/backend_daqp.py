@@ -42,7 +42,7 @@ class DaqpBackend:
         self.problem, self.options = problem, options
         p = problem
         K = p.K  # the DARE's gain when the terminal cost is the DARE's; else CondensedQP computes one
-        self.dense = CondensedQP(p.A, p.B, p.Q, p.R, p.P_f, p.N, K=K, options=options)
+        self.dense = CondensedQP(p.A, p.B, p.Q, p.R, p.Qf, p.N, K=K, options=options)
         self._has_ref = False  # the condensed QP holds a reference (not the operating point)
         self._ref_cache: np.ndarray | None = None
         self._uref_cache: np.ndarray | None = None

@@ -70,7 +70,7 @@ class OsqpBackend:
     ):
         self.problem, self.options = problem, options
         p, n, m, N = problem, problem.n, problem.m, problem.N
-        s = self.sparse = sparse if sparse is not None else build_sparse(p.A, p.B, p.Q, p.R, p.P_f, N, options)
+        s = self.sparse = sparse if sparse is not None else build_sparse(p.A, p.B, p.Q, p.R, p.Qf, N, options)
         self.referee = bool(referee)
         self._q_default = s.q
         self._q, self._l, self._u = s.q.copy(), s.l.copy(), s.u.copy()
@@ -266,7 +266,7 @@ class OsqpBackend:
         if self._q_dirty and _same(ref, self._ref_cache) and _same(u_ref, self._uref_cache):
             return None  # same reference as last call: q is already in OSQP
         p = self.problem
-        self._q_const = fill_linear_cost(self.sparse, p.Q, p.R, p.P_f, self.options, ref, u_ref, self._q)
+        self._q_const = fill_linear_cost(self.sparse, p.Q, p.R, p.Qf, self.options, ref, u_ref, self._q)
         self._q_dirty = True
         self._ref_cache = None if ref is None else ref.copy()
         self._uref_cache = None if u_ref is None else u_ref.copy()

@@ -7,7 +7,7 @@ in deviation variables ``e_k = x_k − x_0``, ``δu_k = u_k − u_0`` (``(x_0, u
 
     e_{k+1} = A e_k + B\,\delta u_k + d, \qquad
     J = \tfrac12 \sum_{k=0}^{N-1} \big[\lVert e_k - \rho_k \rVert_Q^2 + \lVert \delta u_k - \nu \rVert_R^2\big]
-        + \tfrac12 \lVert e_N - \rho_N \rVert_{P_f}^2 + \sum_{k=1}^{N} \big(w_1 \mathbf 1^\top s_k
+        + \tfrac12 \lVert e_N - \rho_N \rVert_{Q_f}^2 + \sum_{k=1}^{N} \big(w_1 \mathbf 1^\top s_k
         + \tfrac{w_2}{2} \lVert s_k \rVert^2\big).
 
 **Pre-stabilization.** The inputs are written around a stabilizing feedback,
@@ -23,7 +23,7 @@ equal to ``A_cl^{k−1−j} B`` (``j < k``), ``S_x = (A_cl^k)_k``, ``c_k =
 Σ_{j<k} A_cl^{k−1−j} d``, ``U_x = −K̄ S_x``, ``U_v = I − K̄ S_v``, ``c_u = −K̄ c``
 (``K̄ = I_N ⊗ K``, first ``N`` blocks). Since ``A_cl`` is stable the powers
 decay and the Hessian stays well conditioned at any horizon; with the DARE's
-terminal cost (``P_f = P``) it is exactly ``I_N ⊗ (R + BᵀPB)`` — the cost is
+terminal cost (``Qf = P``) it is exactly ``I_N ⊗ (R + BᵀPB)`` — the cost is
 ``e_0ᵀ P e_0 + Σ v_kᵀ (R + BᵀPB) v_k`` — and the unconstrained optimum is
 ``v = 0``, the LQR input. (Plain condensing in ``u`` reaches cond(H) ≈ 6e9 at
 ``N = 100`` on the cart-pole.)
@@ -192,7 +192,7 @@ class CondensedQP:
         B: Discrete input matrix ``(n, m)``.
         Q: Stage state weight ``(n, n)``, symmetric PSD.
         R: Stage input weight ``(m, m)``, symmetric positive definite.
-        P_f: Terminal weight ``(n, n)``, symmetric PSD.
+        Qf: Terminal weight ``(n, n)``, symmetric PSD.
         horizon: ``N >= 1``.
         K: Pre-stabilizing gain ``(m, n)``; default :func:`prestabilizing_gain`
             of ``(A, B, Q, R)``.
@@ -236,7 +236,7 @@ class CondensedQP:
         B: ArrayLike,
         Q: ArrayLike,
         R: ArrayLike,
-        P_f: ArrayLike,
+        Qf: ArrayLike,
         horizon: int,
         *,
         K: ArrayLike | None = None,
@@ -256,7 +256,7 @@ class CondensedQP:
         self.B = check_matrix("B", B_, (n, m))
         self.Q = check_matrix("Q", Q, (n, n))
         self.R = check_matrix("R", R, (m, m))
-        self.P_f = check_matrix("P_f", P_f, (n, n))
+        self.Qf = check_matrix("Qf", Qf, (n, n))
         self.K = prestabilizing_gain(self.A, self.B, self.Q, self.R) if K is None else check_matrix("K", K, (m, n))
         opts = options if options is not None else MPCOptions()
         if kwargs:
@@ -282,7 +282,7 @@ class CondensedQP:
         self._settings = dict(DEFAULT_DAQP_SETTINGS)
         if settings:
             self._settings.update(settings)
-        mat = self.matrices = build_condensed(self.A, self.B, self.Q, self.R, self.P_f, N, self.K, opts, (ub, rb, xb))
+        mat = self.matrices = build_condensed(self.A, self.B, self.Q, self.R, self.Qf, N, self.K, opts, (ub, rb, xb))
         self.H, self.F, self.G, self.E, self.cond_H = mat.H, mat.F, mat.G, mat.E, mat.cond_H
         self.groups: dict[str, DenseRowGroup] = {g.name: g for g in mat.groups}
         self._buffers()
@@ -376,7 +376,7 @@ class CondensedQP:
         self._w_lin = mat.QSx.T @ dx + mat.RUx.T @ du
         Qb_dx = dx.reshape(N + 1, n).copy()
         Qb_dx[:N] = Qb_dx[:N] @ self.Q.T
-        Qb_dx[N] = self.P_f @ Qb_dx[N]
+        Qb_dx[N] = self.Qf @ Qb_dx[N]
         Rb_du = (du.reshape(N, m) @ self.R.T).ravel()
         self._c0 = 0.5 * (float(dx @ Qb_dx.ravel()) + float(du @ Rb_du))
 

@@ -160,7 +160,7 @@ def build_condensed(
     B: np.ndarray,
     Q: np.ndarray,
     R: np.ndarray,
-    P_f: np.ndarray,
+    Qf: np.ndarray,
     N: int,
     K: np.ndarray,
     opts: MPCOptions,
@@ -169,7 +169,7 @@ def build_condensed(
     """Prediction and cost matrices, constraint rows and the rows DAQP gets (once per model).
 
     Args:
-        A, B, Q, R, P_f: Model and weights.
+        A, B, Q, R, Qf: Model and weights.
         N: Horizon.
         K: Pre-stabilizing gain ``(m, n)``.
         opts: Resolved options (bounds, operating point, offset, soft weights, names).
@@ -178,7 +178,7 @@ def build_condensed(
     n, m = B.shape
     ub, rb, xb = bounded
     ns = N * xb.size if opts.soft else 0
-    p = _prediction(A, B, Q, R, P_f, N, K, opts.offset, opts.soft_weight_quad, ns)
+    p = _prediction(A, B, Q, R, Qf, N, K, opts.offset, opts.soft_weight_quad, ns)
     G, E, lo, hi, groups, rate0 = _rows(p, n, m, N, ns, ub, rb, xb, opts)
     # rows kept for DAQP (scaled to unit norm), fixed rows (no z dependence), the stage-0 rate rows
     norms = np.linalg.norm(G, axis=1)
@@ -238,7 +238,7 @@ def _prediction(
     B: np.ndarray,
     Q: np.ndarray,
     R: np.ndarray,
-    P_f: np.ndarray,
+    Qf: np.ndarray,
     N: int,
     K: np.ndarray,
     offset: np.ndarray,
@@ -271,16 +271,16 @@ def _prediction(
     Ux = -(K @ Sx[: N * n].reshape(N, n, n)).reshape(nv, n)
     Uv = np.eye(nv) - (K @ Sv[: N * n].reshape(N, n, nv)).reshape(nv, nv)
     cu = -(c[: N * n].reshape(N, n) @ K.T).ravel()
-    # weighted blocks: QS = Q̄ S (stage weight Q for k < N, P_f at N), RU = R̄ U
+    # weighted blocks: QS = Q̄ S (stage weight Q for k < N, Qf at N), RU = R̄ U
     Sv3 = Sv.reshape(N + 1, n, nv)
     QSv = np.empty_like(Sv3)
     np.matmul(Q, Sv3[:N], out=QSv[:N])
-    QSv[N] = P_f @ Sv3[N]
+    QSv[N] = Qf @ Sv3[N]
     QSv = QSv.reshape((N + 1) * n, nv)
     Sx3 = Sx.reshape(N + 1, n, n)
     QSx = np.empty_like(Sx3)
     np.matmul(Q, Sx3[:N], out=QSx[:N])
-    QSx[N] = P_f @ Sx3[N]
+    QSx[N] = Qf @ Sx3[N]
     QSx = QSx.reshape((N + 1) * n, n)
     RUv = (R @ Uv.reshape(N, m, nv)).reshape(nv, nv)
     RUx = (R @ Ux.reshape(N, m, n)).reshape(nv, n)

@@ -194,7 +194,7 @@ class MPCProblem:
         B: Discrete input matrix ``(n, m)``.
         Q: Stage state weight ``(n, n)``.
         R: Stage input weight ``(m, m)``.
-        P_f: Terminal weight ``(n, n)``.
+        Qf: Terminal weight ``(n, n)``.
         K: The DARE's LQR gain ``(m, n)`` (None for another terminal cost).
         N: Horizon.
     """
@@ -203,7 +203,7 @@ class MPCProblem:
     B: np.ndarray
     Q: np.ndarray
     R: np.ndarray
-    P_f: np.ndarray
+    Qf: np.ndarray
     K: np.ndarray | None
     N: int
 

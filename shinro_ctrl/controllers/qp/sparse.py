@@ -3,7 +3,7 @@ r"""The sparse MPC QP: stacking, row groups and warm-start shift maps.
 With ``δx = x − x0``, ``δu = u − u0`` the decision vector is
 ``z = [δx_0 … δx_N, δu_0 … δu_{N-1}, s_1 … s_N]`` (slacks only with soft
 state bounds) and the QP is OSQP's ``min ½ zᵀ P z + qᵀ z  s.t.  l ≤ A z ≤ u``
-with ``P = blkdiag(Q, …, Q, P_f, R, …, R, w_2 I)``, ``q`` holding ``w_1`` on
+with ``P = blkdiag(Q, …, Q, Qf, R, …, R, w_2 I)``, ``q`` holding ``w_1`` on
 the slacks, and ``A`` stacking one block of rows per :class:`RowGroup`:
 
 .. math::
@@ -226,7 +226,7 @@ def qp_size(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, N: int, 
 
 
 def build_sparse(
-    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, P_f: np.ndarray, N: int, opts: MPCOptions
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, Qf: np.ndarray, N: int, opts: MPCOptions
 ) -> SparseQP:
     """Assemble ``P``, ``A_con``, ``q``, ``l``, ``u`` and the index maps (once).
 
@@ -235,7 +235,7 @@ def build_sparse(
         B: Discrete input matrix ``(n, m)``.
         Q: Stage state weight ``(n, n)``.
         R: Stage input weight ``(m, m)``.
-        P_f: Terminal weight ``(n, n)``.
+        Qf: Terminal weight ``(n, n)``.
         N: Horizon.
         opts: Resolved :class:`~shinro_ctrl.controllers.qp.options.MPCOptions`
             (bounds, operating point, offset, soft weights, names).
@@ -250,7 +250,7 @@ def build_sparse(
     # ---- cost: block diagonal, upper triangle
     Ts = _Triplets()
     Ts.blocks(Q, 0, 0, N, n, n)
-    Ts.blocks(P_f, N * n, N * n, 1, 0, 0)
+    Ts.blocks(Qf, N * n, N * n, 1, 0, 0)
     Ts.blocks(R, nx, nx, N, m, m)
     if ns:
         Ts.blocks(np.array([[opts.soft_weight_quad]]), nx + nu, nx + nu, ns, 1, 1)
@@ -290,7 +290,7 @@ def fill_linear_cost(
     s: SparseQP,
     Q: np.ndarray,
     R: np.ndarray,
-    P_f: np.ndarray,
+    Qf: np.ndarray,
     opts: MPCOptions,
     ref: np.ndarray | None,
     u_ref: np.ndarray | None,
@@ -300,7 +300,7 @@ def fill_linear_cost(
 
     Args:
         s: The sparse QP (index maps).
-        Q, R, P_f: Stage and terminal weights.
+        Q, R, Qf: Stage and terminal weights.
         opts: Resolved options (operating point).
         ref: State reference ``(n,)`` or ``(N + 1, n)`` [absolute]; None = the operating point.
         u_ref: Input reference ``(m,)`` [absolute]; None = the operating point.
@@ -317,14 +317,14 @@ def fill_linear_cost(
         rho = ref - opts.x0
         g = Q @ rho
         qx[:N] = -g
-        gN = P_f @ rho
+        gN = Qf @ rho
         qx[N] = -gN
         const += 0.5 * (N * float(rho @ g) + float(rho @ gN))
     else:
         rho = ref - opts.x0
         G = rho[:N] @ Q
         qx[:N] = -G
-        gN = P_f @ rho[N]
+        gN = Qf @ rho[N]
         qx[N] = -gN
         const += 0.5 * (float(np.sum(G * rho[:N])) + float(rho[N] @ gN))
     if u_ref is None:
