@@ -1,15 +1,18 @@
 """Strict value types: a TOML value must match the type annotation of the argument or field it fills.
 
 One checker for every table (:func:`check_value`): ``"bool"``, ``"int"``, ``"float"``, ``"str"``,
-``"list[float]"``, ``"Sequence[str]"``, ``"Mapping[...]"``, ``"Any"`` (numbers or arrays/tables of
-numbers) and unions with ``"|"``. A new table parsed through ``_Ctx.check_types`` with its
-dataclass's :func:`table_annotations` gets strict types for free.
+``"list[float]"``, ``"Sequence[str]"``, ``"Mapping[...]"``, ``"Any"`` and the array aliases of
+:mod:`shinro_ctrl.types` (``"Vector"``, ``"Weight"`` …) (numbers or arrays/tables of numbers) and
+unions with ``"|"``. A new table parsed through ``_Ctx.check_types`` with its dataclass's
+:func:`table_annotations` gets strict types for free.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from typing import Any
+
+from shinro_ctrl.types import NUMERIC_ALIASES
 
 __all__ = [
     "MAX_ELEMENTS",
@@ -111,7 +114,7 @@ def _atom_accepts(atom: str, value: Any, key: str) -> str | None:
         if not isinstance(value, Mapping):
             return "a table such as { key = value }"
         return _structure_problem(value, key)  # the table's own keys are checked by its consumer
-    if base == "Any":
+    if base == "Any" or base in NUMERIC_ALIASES:  # Vector, Weight, ... (shinro_ctrl.types): numbers or arrays
         return _numeric_problem(value, key)
     # an annotation this checker does not know: only the structural bounds apply
     if isinstance(value, list | Mapping):

@@ -40,12 +40,16 @@ import abc
 import functools
 import inspect
 import threading
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.registry import Registry
+from shinro_ctrl.types import Matrix, Vector
+
+if TYPE_CHECKING:
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["CONTROLLER_REGISTRY", "CallGuard", "Controller", "check_operating_point", "check_plant"]
 
@@ -133,7 +137,7 @@ class Controller(abc.ABC):
     u0: np.ndarray | None = None
     model: Any = None
 
-    def __setattr__(self, name: str, value: Any) -> None:
+    def __setattr__(self, name: str, value: object) -> None:
         """A public array attribute (a gain, a model matrix, a bound) is stored as a read-only copy.
 
         The caller can read ``ctrl.K`` but not change the controller through it (``ctrl.K[0, 0] = 5``
@@ -146,7 +150,7 @@ class Controller(abc.ABC):
             value.flags.writeable = False
         object.__setattr__(self, name, value)
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
+    def __init_subclass__(cls, **kwargs: object) -> None:
         super().__init_subclass__(**kwargs)
         if "stateful" not in cls.__dict__:
             # default: a controller with its own reset() carries memory between calls
@@ -157,7 +161,7 @@ class Controller(abc.ABC):
 
     @classmethod
     @abc.abstractmethod
-    def from_plant(cls, plant: Any, *args: Any, **kwargs: Any) -> Controller:
+    def from_plant(cls, plant: Plant, *args: Any, **kwargs: Any) -> Controller:
         """Build the controller for ``plant`` (a :class:`~shinro_ctrl.plants.base.Plant`)."""
 
     @classmethod
@@ -169,7 +173,7 @@ class Controller(abc.ABC):
         return tuple(p.name for p in params if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
 
     @classmethod
-    def option_annotations(cls) -> dict[str, Any]:
+    def option_annotations(cls) -> dict[str, object]:
         """Key → type annotation of the keys :meth:`option_keys` lists (the scenario layer checks types by them)."""
         import inspect
 
@@ -181,14 +185,14 @@ class Controller(abc.ABC):
         }
 
     @abc.abstractmethod
-    def __call__(self, x: Any, ref: Any = None) -> np.ndarray:
+    def __call__(self, x: Vector, ref: Vector | Matrix | None = None) -> np.ndarray:
         """Return the input ``u (m,)`` for the state ``x (n,)``."""
 
     def reset(self) -> None:  # noqa: B027 - an optional hook: a memoryless controller has nothing to forget
         """Forget any internal memory (warm starts, previous input)."""
 
 
-def check_plant(plant: Any, who: str) -> None:
+def check_plant(plant: object, who: str) -> None:
     """Raise a clear :class:`TypeError` unless ``plant`` is a plant instance (what every ``from_plant`` needs).
 
     Args:
@@ -215,7 +219,7 @@ def _names(names: Any, size: int, letter: str) -> list[str]:
     return [str(given[i]) if i < len(given) else f"{letter}[{i}]" for i in range(size)]
 
 
-def check_operating_point(plant: Any, x0: np.ndarray, u0: np.ndarray, who: str) -> None:
+def check_operating_point(plant: Plant, x0: np.ndarray, u0: np.ndarray, who: str) -> None:
     """Raise :class:`InvalidArgument` unless ``(x0, u0)`` is an equilibrium, ``f(x0, u0) = 0``.
 
     A controller designed on the linearization ``δẋ = A δx + B δu`` at a point

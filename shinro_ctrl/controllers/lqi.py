@@ -22,7 +22,7 @@ saturation; otherwise it integrates as usual.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -31,7 +31,9 @@ from shinro_ctrl.errors import InvalidArgument
 __all__ = ["IntegralAction", "integral_indices"]
 
 
-def integral_indices(integral: Any, n: int, names: Any = None) -> tuple[int, ...]:
+def integral_indices(
+    integral: str | int | Sequence[str | int], n: int, names: Sequence[str] | None = None
+) -> tuple[int, ...]:
     """The state indices named by ``integral`` (names, or indices when no names are known).
 
     Raises:
@@ -127,7 +129,13 @@ class IntegralAction:
 
 
 def integral_action(
-    A: np.ndarray, B: np.ndarray, integral: Any, dt: float, names: Any, *, discrete: bool
+    A: np.ndarray,
+    B: np.ndarray,
+    integral: str | int | Sequence[str | int] | None,
+    dt: float,
+    names: Sequence[str] | None,
+    *,
+    discrete: bool,
 ) -> tuple[IntegralAction | None, tuple[str, ...] | None]:
     """The :class:`IntegralAction` for LQR's ``integral`` argument (None without one) and the augmented names.
 

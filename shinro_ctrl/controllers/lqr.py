@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
@@ -12,7 +12,12 @@ from shinro_ctrl.analysis.structure import check_detectable, check_stabilizable
 from shinro_ctrl.controllers.base import CallGuard, Controller, check_operating_point
 from shinro_ctrl.controllers.lqi import integral_action
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, NotStabilizable
+from shinro_ctrl.types import Bound, Matrix, Vector, Weight
 from shinro_ctrl.validation import as_vector, bound_pair, state_space, weight_matrix
+
+if TYPE_CHECKING:
+    from shinro_ctrl.controllers.lqi import IntegralAction
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["LQR", "check_closed_loop", "check_detectable", "check_stabilizable", "riccati", "riccati_solution"]
 
@@ -80,7 +85,9 @@ def riccati(
     return K, S
 
 
-def check_closed_loop(poles: np.ndarray, A_cl: np.ndarray, *, discrete: bool, names: Any = None) -> None:
+def check_closed_loop(
+    poles: np.ndarray, A_cl: np.ndarray, *, discrete: bool, names: Sequence[str] | None = None
+) -> None:
     """Raise :class:`NotStabilizable` unless every closed-loop pole is strictly stable beyond rounding.
 
     The margin is relative, ``10³ eps max(1, ‖A_cl‖)``: a mode the design leaves on the stability
@@ -100,7 +107,7 @@ def check_closed_loop(poles: np.ndarray, A_cl: np.ndarray, *, discrete: bool, na
 
 
 def _design(
-    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, discrete: bool, names: Any
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, discrete: bool, names: Sequence[str] | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(K, S)`` of a design whose closed loop is strictly stable, judged by the Riccati solution itself.
 
@@ -128,7 +135,7 @@ def _design(
     return K, S
 
 
-def _design_weight(Q: Any, size: int, lqi: Any, names: Any) -> np.ndarray:
+def _design_weight(Q: Weight, size: int, lqi: IntegralAction | None, names: Sequence[str] | None) -> np.ndarray:
     """``Q`` on the design state; with integral action its shape error says the integral states are appended."""
     try:
         return weight_matrix("Q", Q, size)
@@ -150,7 +157,7 @@ def _sqrt_psd(Q: np.ndarray) -> np.ndarray:
     return (V * np.sqrt(np.clip(w, 0.0, None))) @ V.T
 
 
-def _mode_where(v: np.ndarray, names: Any) -> str:
+def _mode_where(v: np.ndarray, names: Sequence[str] | None) -> str:
     i = int(np.argmax(np.abs(v)))
     return f" (mostly state '{names[i]}')" if names is not None and i < len(names) else f" (mostly state {i})"
 
@@ -204,19 +211,19 @@ class LQR(Controller):
 
     def __init__(
         self,
-        A: Any,
-        B: Any,
-        Q: Any,
-        R: Any,
+        A: Matrix,
+        B: Matrix,
+        Q: Weight,
+        R: Weight,
         *,
         discrete: bool = True,
-        x0: Any = None,
-        u0: Any = None,
-        u_min: Any = None,
-        u_max: Any = None,
+        x0: Vector | None = None,
+        u0: Vector | None = None,
+        u_min: Bound = None,
+        u_max: Bound = None,
         feedforward: bool = False,
-        state_names: Any = None,
-        integral: Any = None,
+        state_names: Sequence[str] | None = None,
+        integral: str | int | Sequence[str | int] | None = None,
         integral_dt: float = 1.0,
     ):
         A, B = state_space(A, B)
@@ -251,17 +258,17 @@ class LQR(Controller):
     @classmethod
     def from_plant(
         cls,
-        plant: Any,
-        Q: Any,
-        R: Any,
+        plant: Plant,
+        Q: Weight,
+        R: Weight,
         *,
-        x0: Any = None,
-        u0: Any = None,
+        x0: Vector | None = None,
+        u0: Vector | None = None,
         discrete: bool = True,
         discretization: str = "step",
         method: str = "exact",
-        u_min: Any = None,
-        u_max: Any = None,
+        u_min: Bound = None,
+        u_max: Bound = None,
         feedforward: bool = False,
         integral: Sequence[str] | None = None,
     ) -> LQR:
@@ -311,7 +318,7 @@ class LQR(Controller):
         ctrl.model = lm
         return ctrl
 
-    def __call__(self, x: Any, ref: Any = None) -> np.ndarray:
+    def __call__(self, x: Vector, ref: Vector | Matrix | None = None) -> np.ndarray:
         """``u = u0 − K (x − x_ref)``, saturated to ``[u_min, u_max]``.
 
         Args:
@@ -331,7 +338,7 @@ class LQR(Controller):
         finally:
             guard.release()
 
-    def _law(self, x: Any, ref: Any) -> np.ndarray:
+    def _law(self, x: Vector, ref: Vector | Matrix | None) -> np.ndarray:
         x = as_vector("x", x, self.state_dim)  # fast path for a finite (n,) array
         if ref is None:
             u = self._x0_u - self.K @ x
@@ -360,7 +367,7 @@ class LQR(Controller):
             np.clip(u, self.u_min, self.u_max, out=u)
         return u
 
-    def cost_to_go(self, x: Any) -> float:
+    def cost_to_go(self, x: Vector) -> float:
         """Predicted optimal cost ``½ (x − x0)ᵀ S (x − x0)`` from state ``x (n,)``."""
         d = as_vector("x", x, self.state_dim) - self.x0
         if self._lqi is not None:  # the augmented state [x̃; z]

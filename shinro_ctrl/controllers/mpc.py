@@ -65,7 +65,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -98,7 +98,11 @@ from shinro_ctrl.controllers.qp.sparse import (
     qp_size,
 )
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError, NotStabilizable
+from shinro_ctrl.types import Vector, Weight
 from shinro_ctrl.validation import as_vector, state_space, weight_matrix
+
+if TYPE_CHECKING:
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = [
     "AUTO_DAQP_MAX_VARIABLES",
@@ -320,7 +324,7 @@ class LinearMPC(Controller):
         return own + tuple(k for k in fields if k not in (*own, *PLANT_GIVEN))
 
     @classmethod
-    def option_annotations(cls) -> dict[str, Any]:
+    def option_annotations(cls) -> dict[str, object]:
         """``from_plant``'s annotations and those of the :class:`MPCOptions` fields it forwards."""
         fields = {f.name: f.type for f in dataclasses.fields(MPCOptions) if f.init}
         return {**fields, **super().option_annotations()}
@@ -338,13 +342,13 @@ class LinearMPC(Controller):
     @classmethod
     def from_plant(
         cls,
-        plant: Any,
-        Q: Any,
-        R: Any,
+        plant: Plant,
+        Q: Weight,
+        R: Weight,
         *,
         horizon: int,
-        x0: Any = None,
-        u0: Any = None,
+        x0: Vector | None = None,
+        u0: Vector | None = None,
         discretization: str = "step",
         method: str = "exact",
         **options: Any,

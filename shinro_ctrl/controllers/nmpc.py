@@ -56,6 +56,7 @@ from shinro_ctrl.controllers._nmpc_rti import RealTimeIteration
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import ConcurrentUse, InvalidArgument, MPCInfeasible, NonFiniteError
+from shinro_ctrl.types import Weight
 from shinro_ctrl.validation import check_positive
 
 if TYPE_CHECKING:
@@ -64,8 +65,6 @@ if TYPE_CHECKING:
     from shinro_ctrl.plants.base import Plant
 
 __all__ = ["NMPCOptions", "NMPCSolution", "NonlinearMPC", "rk4_step"]
-
-Weight = float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray
 
 
 class NonlinearMPC(Controller):

@@ -21,16 +21,23 @@ exact whenever the bounds on ``u`` are not active.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from shinro_ctrl.types import Vector
 from shinro_ctrl.validation import as_vector
+
+if TYPE_CHECKING:
+    from shinro_ctrl.controllers.mpc import LinearMPC
 
 __all__ = ["offset_free_call"]
 
 
-def offset_free_call(mpc: Any, z: Any, ref: Any = None, u_ref: Any = None) -> np.ndarray:
+def offset_free_call(
+    mpc: LinearMPC, z: Vector, ref: ArrayLike | None = None, u_ref: ArrayLike | None = None
+) -> np.ndarray:
     """The input ``u (m,)`` of an offset-free ``LinearMPC`` from the augmented estimate ``z = [x̂; d̂]`` ``(n + m,)``."""
     n, m = mpc.n, mpc.m
     z = as_vector("x", z, n + m)

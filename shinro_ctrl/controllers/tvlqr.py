@@ -44,6 +44,7 @@ from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqr import LQR
 from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, discretize
+from shinro_ctrl.types import Bound, Weight
 from shinro_ctrl.validation import as_vector, bound_pair, check_positive, weight_matrix
 
 if TYPE_CHECKING:
@@ -51,9 +52,6 @@ if TYPE_CHECKING:
 
     from shinro_ctrl.planning import Trajectory
     from shinro_ctrl.plants.base import Plant
-
-Weight = float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray
-Bound = float | Sequence[float] | np.ndarray | None
 
 __all__ = ["TVLQR", "riccati_backward", "trajectory_jacobians"]
 

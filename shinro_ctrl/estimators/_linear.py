@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.types import Weight
 from shinro_ctrl.validation import weight_matrix
 
 __all__ = ["QN_ON", "measured_indices", "noise_covariance", "process_noise_input", "seen_from"]
@@ -15,7 +16,7 @@ __all__ = ["QN_ON", "measured_indices", "noise_covariance", "process_noise_input
 QN_ON = ("input", "state")
 
 
-def noise_covariance(name: str, value: Any, size: int, *, definite: bool) -> np.ndarray:
+def noise_covariance(name: str, value: Weight | None, size: int, *, definite: bool) -> np.ndarray:
     """A noise covariance ``(size, size)`` from a matrix or its diagonal ``(size,)`` (variances, not std devs).
 
     Raises:
@@ -56,6 +57,6 @@ def measured_indices(C: np.ndarray) -> tuple[int, ...]:
     return tuple(rows)
 
 
-def seen_from(measured: Any) -> str:
+def seen_from(measured: Sequence[str] | None) -> str:
     """What the measurements are, for the message of :func:`~shinro_ctrl.analysis.structure.check_detectable`."""
     return f"the measured states {list(measured)}" if measured is not None else "y = C x"

@@ -15,12 +15,16 @@ the identity at ``measured``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from shinro_ctrl.controllers.base import CallGuard, _checks_plant
 from shinro_ctrl.registry import Registry
+from shinro_ctrl.types import Vector, Weight
+
+if TYPE_CHECKING:
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["ESTIMATOR_REGISTRY", "Estimator"]
 
@@ -56,23 +60,23 @@ class Estimator(ABC):
         except KeyError:  # the first call: created once, atomically (dict.setdefault holds the GIL)
             return self.__dict__.setdefault("_guard", CallGuard(type(self).__name__))
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
+    def __init_subclass__(cls, **kwargs: object) -> None:
         super().__init_subclass__(**kwargs)
         if isinstance(cls.__dict__.get("from_plant"), classmethod):  # None or a plant class: a clear TypeError
             cls.from_plant = classmethod(_checks_plant(cls.__dict__["from_plant"].__func__))
         ESTIMATOR_REGISTRY.register(cls)  # skips abstract and private classes
 
     @classmethod
-    def from_plant(cls, plant: Any, **options: Any) -> Estimator:
+    def from_plant(cls, plant: Plant, **options: Any) -> Estimator:
         """Build the estimator for ``plant``; the keywords are the ``[estimator]`` table's keys."""
         raise NotImplementedError(f"{cls.__name__} has no from_plant factory")
 
     @abstractmethod
-    def reset(self, x0_hat: Any, P0: Any = None) -> None:
+    def reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
         """Start from the estimate ``x0_hat (n,)`` (and covariance ``P0 (n, n)`` where the filter has one)."""
 
     @abstractmethod
-    def update(self, y: Any, u: Any) -> np.ndarray:
+    def update(self, y: Vector, u: Vector) -> np.ndarray:
         """Take the measurement ``y (p,)`` and the input ``u (m,)`` held over the last step; return ``x_hat (n,)``.
 
         ``u`` is the input applied between the previous measurement and this

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from shinro_ctrl.estimators.base import Estimator
+from shinro_ctrl.types import Vector, Weight
 from shinro_ctrl.validation import as_vector
+
+if TYPE_CHECKING:
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["FullState"]
 
@@ -27,7 +31,7 @@ class FullState(Estimator):
         self._x = np.zeros(self.n)
 
     @classmethod
-    def from_plant(cls, plant: Any, **options: Any) -> FullState:
+    def from_plant(cls, plant: Plant, **options: Any) -> FullState:
         """The identity estimator for ``plant`` (takes no options)."""
         if options:
             from shinro_ctrl.errors import ConfigError
@@ -35,11 +39,11 @@ class FullState(Estimator):
             raise ConfigError(f"[estimator] FullState takes no keys, got {sorted(options)}")
         return cls(plant.state_dim)
 
-    def reset(self, x0_hat: Any, P0: Any = None) -> None:
+    def reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
         """Nothing to forget; ``x0_hat`` is only checked."""
         self._x = as_vector("x0_hat", x0_hat, self.n).copy()
 
-    def update(self, y: Any, u: Any) -> np.ndarray:
+    def update(self, y: Vector, u: Vector) -> np.ndarray:
         """Return ``y`` (the full state) unchanged."""
         return y
 

@@ -25,7 +25,8 @@ a scenario's ``[sim] process_noise`` and ``sensor_noise`` standard deviations
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import casadi as cs
 import numpy as np
@@ -34,7 +35,11 @@ from shinro_ctrl.analysis.structure import check_detectable
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.estimators._linear import measured_indices, noise_covariance, process_noise_input, seen_from
 from shinro_ctrl.estimators.base import Estimator
+from shinro_ctrl.types import Matrix, Vector, Weight
 from shinro_ctrl.validation import as_vector, measurement_matrix, state_space, weight_matrix
+
+if TYPE_CHECKING:
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["DISTURBANCE_MODELS", "ExtendedKalmanFilter", "KalmanFilter", "rk4_step"]
 
@@ -91,19 +96,19 @@ class KalmanFilter(Estimator):
 
     def __init__(
         self,
-        A: Any,
-        B: Any,
-        C: Any,
-        Qn: Any,
-        Rn: Any,
+        A: Matrix,
+        B: Matrix,
+        C: Matrix,
+        Qn: Weight,
+        Rn: Weight,
         *,
         Qn_on: str = "input",
         steady_state: bool = True,
-        x0: Any = None,
-        u0: Any = None,
+        x0: Vector | None = None,
+        u0: Vector | None = None,
         disturbance_model: str | None = None,
-        Qd: Any = None,
-        state_names: Any = None,
+        Qd: Weight | None = None,
+        state_names: Sequence[str] | None = None,
     ):
         A, B = state_space(A, B)
         n, m = B.shape
@@ -171,18 +176,18 @@ class KalmanFilter(Estimator):
     @classmethod
     def from_plant(
         cls,
-        plant: Any,
+        plant: Plant,
         *,
-        measured: Any = None,
-        Qn: Any,
-        Rn: Any,
+        measured: Sequence[str | int] | str | int | None = None,
+        Qn: Weight,
+        Rn: Weight,
         Qn_on: str = "input",
         steady_state: bool = True,
-        x0: Any = None,
-        u0: Any = None,
+        x0: Vector | None = None,
+        u0: Vector | None = None,
         discretization: str = "zoh",
         disturbance_model: str | None = None,
-        Qd: Any = None,
+        Qd: Weight | None = None,
     ) -> KalmanFilter:
         """The filter on ``plant`` linearized at ``(x0, u0)`` (default its equilibrium), discretized at ``dt``.
 
@@ -212,12 +217,12 @@ class KalmanFilter(Estimator):
         est.model = lm
         return est
 
-    def reset(self, x0_hat: Any, P0: Any = None) -> None:
+    def reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
         """Start from ``x0_hat (n,)`` (or ``(n + m,)`` with the disturbance) and, time-varying, ``P0`` (default I)."""
         with self._busy:
             self._reset(x0_hat, P0)
 
-    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
+    def _reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
         N = self.n_aug
         if self.disturbance_model is not None and np.shape(x0_hat) == (self.n,):
             x0_hat = np.concatenate([np.asarray(x0_hat, dtype=float), np.zeros(self.m)])
@@ -231,7 +236,7 @@ class KalmanFilter(Estimator):
             self.P = np.eye(N) if P0 is None else weight_matrix("P0", P0, N)
         self._first = True
 
-    def update(self, y: Any, u: Any) -> np.ndarray:
+    def update(self, y: Vector, u: Vector) -> np.ndarray:
         """Predict with ``u (m,)`` (skipped on the first call after :meth:`reset`), correct with ``y (p,)``.
 
         Returns:
@@ -245,7 +250,7 @@ class KalmanFilter(Estimator):
         finally:
             guard.release()
 
-    def _update(self, y: Any, u: Any) -> np.ndarray:
+    def _update(self, y: Vector, u: Vector) -> np.ndarray:
         y = as_vector("y", y, self.p)
         if self.steady_state and not self._first:  # fused fast path
             z = self._z
@@ -293,7 +298,7 @@ class KalmanFilter(Estimator):
         return f"KalmanFilter(n={self.n}, measured={self.measured}, {kind}, disturbance_model={self.disturbance_model})"
 
 
-def rk4_step(f: cs.Function, x: Any, u: Any, dt: float) -> Any:
+def rk4_step(f: cs.Function, x: cs.SX | cs.MX | cs.DM, u: cs.SX | cs.MX | cs.DM, dt: float) -> cs.SX | cs.MX | cs.DM:
     """One classical RK4 step ``x + dt/6 (k1 + 2 k2 + 2 k3 + k4)`` of ``ẋ = f(x, u)`` with ``u`` held."""
     k1 = f(x, u)
     k2 = f(x + 0.5 * dt * k1, u)
@@ -327,7 +332,7 @@ class ExtendedKalmanFilter(Estimator):
         step_function: ``casadi.Function`` ``(x, u) -> (x_next, F_x, F_u)``.
     """
 
-    def __init__(self, plant: Any, C: Any, Qn: Any, Rn: Any, *, Qn_on: str = "input"):
+    def __init__(self, plant: Plant, C: Matrix, Qn: Weight, Rn: Weight, *, Qn_on: str = "input"):
         n, m = plant.state_dim, plant.input_dim
         C = measurement_matrix(C, n)
         p = C.shape[0]
@@ -364,7 +369,7 @@ class ExtendedKalmanFilter(Estimator):
         Qw = Fu @ Q @ Fu.T if self.Qn_on == "input" else Q
         Pm = Fx @ P @ Fx.T + Qw
 
-        def correct(xb: Any, Pb: Any) -> tuple[Any, Any, Any]:
+        def correct(xb: cs.SX, Pb: cs.SX) -> tuple[cs.SX, cs.SX, cs.SX]:
             S = C @ Pb @ C.T + R
             K = cs.solve(S, C @ Pb).T
             ImC = cs.DM.eye(n) - K @ C
@@ -404,12 +409,18 @@ class ExtendedKalmanFilter(Estimator):
 
     @classmethod
     def from_plant(
-        cls, plant: Any, *, measured: Any = None, Qn: Any, Rn: Any, Qn_on: str = "input"
+        cls,
+        plant: Plant,
+        *,
+        measured: Sequence[str | int] | str | int | None = None,
+        Qn: Weight,
+        Rn: Weight,
+        Qn_on: str = "input",
     ) -> ExtendedKalmanFilter:
         """The EKF of ``plant`` measuring the named states (default all); see the class for the noise."""
         return cls(plant, plant.output_matrix(measured), Qn, Rn, Qn_on=Qn_on)
 
-    def step_jacobians(self, x: Any, u: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def step_jacobians(self, x: Vector, u: Vector) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The RK4 step and its exact Jacobians at ``(x (n,), u (m,))``: ``(x_next (n,), F_x (n, n), F_u (n, m))``."""
         xn, Fx, Fu = self.step_function(as_vector("x", x, self.n), as_vector("u", u, self.m))
         return np.asarray(xn).reshape(-1), np.asarray(Fx), np.asarray(Fu)
@@ -424,17 +435,17 @@ class ExtendedKalmanFilter(Estimator):
         """Covariance of the current estimate ``(n, n)``."""
         return self._P.copy()
 
-    def reset(self, x0_hat: Any, P0: Any = None) -> None:
+    def reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
         """Start from ``x0_hat (n,)`` with covariance ``P0 (n, n)`` (default the identity)."""
         with self._busy:
             self._reset(x0_hat, P0)
 
-    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
+    def _reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
         self._x[:] = as_vector("x0_hat", x0_hat, self.n)
         self._P[:] = np.eye(self.n) if P0 is None else weight_matrix("P0", P0, self.n)
         self._first = True
 
-    def update(self, y: Any, u: Any) -> np.ndarray:
+    def update(self, y: Vector, u: Vector) -> np.ndarray:
         """Predict one RK4 step with ``u (m,)`` (skipped right after :meth:`reset`), correct with ``y (p,)``."""
         guard = self._busy
         if not guard.acquire(False):
@@ -444,7 +455,7 @@ class ExtendedKalmanFilter(Estimator):
         finally:
             guard.release()
 
-    def _update(self, y: Any, u: Any) -> np.ndarray:
+    def _update(self, y: Vector, u: Vector) -> np.ndarray:
         self._y[:] = as_vector("y", y, self.p)
         if self._first:
             self._first = False

@@ -17,7 +17,8 @@ in deviations from the operating point. The estimation error obeys
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,7 +26,11 @@ from shinro_ctrl.analysis.structure import check_detectable
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.estimators._linear import measured_indices, seen_from
 from shinro_ctrl.estimators.base import Estimator
+from shinro_ctrl.types import Matrix, Poles, Vector, Weight
 from shinro_ctrl.validation import as_vector, measurement_matrix, state_space
+
+if TYPE_CHECKING:
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["Luenberger"]
 
@@ -55,14 +60,14 @@ class Luenberger(Estimator):
 
     def __init__(
         self,
-        A: Any,
-        B: Any,
-        C: Any,
-        poles: Any,
+        A: Matrix,
+        B: Matrix,
+        C: Matrix,
+        poles: Poles,
         *,
-        x0: Any = None,
-        u0: Any = None,
-        state_names: Any = None,
+        x0: Vector | None = None,
+        u0: Vector | None = None,
+        state_names: Sequence[str] | None = None,
     ):
         A, B = state_space(A, B)
         n, m = B.shape
@@ -109,12 +114,12 @@ class Luenberger(Estimator):
     @classmethod
     def from_plant(
         cls,
-        plant: Any,
+        plant: Plant,
         *,
-        measured: Any = None,
-        poles: Any,
-        x0: Any = None,
-        u0: Any = None,
+        measured: Sequence[str | int] | str | int | None = None,
+        poles: Poles,
+        x0: Vector | None = None,
+        u0: Vector | None = None,
         discretization: str = "zoh",
     ) -> Luenberger:
         """The observer of ``plant`` linearized at ``(x0, u0)`` (default its equilibrium).
@@ -132,18 +137,18 @@ class Luenberger(Estimator):
         est.model = lm
         return est
 
-    def reset(self, x0_hat: Any, P0: Any = None) -> None:
+    def reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
         """Start from ``x0_hat (n,)``; an observer has no covariance, so ``P0`` must be None."""
         with self._busy:
             self._reset(x0_hat, P0)
 
-    def _reset(self, x0_hat: Any, P0: Any = None) -> None:
+    def _reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
         if P0 is not None:
             raise InvalidArgument("P0: a Luenberger observer has no covariance")
         self._z[:] = as_vector("x0_hat", x0_hat, self.n) - self.x0
         self._first = True
 
-    def update(self, y: Any, u: Any) -> np.ndarray:
+    def update(self, y: Vector, u: Vector) -> np.ndarray:
         """Predict with ``u (m,)`` (skipped right after :meth:`reset`) and correct with ``y (p,)``; ``x̂ (n,)``."""
         guard = self._busy
         if not guard.acquire(False):
@@ -153,7 +158,7 @@ class Luenberger(Estimator):
         finally:
             guard.release()
 
-    def _update(self, y: Any, u: Any) -> np.ndarray:
+    def _update(self, y: Vector, u: Vector) -> np.ndarray:
         y = as_vector("y", y, self.p)
         z = self._z
         if self._first:

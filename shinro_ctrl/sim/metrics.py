@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -139,7 +138,7 @@ def bound_excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | Non
     return out
 
 
-def settling_time(t: np.ndarray, last_outside: Any) -> np.ndarray:
+def settling_time(t: np.ndarray, last_outside: int | np.ndarray) -> np.ndarray:
     """Settling time from the index of the last sample outside the tolerance band.
 
     The run has settled at ``t[k + 1]`` when sample ``k`` is the last whose

@@ -12,12 +12,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from shinro_ctrl.disturbances import DisturbanceProfile, disturbance_profile, noise_stream
 from shinro_ctrl.errors import ConfigError, ShinroError
+from shinro_ctrl.types import Weight
+
+if TYPE_CHECKING:
+    from shinro_ctrl.config import Scenario
+    from shinro_ctrl.controllers.base import Controller
+    from shinro_ctrl.estimators.base import Estimator
+    from shinro_ctrl.plants.base import Plant
 
 __all__ = ["LOOP_KEYS", "LoopSignals", "build_estimator", "estimation_metrics", "loop_signals", "uses_estimation"]
 
@@ -28,13 +35,13 @@ LOOP_KEYS = ("initial_estimate", "P0")
 _RN_FLOOR, _QN_FLOOR = 1e-8, 1e-6
 
 
-def uses_estimation(scenario: Any) -> bool:
+def uses_estimation(scenario: Scenario) -> bool:
     """Whether the scenario measures less than the full noiseless state (estimation metrics are then reported)."""
     s = scenario.sim
     return bool(scenario.estimator is not None or s.measured is not None or s.sensor_noise is not None)
 
 
-def _default_noise(scenario: Any, options: dict[str, Any], plant: Any, est_type: str) -> dict[str, Any]:
+def _default_noise(scenario: Scenario, options: dict[str, Any], plant: Plant, est_type: str) -> dict[str, Any]:
     """``Qn`` / ``Rn`` from ``process_noise`` / ``sensor_noise`` (squared, floored) where the table omits them."""
     s = scenario.sim
     out = dict(options)
@@ -50,7 +57,9 @@ def _default_noise(scenario: Any, options: dict[str, Any], plant: Any, est_type:
     return out
 
 
-def build_estimator(scenario: Any, plant: Any, controller: Any, src: str) -> tuple[Any, Any, Any]:
+def build_estimator(
+    scenario: Scenario, plant: Plant, controller: Controller, src: str
+) -> tuple[Estimator, np.ndarray | None, Weight | None]:
     """The estimator of a scenario, with its initial estimate and covariance.
 
     * No ``[estimator]`` table: :class:`FullState`, unless the controller
@@ -106,13 +115,13 @@ def build_estimator(scenario: Any, plant: Any, controller: Any, src: str) -> tup
     return est, x_init, P0
 
 
-def _keywords(cls: Any) -> tuple[str, ...]:
+def _keywords(cls: type[Estimator]) -> tuple[str, ...]:
     import inspect
 
     return tuple(inspect.signature(cls.from_plant).parameters)
 
 
-def _u0(controller: Any, plant: Any) -> list[float] | None:
+def _u0(controller: Controller, plant: Plant) -> list[float] | None:
     u0 = getattr(controller, "u0", None)
     if u0 is not None and np.shape(u0) == (plant.input_dim,):
         return list(np.asarray(u0, dtype=float))
@@ -138,7 +147,7 @@ class LoopSignals:
     forces: list[tuple[str, np.ndarray, np.ndarray]]
 
 
-def loop_signals(scenario: Any, plant: Any, t: np.ndarray, p: int) -> LoopSignals:
+def loop_signals(scenario: Scenario, plant: Plant, t: np.ndarray, p: int) -> LoopSignals:
     """Draw the sensor noise ``(T + 1, p)``, process noise and disturbances ``(T, ·)`` of a run on the grid ``t``."""
     s = scenario.sim
     T = t.shape[0] - 1

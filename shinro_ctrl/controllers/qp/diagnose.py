@@ -8,7 +8,7 @@ otherwise from the largest constraint violation of the last iterate.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -16,7 +16,35 @@ from numpy.typing import ArrayLike
 
 from shinro_ctrl.controllers.qp.sparse import RowGroup
 
-__all__ = ["describe_groups", "diagnose", "explain_certificate", "fmt"]
+__all__ = ["OsqpInfo", "OsqpIterate", "describe_groups", "diagnose", "explain_certificate", "fmt"]
+
+
+class OsqpInfo(Protocol):
+    """What :func:`diagnose` reads of a solver's info (OSQP's ``result.info``)."""
+
+    @property
+    def status(self) -> str:
+        """The solver's status text (``"primal infeasible"`` …)."""
+        ...
+
+    @property
+    def iter(self) -> int:
+        """Iterations taken."""
+        ...
+
+
+class OsqpIterate(Protocol):
+    """What :func:`diagnose` reads of a solver's last iterate (OSQP's ``result``)."""
+
+    @property
+    def x(self) -> ArrayLike:
+        """The primal iterate ``(n_var,)``."""
+        ...
+
+    @property
+    def prim_inf_cert(self) -> ArrayLike | None:
+        """The primal infeasibility certificate ``(n_con,)``, when the solver found one."""
+        ...
 
 
 def fmt(v: ArrayLike) -> str:
@@ -30,7 +58,13 @@ def describe_groups(groups: Sequence[RowGroup]) -> str:
 
 
 def diagnose(
-    x: np.ndarray, info: Any, sol: Any, A: sp.csc_matrix, l: np.ndarray, u: np.ndarray, groups: list[RowGroup]
+    x: np.ndarray,
+    info: OsqpInfo,
+    sol: OsqpIterate,
+    A: sp.csc_matrix,
+    l: np.ndarray,
+    u: np.ndarray,
+    groups: list[RowGroup],
 ) -> str:
     """Name the constraint group and stage behind a failed solve.
 
