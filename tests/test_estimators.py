@@ -9,7 +9,7 @@ import scipy.linalg
 
 from shinro_ctrl.backend import NumpyBackend
 from shinro_ctrl.controllers import LQR
-from shinro_ctrl.errors import InvalidArgument, NotStabilizable, ShinroError
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, NotStabilizable, ShinroError
 from shinro_ctrl.estimators import estimator_class
 from shinro_ctrl.estimators.kalman import ExtendedKalmanFilter, KalmanFilter
 from shinro_ctrl.estimators.luenberger import Luenberger
@@ -332,3 +332,19 @@ def test_an_estimator_shared_between_threads_refuses_the_second_caller(kind):
     for est in (shared, fresh):
         est.reset(np.zeros(4))
     np.testing.assert_array_equal(shared.update(y1, u), fresh.update(y1, u))
+
+
+@pytest.mark.parametrize("kind", list(_estimators(CartPole())))
+@pytest.mark.parametrize("u", [[np.inf], [np.nan], [-np.inf], [0.0, 0.0]], ids=["inf", "nan", "-inf", "too long"])
+@pytest.mark.parametrize("first", [True, False], ids=["first call", "later call"])
+def test_update_refuses_a_bad_input_also_on_the_first_call(kind, u, first):
+    """The first update after reset skips the prediction, but a non-finite or misshapen ``u`` is refused there too."""
+    est = _estimators(CartPole())[kind]()
+    est.reset(np.zeros(4))
+    if not first:
+        est.update([0.0, 0.0], [0.0])
+    before = est.update([0.0, 0.0], [0.0]).copy() if not first else None
+    with pytest.raises((NonFiniteError, InvalidArgument), match=r"\bu\b"):
+        est.update([0.0, 0.0], u)
+    if before is not None:
+        assert np.all(np.isfinite(est.update([0.0, 0.0], [0.0])))

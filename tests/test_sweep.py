@@ -319,6 +319,10 @@ def test_cli_writes_table_json_and_plot(tmp_path):
         ("plant.pole_mass=0.5:0.1", "LO must be <= HI"),
         ("plant.pole_mas=0.1:0.5", "did you mean 'plant.pole_mass'"),
         ("sim.duration=1:2", "only [plant] parameters"),
+        ("plant.pole_mass=-1:-0.5", "pole_mass must be positive"),  # both ends outside the plant's values
+        ("plant.pole_mass=0:0", "pole_mass must be positive"),
+        ("plant.pole_length=0:1", "pole_length must be positive"),  # one end outside
+        ("plant.cart_mass=-2:3", "cart_mass must be positive"),
     ],
 )
 def test_cli_bad_sweeps_exit_2_with_one_line(tmp_path, param, expected):
@@ -340,3 +344,17 @@ def test_controllers_with_memory_do_not_carry_state_between_samples():
         assert alone.rows[0].error == row.error
         for m in TABLE_METRICS:
             assert _same(alone.rows[0].metrics[m], row.metrics[m], 0.0), m
+
+
+@pytest.mark.parametrize("key", ["plant.pole_mass", "plant.cart_mass", "plant.pole_length"])
+def test_a_range_with_an_invalid_end_is_refused_before_any_sample_runs(key):
+    with pytest.raises(ConfigError, match=rf"sweep range {key} = -1:1 leaves the plant's valid values"):
+        run_sweep("cartpole_lqr", {key: (-1.0, 1.0)}, samples=2, method="serial")
+
+
+def test_a_constant_parameter_sweeps_one_value_without_a_warning(tmp_path):
+    """LO = HI is a valid (degenerate) range: every sample has that value and the plot keeps automatic limits."""
+    proc = _cli("sweep", CARTPOLE, "--param", "plant.pole_mass=0.2:0.2", "--samples", "2", "--out", str(tmp_path / "s"))
+    assert proc.returncode == 0 and "warning" not in proc.stderr, proc.stderr
+    rows = list(csv.DictReader((tmp_path / "s" / "sweep.csv").open()))
+    assert [float(r["plant.pole_mass"]) for r in rows] == [0.2, 0.2]

@@ -252,11 +252,12 @@ class KalmanFilter(Estimator):
 
     def _update(self, y: Vector, u: Vector) -> np.ndarray:
         y = as_vector("y", y, self.p)
+        u = as_vector("u", u, self.m)  # checked also on the first call, whose prediction is skipped
         if self.steady_state and not self._first:  # fused fast path
             z = self._z
             np.subtract(y, self._yoff, out=self._nu)
             np.dot(self._Phi, z, out=self._zbar)
-            self._zbar += self._Gam @ (as_vector("u", u, self.m) - self.u0)
+            self._zbar += self._Gam @ (u - self.u0)
             self._zbar += self.M @ self._nu
             z[:] = self._zbar
             out = z + self._xoff
@@ -268,7 +269,6 @@ class KalmanFilter(Estimator):
             if not self.steady_state:
                 self.P_prior = self.P
         else:
-            u = as_vector("u", u, self.m)
             np.dot(self.A, self._z, out=zbar)
             zbar += self.B @ (u - self.u0)
             if not self.steady_state:
@@ -457,11 +457,12 @@ class ExtendedKalmanFilter(Estimator):
 
     def _update(self, y: Vector, u: Vector) -> np.ndarray:
         self._y[:] = as_vector("y", y, self.p)
+        u = as_vector("u", u, self.m)  # checked also on the first call, whose prediction is skipped
         if self._first:
             self._first = False
             self._evals[1][1]()
         else:
-            self._u[:] = as_vector("u", u, self.m)
+            self._u[:] = u
             self._evals[0][1]()
         # The buffers read _x/_P and wrote _xo/_Po (column-major of Pᵀ = P, symmetric).
         self._x[:] = self._xo

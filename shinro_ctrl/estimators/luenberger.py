@@ -160,6 +160,7 @@ class Luenberger(Estimator):
 
     def _update(self, y: Vector, u: Vector) -> np.ndarray:
         y = as_vector("y", y, self.p)
+        u = as_vector("u", u, self.m)  # checked also on the first call, whose prediction is skipped
         z = self._z
         if self._first:
             self._first = False
@@ -169,7 +170,7 @@ class Luenberger(Estimator):
         else:
             np.subtract(y, self._yoff, out=self._nu)
             np.dot(self._Phi, z, out=self._zbar)
-            self._zbar += self._Gam @ (as_vector("u", u, self.m) - self.u0)
+            self._zbar += self._Gam @ (u - self.u0)
             self._zbar += self.M @ self._nu
             z[:] = self._zbar
         return z + self.x0

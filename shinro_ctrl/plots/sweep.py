@@ -3,6 +3,7 @@ parameter."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -90,8 +91,8 @@ def _map_figure(
     for ax in (ax_map, ax_metric):
         ax.set_xlabel(_param_label(keys[0]))
         ax.set_ylabel(_param_label(keys[1]))
-        ax.set_xlim(*result.ranges[keys[0]])
-        ax.set_ylim(*result.ranges[keys[1]])
+        _set_span(ax.set_xlim, result.ranges[keys[0]])
+        _set_span(ax.set_ylim, result.ranges[keys[1]])
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
@@ -165,7 +166,7 @@ def _marginals_figure(
         strip.set_ylim(-1, 1)
         strip.set_ylabel("raised", rotation=0, ha="right", va="center", fontsize=8)
         strip.set_xlabel(_param_label(key))
-        strip.set_xlim(*result.ranges[key])
+        _set_span(strip.set_xlim, result.ranges[key])
         strip.grid(alpha=0.3, axis="x")
     handles: dict[str, Any] = {}
     for ax in fig.axes:
@@ -216,3 +217,9 @@ def _shade_stable_runs(ax: Any, v: np.ndarray, stable: np.ndarray, failed: np.nd
             if end > start:
                 ax.axvspan(vs[start], vs[end], color="tab:green", alpha=0.12, lw=0, label="stable interval")
             start = None
+
+
+def _set_span(set_lim: Callable[[float, float], object], span: tuple[float, float]) -> None:
+    """Set an axis to a swept range; a constant parameter (LO = HI) keeps matplotlib's automatic limits."""
+    if span[0] < span[1]:
+        set_lim(*span)

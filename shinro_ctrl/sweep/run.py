@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.config import load_scenario, parse_scenario
-from shinro_ctrl.errors import ConfigError
+from shinro_ctrl.errors import ConfigError, InvalidArgument
 from shinro_ctrl.progress import Progress
 from shinro_ctrl.sim.metrics import METRICS
 from shinro_ctrl.sweep.executors import SweepJob, batch_reason, build_nominal, run_batch, run_dask, run_pool, run_serial
@@ -119,7 +119,15 @@ def _parse_checked(doc: dict[str, Any], source: str | None, ranges: Mapping[str,
     from shinro_ctrl.plants import plant_class
 
     scenario = parse_scenario(doc, source=source or "<dict>", path=Path(source) if source else None)
-    check_keys(ranges, sweep_keys(plant_class(scenario.plant.type).from_config(scenario.plant.params)))
+    cls = plant_class(scenario.plant.type)
+    check_keys(ranges, sweep_keys(cls.from_config(scenario.plant.params)))
+    for key, (lo, hi) in ranges.items():  # each end of each range must be a valid plant (e.g. a mass > 0)
+        name = key.removeprefix("plant.")
+        for value in dict.fromkeys((lo, hi)):
+            try:
+                cls.from_config({**scenario.plant.params, name: value})
+            except (ConfigError, InvalidArgument) as exc:
+                raise ConfigError(f"sweep range {key} = {lo:g}:{hi:g} leaves the plant's valid values: {exc}") from None
     return scenario
 
 
