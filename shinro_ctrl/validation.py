@@ -17,6 +17,7 @@ import numpy as np
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 
 __all__ = [
+    "MAX_MODEL_ENTRY",
     "all_finite",
     "as_matrix",
     "as_vector",
@@ -211,6 +212,10 @@ def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False, rtol
     return W
 
 
+#: Largest model-matrix entry a design accepts: products like ``Aᵀ S A`` stay within float64 up to about 1e100.
+MAX_MODEL_ENTRY = 1e100
+
+
 def state_space(A: Any, B: Any) -> tuple[np.ndarray, np.ndarray]:
     """Validate a linear pair: ``A`` square ``(n, n)``, ``B`` ``(n, m)`` (a ``(n,)`` vector means m = 1).
 
@@ -219,7 +224,7 @@ def state_space(A: Any, B: Any) -> tuple[np.ndarray, np.ndarray]:
 
     Raises:
         InvalidArgument: not numeric, wrong shapes, or empty.
-        NonFiniteError: NaN or inf.
+        NonFiniteError: NaN or inf, or an entry above :data:`MAX_MODEL_ENTRY`.
     """
     try:
         A_ = np.atleast_2d(real_array("A", A))
@@ -241,6 +246,14 @@ def state_space(A: Any, B: Any) -> tuple[np.ndarray, np.ndarray]:
     for name, M in (("A", A_), ("B", B_)):
         if not np.all(np.isfinite(M)):
             raise NonFiniteError(f"{name} must be finite")
+        big = np.abs(M)
+        if big.max() > MAX_MODEL_ENTRY:
+            i, j = np.unravel_index(int(np.argmax(big)), M.shape)
+            raise NonFiniteError(
+                f"{name}[{i}, {j}] = {M[i, j]:.3g} is too large for a design (|entry| <= {MAX_MODEL_ENTRY:.0e}): "
+                "the products of a Riccati or pole-placement step overflow float64; check the model's "
+                "parameters and units"
+            )
     return A_, B_
 
 

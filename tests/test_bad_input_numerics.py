@@ -129,3 +129,45 @@ def test_a_huge_input_to_step_is_finite_or_our_error_and_never_a_numpy_warning(n
         except ShinroError:
             return
     assert np.isfinite(plant.get_state()).all()
+
+
+def _linear_designs():
+    import numpy as np
+
+    from shinro_ctrl.controllers import LQR, LinearMPC
+    from shinro_ctrl.estimators.kalman import KalmanFilter
+    from shinro_ctrl.estimators.luenberger import Luenberger
+
+    C = np.array([[1.0, 0.0]])
+    return {
+        "LQR": lambda A, B: LQR(A, B, np.eye(2), np.eye(1)),
+        "LinearMPC": lambda A, B: LinearMPC(A, B, np.eye(2), np.eye(1), 10),
+        "KalmanFilter": lambda A, B: KalmanFilter(A, B, C, np.eye(1), np.eye(1)),
+        "Luenberger": lambda A, B: Luenberger(A, B, C, [0.5, 0.6]),
+    }
+
+
+@pytest.mark.parametrize("kind", ["LQR", "LinearMPC", "KalmanFilter", "Luenberger"])
+@pytest.mark.parametrize(("where", "value"), [("A", -2e298), ("A", 1e101), ("B", 3e200)])
+def test_a_model_too_large_for_the_design_arithmetic_is_named(kind, where, value):
+    """Finite but huge model entries (an MJCF with gravity 1e300) are refused naming the entry, not by a numpy
+    'Array must not contain infs or NaNs' from inside the Riccati or PBH arithmetic."""
+    import numpy as np
+
+    from shinro_ctrl.errors import NonFiniteError
+
+    A = np.array([[1.0, 0.01], [0.1, 1.0]])
+    B = np.array([[0.0], [0.01]])
+    (A if where == "A" else B)[1, 0] = value
+    with pytest.raises(NonFiniteError, match=rf"{where}\[1, 0\] = .* is too large for a design"):
+        _linear_designs()[kind](A, B)
+
+
+@pytest.mark.parametrize("kind", ["LQR", "LinearMPC", "KalmanFilter", "Luenberger"])
+def test_a_large_but_workable_model_is_designed(kind):
+    """1e8 entries (a stiff joint) stay within the arithmetic: designed, not refused."""
+    import numpy as np
+
+    A = np.array([[1.0, 1e-4], [-1e8 * 1e-4, 1.0]])
+    B = np.array([[0.0], [1e-4]])
+    _linear_designs()[kind](A, B)
