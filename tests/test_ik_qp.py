@@ -360,3 +360,23 @@ def test_threads_one_ikqp_shared_by_four_threads_equals_a_serial_run(arm, near_t
     for a, b in zip(serial, threaded, strict=True):
         for ra, rb in zip(a, b, strict=True):
             np.testing.assert_allclose(ra, rb, rtol=0, atol=1e-8)
+
+
+@pytest.mark.parametrize("far", [1e6 * 1.001, 1e300, -1e200])
+@pytest.mark.parametrize("form", ["pose", "transform"])
+@pytest.mark.parametrize("method", ["solve", "track", "step", "build_qp"])
+def test_a_target_beyond_any_reach_is_refused_in_one_line(ik, arm, far, form, method):
+    """A reference of absurd size (a circle of radius 1e300 m) was a LinAlgError from inside the QP."""
+    pose = np.array([0.3, far, 0.4, 0.0, 0.0, 0.0])
+    target = pose if form == "pose" else pose_to_transform(pose)
+    with pytest.raises(InvalidArgument, match=r"farther than 1e\+06 m from the base"):
+        if method == "solve":
+            ik.solve(target, np.zeros(6))
+        else:
+            getattr(ik, method)(np.zeros(6), target)
+
+
+def test_a_far_but_bounded_target_is_tracked_without_error(ik, arm):
+    """1e5 m is unreachable but allowed: the closest configuration, finite."""
+    q = ik.track(np.zeros(6), np.array([1e5, 0.0, 0.4, 0.0, 0.0, 0.0]))
+    assert np.all(np.isfinite(q))

@@ -27,7 +27,10 @@ if TYPE_CHECKING:
 
     from shinro_ctrl.plants.armrobot import ArmRobot
 
-__all__ = ["IKKernel", "IKProblem", "IKStep"]
+__all__ = ["MAX_TARGET_DISTANCE", "IKKernel", "IKProblem", "IKStep"]
+
+#: Farthest target position [m] from the arm's base an IK call accepts (far beyond any arm's reach).
+MAX_TARGET_DISTANCE = 1e6
 
 _SOLVED = int(osqp.SolverStatus.OSQP_SOLVED)
 _USABLE = {
@@ -277,19 +280,32 @@ class IKKernel:
         return P
 
     def target(self, target: ArrayLike, name: str = "target") -> tuple[np.ndarray, np.ndarray]:
-        """``(p (3,), R (3, 3))`` of a transform (4, 4), a pose (6,) or (position task) a point (3,)."""
+        """``(p (3,), R (3, 3))`` of a transform (4, 4), a pose (6,) or (position task) a point (3,).
+
+        Raises:
+            InvalidArgument: a wrong shape, or a position farther than :data:`MAX_TARGET_DISTANCE` from the
+                base (no arm reaches it, and its task error would overflow the QP's arithmetic).
+            NonFiniteError: NaN or inf.
+        """
         a = np.asarray(target, dtype=float)
         if a.shape == (4, 4):
             if not math.isfinite(float(a.sum())):
                 as_matrix(name, a, (4, 4))  # raises NonFiniteError naming the target
-            return a[:3, 3].copy(), a[:3, :3].copy()
-        if a.shape == (6,):
+            p, R = a[:3, 3].copy(), a[:3, :3].copy()
+        elif a.shape == (6,):
             a = as_vector(name, a, 6)
-            return a[:3].copy(), euler_zyx_to_matrix(a[3:])
-        if a.shape == (3,) and self.k == 3:
-            return as_vector(name, a, 3).copy(), np.eye(3)
-        shapes = "(4, 4) or (6,)" + (" or (3,)" if self.k == 3 else "")
-        raise InvalidArgument(f"{name}: expected shape {shapes} but found {a.shape}")
+            p, R = a[:3].copy(), euler_zyx_to_matrix(a[3:])
+        elif a.shape == (3,) and self.k == 3:
+            p, R = as_vector(name, a, 3).copy(), np.eye(3)
+        else:
+            shapes = "(4, 4) or (6,)" + (" or (3,)" if self.k == 3 else "")
+            raise InvalidArgument(f"{name}: expected shape {shapes} but found {a.shape}")
+        if not -MAX_TARGET_DISTANCE <= p.min() <= p.max() <= MAX_TARGET_DISTANCE:
+            raise InvalidArgument(
+                f"{name}: position {np.array2string(p, precision=3)} m is farther than {MAX_TARGET_DISTANCE:.0e} m "
+                "from the base: no arm reaches it (check the reference's units and size)"
+            )
+        return p, R
 
     def joints(self, q: ArrayLike, name: str) -> np.ndarray:
         """``q`` as a fresh ``(n,)`` array clipped to the limits (validated: shape, finite)."""
