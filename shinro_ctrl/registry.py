@@ -88,7 +88,9 @@ class Registry(Generic[T]):
         """
         cls = self._classes.get(self._aliases.get(name, name))
         if cls is None:
-            raise ConfigError(f"unknown {self.kind} '{name}'{did_you_mean(name, [*self._classes, *self._aliases])}")
+            raise ConfigError(
+                f"unknown {self.kind} type '{name}'{did_you_mean(name, [*self._classes, *self._aliases])}"
+            )
         return cls
 
     def names(self, *, shipped: bool = False) -> list[str]:

@@ -39,7 +39,7 @@ def test_valid_scenario_parses():
         (with_("plant", type="CartPol"), "did you mean 'CartPole'"),
         (with_("plant", cart_mass=-1.0), "cart_mass"),
         (with_("plant", cart_mass="heavy"), "cart_mass"),
-        (with_("controller", type="PID"), "unknown controller 'PID'"),
+        (with_("controller", type="PID"), "unknown controller type 'PID'"),
         (with_("controller", Qq=[1]), "did you mean 'Q'"),
         (with_("controller", x0=[0, 0]), "'x0' must have 4 values"),
         (with_("sim", duration=-1), "'duration' must be positive"),

@@ -169,5 +169,5 @@ def test_a_cli_command_added_from_outside(monkeypatch, capsys):
     assert capsys.readouterr().out == "ExtendingCart: states p, v; inputs F\n"
     assert main(["describe-plant", "extending_crt"]) == 2
     err = capsys.readouterr().err
-    assert err == "error: unknown plant 'extending_crt'; did you mean 'extending_cart'?\n", err
+    assert err == "error: unknown plant type 'extending_crt'; did you mean 'extending_cart'?\n", err
     assert "describe-plant" in cli.build_parser().format_help()

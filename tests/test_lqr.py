@@ -429,3 +429,30 @@ def test_a_tvlqr_whose_plan_ends_off_equilibrium_is_refused_at_its_goal():
             continue
         with pytest.raises(InvalidArgument, match=r"not an equilibrium.*nearest equilibrium input is u0 = \[0\]"):
             TVLQR.from_trajectory(plant, traj, [10, 1, 100, 1], [0.1])
+
+
+@pytest.mark.parametrize(
+    ("plant", "Q"),
+    [
+        (CartPole(), [10, 1, 100, 1, 50]),
+        (CartPole(), np.eye(6)),
+        (InvertedPendulum(), [1, 1, 1]),
+        (DoublePendulum(), [1] * 5),
+    ],
+    ids=["cartpole diag", "cartpole matrix", "pendulum", "double pendulum"],
+)
+def test_more_weights_than_states_without_integral_says_integral_is_missing(plant, Q):
+    from shinro_ctrl.errors import InvalidArgument
+
+    n = plant.state_dim
+    with pytest.raises(
+        InvalidArgument, match=rf"Q weights the {n} states only: weights for integral states need 'integral'"
+    ):
+        LQR.from_plant(plant, Q, np.ones(plant.input_dim))
+
+
+def test_too_few_weights_is_the_plain_shape_error():
+    from shinro_ctrl.errors import InvalidArgument
+
+    with pytest.raises(InvalidArgument, match=r"Q: expected shape \(4,\) but found \(3,\)$"):
+        LQR.from_plant(CartPole(), [1, 1, 1], [0.1])

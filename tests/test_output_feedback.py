@@ -160,6 +160,13 @@ def _with(**tables) -> dict:
         (_with(sim={"measured": ["theta"], "sensor_noise": [0.01]}), r"not detectable.*mostly state 'x'"),
         (_with(estimator={"Rn": [-1, 1]}), r"Rn\[0\] = -1"),
         (_with(estimator={"type": "Luenberger"}), r"poles"),
+        (
+            {**_base(), "sim": {"sensor_noise": [0.01, 0.01]}},  # no 'measured': every state is measured
+            r"'sensor_noise' must have 4 values \(one per measured state; without 'measured' all 4 states",
+        ),
+        ({**_base(), "sim": {"sensor_noise": [0.01] * 5}}, r"without 'measured' all 4 states are measured\), got 5"),
+        (_with(estimator={"type": "123"}), r"unknown estimator type '123'"),
+        (_with(estimator={"type": ""}), r"unknown estimator type ''"),
     ],
 )
 def test_scenario_bad_input(doc, match):

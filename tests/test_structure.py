@@ -144,11 +144,11 @@ def test_one_registry_convention_for_plants_controllers_and_estimators():
 @pytest.mark.parametrize(
     ("lookup", "typo", "message"),
     [
-        (plant_class, "CartPol", "unknown plant 'CartPol'; did you mean 'CartPole'?"),
-        (plant_class, "cartpol", "unknown plant 'cartpol'; did you mean 'cartpole'?"),
-        (controller_class, "LinearMCP", "unknown controller 'LinearMCP'; did you mean 'LinearMPC'?"),
-        (estimator_class, "KalmanFiltr", "unknown estimator 'KalmanFiltr'; did you mean 'KalmanFilter'?"),
-        (estimator_class, "zzzz", "unknown estimator 'zzzz'; valid: "),
+        (plant_class, "CartPol", "unknown plant type 'CartPol'; did you mean 'CartPole'?"),
+        (plant_class, "cartpol", "unknown plant type 'cartpol'; did you mean 'cartpole'?"),
+        (controller_class, "LinearMCP", "unknown controller type 'LinearMCP'; did you mean 'LinearMPC'?"),
+        (estimator_class, "KalmanFiltr", "unknown estimator type 'KalmanFiltr'; did you mean 'KalmanFilter'?"),
+        (estimator_class, "zzzz", "unknown estimator type 'zzzz'; valid: "),
     ],
 )
 def test_an_unknown_name_says_which_was_meant(lookup, typo, message):

@@ -131,6 +131,12 @@ def _parse_output_feedback(ctx: _Ctx, st: Mapping[str, Any], sim: SimConfig, pro
     p = len(sim.measured) if sim.measured is not None else probe.state_dim
     for key, size in (("sensor_noise", p), ("process_noise", probe.input_dim)):
         if key in st:  # one standard deviation per measured state / per input
+            if key == "sensor_noise" and sim.measured is None and isinstance(st[key], list) and len(st[key]) != size:
+                raise ctx.error(
+                    "sim",
+                    f"'sensor_noise' must have {size} values (one per measured state; without 'measured' all "
+                    f"{size} states are measured), got {len(st[key])}",
+                )
             values = ctx.vector("sim", key, st[key], size)
             bad = [i for i, v in enumerate(values) if v < 0]
             if bad:

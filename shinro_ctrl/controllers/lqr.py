@@ -141,6 +141,12 @@ def _design_weight(Q: Weight, size: int, lqi: IntegralAction | None, names: Sequ
         return weight_matrix("Q", Q, size)
     except InvalidArgument as exc:
         if lqi is None:
+            given = np.shape(Q)
+            if len(given) >= 1 and given[0] > size:  # more weights than states: integral weights without integral
+                raise InvalidArgument(
+                    f"{exc}; Q weights the {size} states only: weights for integral states need 'integral' "
+                    "(the states whose error is integrated)"
+                ) from None
             raise
         q = len(lqi.indices)
         n = size - q
