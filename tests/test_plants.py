@@ -389,7 +389,7 @@ def test_a_plant_stepped_from_4_threads_is_correct_or_refuses_with_concurrent_us
 
     def steps():
         done = refused = 0
-        for _ in range(1000):
+        for _ in range(500):  # 2,000 steps at most: the open-loop quadrotor reaches gimbal lock after 2,291
             try:
                 plant.step(u)
                 done += 1
@@ -399,7 +399,7 @@ def test_a_plant_stepped_from_4_threads_is_correct_or_refuses_with_concurrent_us
 
     results = _run_threads(steps, [()] * 4)
     total = sum(d for d, _ in results)
-    assert total + sum(r for _, r in results) == 4000
+    assert total + sum(r for _, r in results) == 2000
     ref = type(plant)()  # the same number of steps, serially: every successful step is F(x, u)
     ref.set_state(x0)
     for _ in range(total):

@@ -36,6 +36,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from shinro_ctrl.concurrency import CallGuard
 from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
 from shinro_ctrl.validation import closest, unknown_keys
 
@@ -248,23 +249,19 @@ class OsqpQP:
         self.settings = dict(settings)
         self._data = (P, q, A, l, u)
         self.prefer_fast = bool(fast)
-        self._token = [True]  # taken while a method runs: a second thread entering finds none
+        self._guard = CallGuard(f"this OSQP problem ({what})")  # held while a method runs
         self._writer: int | None = None  # the thread of the latest update (a solve from another is concurrent use)
         self.setup()
 
     def _enter(self, method: str, *, writes: bool = False) -> None:
-        """Claim the object for one method call (take its token), or raise :class:`ConcurrentUse`."""
-        try:
-            self._token.pop()  # atomic under the GIL: the one token, held by the thread inside a method
-        except IndexError:
-            raise ConcurrentUse(
-                f"OsqpQP.{method} called while another thread is inside this OSQP problem ({self.what})"
-            ) from None
+        """Claim the object for one method call (take its guard), or raise :class:`ConcurrentUse`."""
+        if not self._guard.acquire(False):
+            raise self._guard.refused()
         me = threading.get_ident()
         if writes:
             self._writer = me
         elif self._writer is not None and self._writer != me:
-            self._token.append(True)
+            self._guard.release()
             raise ConcurrentUse(
                 f"OsqpQP.{method} called from another thread than the latest update of this OSQP problem "
                 f"({self.what}): its data may be the other thread's"
@@ -279,7 +276,7 @@ class OsqpQP:
             raw = getattr(self.solver, "_solver", None) if self.prefer_fast else None
             self._raw = raw if raw is not None and all(hasattr(raw, a) for a in self._NEEDED) else None
         finally:
-            self._token.append(True)
+            self._guard.release()
 
     @property
     def fast(self) -> bool:
@@ -322,7 +319,7 @@ class OsqpQP:
                 kwargs["Ax"] = Ax
             self.solver.update(**kwargs)
         finally:
-            self._token.append(True)
+            self._guard.release()
 
     def warm_start(self, x: np.ndarray, y: np.ndarray) -> None:
         """Primal ``x (n,)`` and dual ``y (m,)`` starting iterates for the next solve."""
@@ -333,7 +330,7 @@ class OsqpQP:
             else:
                 self.solver.warm_start(x=x, y=y)
         finally:
-            self._token.append(True)
+            self._guard.release()
 
     def update_settings(self, **settings: Any) -> None:
         """Change settings between solves (e.g. tighter ``eps_abs``/``eps_rel`` for one re-solve).
@@ -346,7 +343,7 @@ class OsqpQP:
             self.solver.update_settings(**settings)
             self.settings.update(settings)
         finally:
-            self._token.append(True)
+            self._guard.release()
 
     def update_rho(self, rho: float) -> None:
         """Set the ADMM step ``rho`` (OSQP adapts it between solves when ``adaptive_rho``)."""
@@ -357,7 +354,7 @@ class OsqpQP:
             else:
                 self.solver.update_settings(rho=rho)
         finally:
-            self._token.append(True)
+            self._guard.release()
 
     def solve(self) -> tuple[Any, Any]:
         """Solve; returns ``(solution, info)`` (``.x``, ``.y``, ``.prim_inf_cert``; ``.status``, ``.iter``, …).
@@ -377,7 +374,7 @@ class OsqpQP:
                 sol = self.solver.solve(raise_error=False)
                 info = sol.info
         finally:
-            self._token.append(True)
+            self._guard.release()
         if info.status_val == _OSQP_SIGINT:
             raise KeyboardInterrupt("OSQP solve interrupted")
         return (raw.solution if raw is not None else sol), info

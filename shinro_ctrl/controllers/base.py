@@ -39,12 +39,12 @@ from __future__ import annotations
 import abc
 import functools
 import inspect
-import threading
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
+from shinro_ctrl.concurrency import CallGuard
+from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.registry import Registry
 from shinro_ctrl.types import Matrix, Vector
 
@@ -52,45 +52,6 @@ if TYPE_CHECKING:
     from shinro_ctrl.plants.base import Plant
 
 __all__ = ["CONTROLLER_REGISTRY", "CallGuard", "Controller", "check_operating_point", "check_plant"]
-
-
-class CallGuard:
-    """Detects a call entering a stateful object while another thread is inside it.
-
-    The code that reads and writes the object's state or buffers runs inside
-    ``if not guard.acquire(False): raise guard.refused()`` ... ``guard.release()``
-    (a non-blocking lock: about 0.1 µs, the bound C methods of a
-    :class:`threading.Lock`), or ``with guard:`` where a few tenths of a µs do
-    not matter. A second thread is refused with
-    :class:`~shinro_ctrl.errors.ConcurrentUse` instead of interleaving. A copy
-    or a pickle of the object gets a fresh guard.
-
-    Args:
-        what: The object's name, for the message.
-    """
-
-    __slots__ = ("acquire", "release", "what")
-
-    def __init__(self, what: str):
-        lock = threading.Lock()
-        self.acquire, self.release, self.what = lock.acquire, lock.release, what
-
-    def refused(self) -> ConcurrentUse:
-        """The error for a call that found the object busy."""
-        return ConcurrentUse(
-            f"{self.what} was called from two threads at once: it keeps state between calls, so its calls "
-            "must come in order from one thread; use one object per thread"
-        )
-
-    def __enter__(self) -> None:
-        if not self.acquire(False):
-            raise self.refused()
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
-
-    def __reduce__(self) -> tuple[type, tuple[str]]:
-        return CallGuard, (self.what,)
 
 
 #: Every concrete :class:`Controller` subclass defined so far, by class name (``Controller.__init_subclass__``).

@@ -41,7 +41,6 @@ solves the same OCP with IPOPT through ``casadi.nlpsol`` (the reference).
 from __future__ import annotations
 
 import dataclasses
-import threading
 import time
 from collections.abc import Sequence
 from dataclasses import replace
@@ -50,12 +49,13 @@ from typing import TYPE_CHECKING
 import casadi as cs
 import numpy as np
 
+from shinro_ctrl.concurrency import CallGuard
 from shinro_ctrl.controllers._nmpc_ipopt import IpoptSolver
 from shinro_ctrl.controllers._nmpc_ocp import PLANT_GIVEN, NMPCOptions, NMPCStrategy, build_ocp, rk4_step
 from shinro_ctrl.controllers._nmpc_rti import RealTimeIteration
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
-from shinro_ctrl.errors import ConcurrentUse, InvalidArgument, MPCInfeasible, NonFiniteError
+from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError
 from shinro_ctrl.types import Weight
 from shinro_ctrl.validation import check_positive
 
@@ -123,7 +123,7 @@ class NonlinearMPC(Controller):
         self.state_names, self.input_names = o.state_names, o.input_names
         self.strategy: NMPCStrategy = IpoptSolver(ocp) if o.solver == "ipopt" else RealTimeIteration(ocp)
         self._ref = ocp.x0.copy()
-        self._busy = threading.Lock()
+        self._busy = CallGuard("NonlinearMPC")
         self.reset()
 
     @classmethod
@@ -224,10 +224,8 @@ class NonlinearMPC(Controller):
         return x
 
     def _enter(self) -> None:
-        if not self._busy.acquire(blocking=False):
-            raise ConcurrentUse(
-                "NonlinearMPC: called while another thread is inside a call; use one controller per thread"
-            )
+        if not self._busy.acquire(False):
+            raise self._busy.refused()
 
     def feedback(self, x: ArrayLike, ref: ArrayLike | None = None) -> np.ndarray:
         """Feedback phase: solve the OCP for the measured ``x (n,)`` (prepared by :meth:`prepare`).

@@ -40,9 +40,10 @@ from typing import TYPE_CHECKING, Any
 import casadi as cs
 import numpy as np
 
+from shinro_ctrl.concurrency import CallGuard
 from shinro_ctrl.controllers.base import Controller
 from shinro_ctrl.controllers.lqr import LQR
-from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
+from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, discretize
 from shinro_ctrl.types import Bound, Weight
 from shinro_ctrl.validation import as_vector, bound_pair, check_positive, weight_matrix
@@ -189,7 +190,7 @@ class TVLQR(Controller):
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
         self.horizon = x_ref.shape[0]
         self.step = 0
-        self._busy = threading.Lock()
+        self._busy = CallGuard("TVLQR")
 
     @classmethod
     def from_trajectory(
@@ -325,8 +326,8 @@ class TVLQR(Controller):
         Raises:
             ConcurrentUse: another thread is inside a call of this object.
         """
-        if not self._busy.acquire(blocking=False):
-            raise ConcurrentUse("TVLQR: called while another thread is inside a call; use one controller per thread")
+        if not self._busy.acquire(False):
+            raise self._busy.refused()
         try:
             x = as_vector("x", x, self.state_dim)
             k = self.step

@@ -417,12 +417,13 @@ class ArmRobot(Plant):
             ConcurrentUse: another thread is stepping this arm.
         """
         u = self._input(u)
-        if not self._step_lock.acquire(False):
-            self._concurrent()
+        guard = self._step_guard
+        if not guard.acquire(False):
+            raise guard.refused()
         try:
             return self._step(u)
         finally:
-            self._step_lock.release()
+            guard.release()
 
     def _step(self, u: np.ndarray) -> np.ndarray:
         x = self.get_state()

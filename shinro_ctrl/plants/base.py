@@ -25,7 +25,6 @@ of :class:`Plant` lists every hook a new plant may implement.
 from __future__ import annotations
 
 import inspect
-import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, is_dataclass
 from typing import TYPE_CHECKING, ClassVar
@@ -34,7 +33,8 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import ArrayBackend, BackendArray, CasadiBackend, ListBackend, NumpyBackend, ScalarBackend
-from shinro_ctrl.errors import ConcurrentUse, ConfigError, InvalidArgument, NonFiniteError
+from shinro_ctrl.concurrency import CallGuard
+from shinro_ctrl.errors import ConfigError, InvalidArgument, NonFiniteError
 from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, ExactJacobian, LinearModel, discretize, fd_jacobians
 from shinro_ctrl.plants.standalone import Engine, StandaloneEngine
 from shinro_ctrl.registry import Registry
@@ -174,7 +174,7 @@ class Plant:
         self._symbolic: dict[bool, cs.Function] = {}
         self._exact: ExactJacobian | None = None
         self._exact_step: ExactJacobian | None = None
-        self._step_lock = threading.Lock()
+        self._step_guard = CallGuard(f"{type(self).__name__}.step")  # a subclass's own step holds it too
         self._standalone = StandaloneEngine(self)
         self._engine: Engine | None = None  # an attached physics engine
         self._sim: Engine = self._standalone  # the engine that holds the state
@@ -630,22 +630,14 @@ class Plant:
             ConcurrentUse: another thread is stepping this plant.
         """
         u = self._input(u)
-        lock = self._step_lock
-        if not lock.acquire(False):
-            self._concurrent()
+        guard = self._step_guard
+        if not guard.acquire(False):
+            raise guard.refused()
         try:
             self._x = x = self._sim.advance(self, u)  # apply, step, read
         finally:
-            lock.release()
+            guard.release()
         return x.copy()
-
-    def _concurrent(self) -> None:
-        """Raise :class:`ConcurrentUse` for a step entered while another thread steps this plant.
-
-        A subclass with its own ``step`` guards it the same way: ``if not self._step_lock.acquire(False):
-        self._concurrent()`` then release in ``finally``.
-        """
-        raise ConcurrentUse(f"{type(self).__name__}.step entered from two threads; use one plant per thread")
 
     def get_state(self) -> np.ndarray:
         """The current state ``(n,)`` (read from the engine when one is attached)."""

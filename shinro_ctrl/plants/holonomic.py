@@ -194,12 +194,13 @@ class HolonomicMobileRobot(Plant):
             NonFiniteError: ``u_world`` holds NaN or inf.
         """
         u = self._input(u_world)
-        if not self._step_lock.acquire(False):
-            self._concurrent()
+        guard = self._step_guard
+        if not guard.acquire(False):
+            raise guard.refused()
         try:
             return self._step(u)
         finally:
-            self._step_lock.release()
+            guard.release()
 
     def _step(self, u: np.ndarray) -> np.ndarray:
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below, not warned about

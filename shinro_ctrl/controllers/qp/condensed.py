@@ -67,6 +67,7 @@ import daqp
 import numpy as np
 from numpy.typing import ArrayLike
 
+from shinro_ctrl.concurrency import CallGuard
 from shinro_ctrl.controllers.qp.condensed_build import INF as _INF
 from shinro_ctrl.controllers.qp.condensed_build import (
     CondensedMatrices,
@@ -78,7 +79,7 @@ from shinro_ctrl.controllers.qp.condensed_build import (
 )
 from shinro_ctrl.controllers.qp.condensed_infeasibility import DenseQP, explain_infeasibility
 from shinro_ctrl.controllers.qp.options import MPCOptions
-from shinro_ctrl.errors import ConcurrentUse, InvalidArgument
+from shinro_ctrl.errors import InvalidArgument
 
 __all__ = [
     "DAQP_STATUS",
@@ -323,7 +324,7 @@ class CondensedQP:
         self._w_lin = np.zeros(n)
         self._c0 = 0.0
         self.dropped_rows = ""
-        self._busy = [True]  # the token of solve(): a second thread inside it finds none (ConcurrentUse)
+        self._busy = CallGuard("CondensedQP.solve")  # a second thread inside solve() is refused
 
     def _setup(self) -> None:
         # A throwaway state-independent set-up (bounds at e0 = 0, no u_prev); every solve updates them.
@@ -412,16 +413,12 @@ class CondensedQP:
             units, new arrays) hold the solution; on failure they are None.
         """
         busy = self._busy
-        try:
-            busy.pop()  # atomic under the GIL: one token, taken by the thread inside solve()
-        except IndexError:
-            raise ConcurrentUse(
-                "CondensedQP.solve called while another thread is solving it; use one per thread"
-            ) from None
+        if not busy.acquire(False):
+            raise busy.refused()
         try:
             return self._solve(x, u_prev)
         finally:
-            busy.append(True)
+            busy.release()
 
     def _solve(self, x: np.ndarray, u_prev: np.ndarray | None) -> DenseSolveInfo:
         mat, x0 = self.matrices, self.options.x0
