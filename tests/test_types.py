@@ -13,7 +13,7 @@ import pytest
 
 from shinro_ctrl.config import parse_scenario
 from shinro_ctrl.config.strict import check_value
-from shinro_ctrl.controllers import LQR, LinearMPC
+from shinro_ctrl.controllers import LQR, TVLQR, LinearMPC, NonlinearMPC
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.estimators import ExtendedKalmanFilter, KalmanFilter, Luenberger
 from shinro_ctrl.types import NUMERIC_ALIASES
@@ -56,6 +56,8 @@ def test_an_unknown_annotation_still_checks_only_structure():
         (KalmanFilter, ("Qn", "Rn", "x0", "u0", "Qd")),
         (ExtendedKalmanFilter, ("Qn", "Rn")),
         (Luenberger, ("poles", "x0", "u0")),
+        (NonlinearMPC, ("Q", "R")),
+        (TVLQR, ("Q", "R")),
     ],
 )
 def test_scenario_keys_are_annotated_with_an_alias(cls, keys):
@@ -84,3 +86,20 @@ def test_estimator_keys_typed_with_aliases_are_refused_by_key(estimator, key, va
     }
     with pytest.raises(ConfigError, match=f"\\[estimator\\] '{key}'"):
         parse_scenario(doc)
+
+
+@pytest.mark.parametrize(
+    "scenario", ["cartpole_lqr", "cartpole_mpc", "cartpole_nmpc_swingup_mujoco", "regression/cartpole_tvlqr_swingup"]
+)
+@pytest.mark.parametrize("key", ["Q", "R"])
+def test_a_string_weight_is_refused_by_the_scenario_checker_for_every_controller(scenario, key):
+    import tomllib
+
+    from shinro_ctrl.errors import ConfigError
+    from shinro_ctrl.resources import config_path
+    from shinro_ctrl.sim import RobotSim
+
+    doc = tomllib.loads(config_path(scenario).read_text())
+    doc["controller"][key] = "abc"
+    with pytest.raises(ConfigError, match=rf"\[controller\] '{key}' must be a number or an array of numbers"):
+        RobotSim.from_config(doc)

@@ -25,6 +25,7 @@ import numpy as np
 from shinro_ctrl.controllers.lqr import riccati_solution
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.types import Bound, Weight
 from shinro_ctrl.validation import as_vector, bound_pair, check_positive, weight_matrix
 
 __all__ = [
@@ -92,14 +93,14 @@ class NMPCOptions:
 
     x0: Sequence[float] | np.ndarray | None = None
     u0: float | Sequence[float] | np.ndarray | None = None
-    u_min: float | Sequence[float] | np.ndarray | None = None
-    u_max: float | Sequence[float] | np.ndarray | None = None
-    x_min: float | Sequence[float] | np.ndarray | None = None
-    x_max: float | Sequence[float] | np.ndarray | None = None
+    u_min: Bound = None
+    u_max: Bound = None
+    x_min: Bound = None
+    x_max: Bound = None
     soft: bool = False
     soft_weight_l1: float = 1e2
     soft_weight_quad: float = 1e2
-    terminal_cost: str | Sequence[float] | Sequence[Sequence[float]] | np.ndarray = "Q"
+    terminal_cost: str | Weight = "Q"
     iterations: int = 1
     tol: float = 1e-6
     solver: str = "auto"
@@ -265,8 +266,8 @@ def rk4_step(f: cs.Function, x: cs.SX, u: cs.SX, h: float) -> cs.SX:
 
 def build_ocp(
     f: cs.Function,
-    Q: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
-    R: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+    Q: Weight,
+    R: Weight,
     horizon: int,
     dt: float,
     options: NMPCOptions,

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -141,8 +140,8 @@ class NonlinearMPC(Controller):
     def from_plant(
         cls,
         plant: Plant,
-        Q: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
-        R: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+        Q: Weight,
+        R: Weight,
         *,
         horizon: int,
         dt: float | None = None,

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import threading
 import weakref
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import casadi as cs
@@ -270,10 +270,10 @@ class TVLQR(Controller):
     def from_plant(
         cls,
         plant: Plant,
-        Q: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
-        R: float | Sequence[float] | Sequence[Sequence[float]] | np.ndarray,
+        Q: Weight,
+        R: Weight,
         *,
-        terminal_cost: str | Sequence[float] | Sequence[Sequence[float]] | np.ndarray = "lqr",
+        terminal_cost: str | Weight = "lqr",
         plan: Mapping[str, Any] | Trajectory | None = None,
         discretization: str = "step",
     ) -> TVLQR:
