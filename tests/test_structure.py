@@ -492,3 +492,52 @@ def test_only_the_osqp_adapter_mentions_the_private_solver():
     files = [*PACKAGE.rglob("*.py"), *TESTS.rglob("*.py"), *(PACKAGE.parent / "benchmarks").rglob("*.py")]
     bad = [str(p) for p in files if p != PACKAGE / "controllers" / "_osqp.py" and word.search(p.read_text())]
     assert not bad, bad
+
+
+#: Private names of other libraries the package reads on purpose (each documented where it is read).
+FOREIGN_PRIVATE = {
+    "_" + "solver",  # osqp.OSQP's compiled solver object (controllers/_osqp.py: the fast path)
+    "_actions",  # argparse parsers' actions (cli/common.py: listing the options of a command)
+    "_SubParsersAction",  # argparse's subparser type (type hints of each command's register())
+    "_processes",  # a ProcessPoolExecutor's workers (sweep/executors.py: naming a killed worker)
+}
+
+
+def test_no_module_reads_a_private_attribute_of_another_object():
+    """``obj._x`` (or ``getattr(obj, "_x")``) with ``obj`` other than ``self``/``cls`` reaches into another
+    object's internals (issue 24.1); only the listed private names of other libraries are read."""
+    bad = []
+    for path in _modules(""):
+        rel = path.relative_to(PACKAGE).as_posix()
+        tree = ast.parse(path.read_text())
+        own = {"self", "cls"}  # and objects a classmethod makes with cls.__new__(cls)
+        for node in ast.walk(tree):
+            if (
+                isinstance(node, ast.Assign)
+                and isinstance(node.value, ast.Call)
+                and isinstance(node.value.func, ast.Attribute)
+                and node.value.func.attr == "__new__"
+            ):
+                own |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+        for node in ast.walk(tree):
+            name = None
+            if (
+                isinstance(node.value if isinstance(node, ast.Attribute) else None, ast.Call)
+                and isinstance(node.value.func, ast.Name)
+                and node.value.func.id == "super"
+            ):
+                continue  # super()._x: the class's own base
+            if isinstance(node, ast.Attribute) and not (isinstance(node.value, ast.Name) and node.value.id in own):
+                name = node.attr
+            elif (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id in ("getattr", "hasattr", "setattr")
+                and len(node.args) >= 2
+                and isinstance(node.args[1], ast.Constant)
+                and isinstance(node.args[1].value, str)
+            ):
+                name = node.args[1].value
+            if name and name.startswith("_") and not name.startswith("__") and name not in FOREIGN_PRIVATE:
+                bad.append(f"{rel}:{node.lineno} {ast.unparse(node)}")
+    assert not bad, bad

@@ -72,7 +72,7 @@ def feedback_gain(controller: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     K = getattr(controller, "K", None)
     if K is None:
         raise InvalidArgument(f"{type(controller).__name__} has no feedback gain K to analyse")
-    lqi = getattr(controller, "_lqi", None)  # LQI: the loop includes the error integrators
+    lqi = getattr(controller, "integral_action", None)  # LQI: the loop includes the error integrators
     if lqi is not None:
         A, B, K = lqi.A_aug, lqi.B_aug, np.hstack([K, lqi.K_i])
     if getattr(controller, "discrete", True):
@@ -216,7 +216,7 @@ def analyze_controller(
     )
     # a reference step δr (n_p,) enters the loop as E δr: u = −K_x (x − r) − K_i z, z⁺ = z + dt (x − r)[idx]
     E = B @ K[:, :n_p]
-    lqi = getattr(controller, "_lqi", None)
+    lqi = getattr(controller, "integral_action", None)
     if n > n_p and lqi is not None:
         snames = (*snames[:n_p], *(f"∫{snames[i]}" for i in lqi.indices))
         E = np.vstack([B[:n_p] @ K[:, :n_p], -lqi.dt * np.eye(n_p)[lqi.indices]])

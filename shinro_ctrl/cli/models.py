@@ -58,7 +58,7 @@ def cmd_linearize(args: argparse.Namespace) -> int:
     x0 = None if args.x0 is None else parse_vector(args.x0, what="--x0")
     u0 = None if args.u0 is None else parse_vector(args.u0, what="--u0")
     cmp = compare(plant, x0, u0, eps=args.eps)
-    xe, ue = plant._operating_point(x0, u0)
+    xe, ue = plant.operating_point(x0, u0)
     print(f"{type(plant).__name__}: continuous-time Jacobians at")
     print(f"  x0 = {dict(zip(plant.state_names, [round(float(v), 6) for v in xe], strict=True))}")
     print(f"  u0 = {dict(zip(plant.input_names, [round(float(v), 6) for v in ue], strict=True))}")

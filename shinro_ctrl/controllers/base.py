@@ -51,16 +51,16 @@ from shinro_ctrl.types import Matrix, Vector
 if TYPE_CHECKING:
     from shinro_ctrl.plants.base import Plant
 
-__all__ = ["CONTROLLER_REGISTRY", "CallGuard", "Controller", "check_operating_point", "check_plant"]
+__all__ = ["CONTROLLER_REGISTRY", "CallGuard", "Controller", "check_operating_point", "check_plant", "checks_plant"]
 
 
 #: Every concrete :class:`Controller` subclass defined so far, by class name (``Controller.__init_subclass__``).
 CONTROLLER_REGISTRY: Registry[Controller] = Registry("controller", "shinro_ctrl.controllers")
 
 
-def _checks_plant(func: Any) -> Any:
+def checks_plant(func: Any) -> Any:
     """``from_plant`` preceded by :func:`check_plant` (every controller's, applied by ``__init_subclass__``)."""
-    if getattr(func, "_checks_plant", False):
+    if getattr(func, "plant_checked", False):
         return func
 
     @functools.wraps(func)
@@ -69,7 +69,7 @@ def _checks_plant(func: Any) -> Any:
             check_plant(args[0] if args else kwargs["plant"], f"{cls.__name__}.from_plant")
         return func(cls, *args, **kwargs)
 
-    from_plant._checks_plant = True  # type: ignore[attr-defined]
+    from_plant.plant_checked = True  # type: ignore[attr-defined]
     return from_plant
 
 
@@ -117,7 +117,7 @@ class Controller(abc.ABC):
             # default: a controller with its own reset() carries memory between calls
             cls.stateful = any("reset" in c.__dict__ for c in cls.__mro__ if c is not Controller and c is not object)
         if isinstance(cls.__dict__.get("from_plant"), classmethod):
-            cls.from_plant = classmethod(_checks_plant(cls.__dict__["from_plant"].__func__))
+            cls.from_plant = classmethod(checks_plant(cls.__dict__["from_plant"].__func__))
         CONTROLLER_REGISTRY.register(cls)  # skips abstract and private classes
 
     @classmethod

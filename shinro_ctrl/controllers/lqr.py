@@ -261,6 +261,11 @@ class LQR(Controller):
         self.preview = 1 if self.feedforward else 0  # future reference samples the controller wants
         self._B_pinv = np.linalg.pinv(B) if self.feedforward else None
 
+    @property
+    def integral_action(self) -> IntegralAction | None:
+        """The LQI integrators (augmented model, ``K_i``, integrator state), or None for a plain LQR."""
+        return self._lqi
+
     @classmethod
     def from_plant(
         cls,

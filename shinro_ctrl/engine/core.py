@@ -484,7 +484,7 @@ class MujocoEngine:
             the body quaternion.
         """
         b = self._id(self._body, "body", name)
-        self._ensure_kinematics()
+        self.ensure_kinematics()
         return self.data.xpos[b].copy(), _euler_zyx_from_quat(self.data.xquat[b])
 
     def get_body_jacobian(self, name: str) -> np.ndarray:
@@ -493,7 +493,7 @@ class MujocoEngine:
         The angular rows map ``qvel`` to the world angular velocity.
         """
         b = self._id(self._body, "body", name)
-        self._ensure_kinematics()
+        self.ensure_kinematics()
         jac = np.zeros((6, self.model.nv))
         mujoco.mj_jacBody(self.model, self.data, jac[:3], jac[3:], b)
         return jac
@@ -501,7 +501,7 @@ class MujocoEngine:
     def get_site_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """World pose of a site: ``(pos (3,) [m], euler (3,) [rad])``, ZYX ``[roll, pitch, yaw]``."""
         s = self._id(self._site, "site", name)
-        self._ensure_kinematics()
+        self.ensure_kinematics()
         quat = np.empty(4)
         mujoco.mju_mat2Quat(quat, self.data.site_xmat[s])
         return self.data.site_xpos[s].copy(), _euler_zyx_from_quat(quat)
@@ -509,13 +509,14 @@ class MujocoEngine:
     def get_site_jacobian(self, name: str) -> np.ndarray:
         """Jacobian ``(6, nv)`` of a site, world frame, position rows first."""
         s = self._id(self._site, "site", name)
-        self._ensure_kinematics()
+        self.ensure_kinematics()
         jac = np.zeros((6, self.model.nv))
         mujoco.mj_jacSite(self.model, self.data, jac[:3], jac[3:], s)
         return jac
 
-    def _ensure_kinematics(self) -> None:
-        # After a state write or mj_step, xpos/xquat describe the previous state.
+    def ensure_kinematics(self) -> None:
+        """Bring body poses (``xpos``/``xquat``) up to date: after a state write or ``mj_step`` they describe the
+        previous state (the renderer and the pose readers call this)."""
         if self._kin_stale:
             mujoco.mj_kinematics(self.model, self.data)
             mujoco.mj_comPos(self.model, self.data)

@@ -83,7 +83,7 @@ class OffscreenRenderer:
         """
         if self._renderer is None:
             raise RuntimeError("render called on a closed OffscreenRenderer")
-        self._engine._ensure_kinematics()
+        self._engine.ensure_kinematics()
         self._renderer.update_scene(self._engine.data, camera=self._camera if camera is None else camera)
         return self._renderer.render()
 

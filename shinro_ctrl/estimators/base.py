@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from shinro_ctrl.controllers.base import CallGuard, _checks_plant
+from shinro_ctrl.concurrency import CallGuard
+from shinro_ctrl.controllers.base import checks_plant
 from shinro_ctrl.registry import Registry
 from shinro_ctrl.types import Vector, Weight
 
@@ -63,7 +64,7 @@ class Estimator(ABC):
     def __init_subclass__(cls, **kwargs: object) -> None:
         super().__init_subclass__(**kwargs)
         if isinstance(cls.__dict__.get("from_plant"), classmethod):  # None or a plant class: a clear TypeError
-            cls.from_plant = classmethod(_checks_plant(cls.__dict__["from_plant"].__func__))
+            cls.from_plant = classmethod(checks_plant(cls.__dict__["from_plant"].__func__))
         ESTIMATOR_REGISTRY.register(cls)  # skips abstract and private classes
 
     @classmethod

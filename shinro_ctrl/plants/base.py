@@ -366,8 +366,6 @@ class Plant:
             u0 = ue if u0 is None else u0
         return as_vector("x0", x0, self.state_dim), as_vector("u0", u0, self.input_dim)
 
-    _operating_point = operating_point
-
     def linearize(
         self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -38,7 +38,7 @@ def eps_sweep(plant: Any, x0: Any = None, u0: Any = None, *, eps: np.ndarray | N
     ``1e-16 / eps``; their sum is the V-shaped curve with its minimum near
     ``eps ≈ 1e-5``. The exact (CasADi) Jacobian sits at rounding level.
     """
-    x0, u0 = plant._operating_point(x0, u0)
+    x0, u0 = plant.operating_point(x0, u0)
     eps = np.logspace(-13, -1, 49) if eps is None else np.asarray(eps, dtype=float)
     Ar, Br = complex_step_jacobians(plant, x0, u0)
     ref = np.hstack([Ar, Br])
