@@ -386,7 +386,6 @@ class ExtendedKalmanFilter(Estimator):
         f_first = cs.Function(
             "ekf_correct", [x, P, u, y], [out_first[0], out_first[1].T, out_first[2].T], ["x", "P", "u", "y"], outs
         )
-        self.update_function = f_pred
         # Buffers bound once: inputs and outputs are arrays this object owns (casadi.Function.buffer).
         self._x = np.zeros(n)
         self._P = np.zeros((n, n))

@@ -171,7 +171,6 @@ class TrajectoryOptimizer:
             raise InvalidArgument(f"ipopt: {' '.join(str(exc).split())[-300:]}") from None
         self._fallback: cs.Function | None = None
         self._defects = cs.Function("defects", [w], [D])
-        self._nw = int(w.shape[0])
 
     # ------------------------------------------------------------------ solve
     def _duration(self, duration: Any) -> tuple[float, float]:
