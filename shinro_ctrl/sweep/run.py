@@ -79,13 +79,12 @@ def run_sweep(
     t_start = time.perf_counter()
     ranges = _check_args(method, samples, workers, metric, params, grid)
     doc, source = _load_doc(config, duration)
-    scenario = _parse_checked(doc, source, ranges)
+    scenario, notes = _parse_checked(doc, source, ranges)
     nominal = build_nominal(doc, source, engine)  # designs the controller
     tol = _stable_tol(scenario.sim.settle_tol, stable_tol)
 
     values = draw_samples(ranges, samples, grid=grid, seed=seed)
     names = tuple(k.removeprefix("plant.") for k in ranges)
-    notes: list[str] = []
     chosen = _choose_method(method, scheduler, workers, nominal, names, notes)
     base = SweepJob(doc, source, engine, names, (), (), tol)
     bar = Progress(values.shape[0], f"sweep {scenario.name}", progress, delay=0.0, unit="samples")
@@ -114,21 +113,31 @@ def run_sweep(
     return result
 
 
-def _parse_checked(doc: dict[str, Any], source: str | None, ranges: Mapping[str, Any]) -> Any:
-    """The parsed scenario, once every swept key is known to be one of its plant's parameters."""
+def _parse_checked(doc: dict[str, Any], source: str | None, ranges: Mapping[str, Any]) -> tuple[Any, list[str]]:
+    """The parsed scenario, once every swept key is known to be one of its plant's parameters, and notes.
+
+    A range with no valid plant value at either end (``pole_mass = -1:-0.5``, ``0:0``) is refused; a range
+    with one invalid end runs, its invalid samples recorded as such, and a note says which end.
+    """
     from shinro_ctrl.plants import plant_class
 
     scenario = parse_scenario(doc, source=source or "<dict>", path=Path(source) if source else None)
     cls = plant_class(scenario.plant.type)
     check_keys(ranges, sweep_keys(cls.from_config(scenario.plant.params)))
-    for key, (lo, hi) in ranges.items():  # each end of each range must be a valid plant (e.g. a mass > 0)
+    notes = []
+    for key, (lo, hi) in ranges.items():
         name = key.removeprefix("plant.")
+        errors = {}
         for value in dict.fromkeys((lo, hi)):
             try:
                 cls.from_config({**scenario.plant.params, name: value})
             except (ConfigError, InvalidArgument) as exc:
-                raise ConfigError(f"sweep range {key} = {lo:g}:{hi:g} leaves the plant's valid values: {exc}") from None
-    return scenario
+                errors[value] = str(exc)
+        if len(errors) == len(dict.fromkeys((lo, hi))):
+            raise ConfigError(f"sweep range {key} = {lo:g}:{hi:g} holds no valid plant value: {errors[lo]}")
+        for value in errors:
+            notes.append(f"{key} = {value:g} is not a valid plant value: samples there are recorded as invalid")
+    return scenario, notes
 
 
 def _stable_tol(settle_tol: float, stable_tol: float | None) -> float:
