@@ -7,10 +7,11 @@ Three places lose or mangle a Ctrl-C unless told otherwise:
   other exception in a callback), which a caller would report as a failed solve. :func:`solve_interruptibly`
   (built on :func:`interrupts`) re-raises the ``KeyboardInterrupt``.
 - **Pool workers** are in the terminal's process group, so a Ctrl-C reaches them too; a worker still importing
-  NumPy or SciPy (before any initializer can run) prints a ``KeyboardInterrupt`` traceback. Processes started
-  inside :func:`deferred_interrupts` have SIGINT blocked from birth (the signal mask survives ``fork`` and
-  ``exec``), so only the parent sees the Ctrl-C; it stops them (:func:`stop_pool`) and exits 130.
-  :func:`forkserver_context` starts the forkserver that way, so every worker it forks is immune too.
+  NumPy or SciPy (before any initializer can run) printed a ``KeyboardInterrupt`` traceback, and so did the
+  forkserver while it preloaded its modules. :func:`forkserver_context` starts the forkserver with SIGINT
+  ignored: an ignored signal stays ignored across ``exec`` and Python then leaves it alone, the server keeps it
+  for the workers it forks, so no worker ever sees a Ctrl-C. The parent alone handles it: it stops the workers
+  (:func:`stop_pool`) and exits 130. (Blocking SIGINT instead is not inherited: the spawn resets the mask.)
 - The **parent** must not lose a Ctrl-C that arrives while it starts those processes: :func:`deferred_interrupts`
   holds it and raises it when the block ends, once every started worker is registered and can be stopped.
 
@@ -104,13 +105,13 @@ def solve_interruptibly(solver: Callable[..., T], **kwargs: object) -> T:
 
 @contextlib.contextmanager
 def deferred_interrupts() -> Iterator[None]:
-    """Start processes inside this block: they never receive SIGINT; a Ctrl-C meanwhile is raised at its end.
+    """A Ctrl-C that arrives inside the block is held and raised as ``KeyboardInterrupt`` when the block ends.
 
-    SIGINT is blocked in the calling thread (processes forked or spawned from it inherit the mask and keep it,
-    as do the processes a forkserver started here forks later), and in the main thread the Python handler is
-    replaced by one that only records the signal (another thread may take a blocked signal's delivery). When
-    the block ends the handler and mask are restored and a Ctrl-C that arrived meanwhile is raised as
-    ``KeyboardInterrupt``.
+    In the main thread the Python handler is replaced by one that only records the signal, and SIGINT is blocked
+    in the calling thread (so the kernel keeps it pending rather than hand it to this thread while the handler
+    is briefly ``SIG_IGN``, see :func:`forkserver_context`). When the block ends the mask and handler are
+    restored (a pending SIGINT is delivered then, and recorded) and a recorded Ctrl-C is raised, unless SIGINT
+    was ignored before the block.
     """
     held: list[int] = []
     main = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is not None
@@ -128,10 +129,12 @@ def deferred_interrupts() -> Iterator[None]:
 
 
 def forkserver_context(preload: Sequence[str]) -> BaseContext:
-    """The ``forkserver`` multiprocessing context, its server started with SIGINT blocked (see module docstring).
+    """The ``forkserver`` multiprocessing context, its server started with SIGINT ignored (see the module docstring).
 
     Workers fork from a clean server process (safe when this process runs threads, e.g. a Dask client), and the
-    preloaded imports are paid once, not once per worker. A server already running is kept.
+    preloaded imports are paid once, not once per worker. A server already running is kept (in the CLI the first
+    pool starts it here; a server another caller started earlier may not ignore SIGINT, hence the workers'
+    :func:`ignore_sigint` initializer too).
     """
     import multiprocessing
     from multiprocessing import forkserver
@@ -139,7 +142,13 @@ def forkserver_context(preload: Sequence[str]) -> BaseContext:
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(list(preload))
     with deferred_interrupts():
-        forkserver.ensure_running()
+        ignoring = threading.current_thread() is threading.main_thread()
+        handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if ignoring else None
+        try:  # fork + exec of the server: milliseconds
+            forkserver.ensure_running()
+        finally:
+            if ignoring:
+                signal.signal(signal.SIGINT, handler)
     return ctx
 
 
