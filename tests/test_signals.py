@@ -87,8 +87,15 @@ def _children() -> dict[int, list[int]]:
 
 
 def _forkserver(pid: int) -> list[int]:
-    """The command's child processes (its forkserver, once the pool starts)."""
-    return _children().get(pid, [])
+    """The command's forkserver process (a child), once the pool starts it."""
+    found = []
+    for child in _children().get(pid, []):
+        try:
+            if b"forkserver" in Path(f"/proc/{child}/cmdline").read_bytes():
+                found.append(child)
+        except OSError:
+            continue
+    return found
 
 
 def _pool_workers(pid: int) -> list[int]:
@@ -195,23 +202,42 @@ TRADEOFF = ["design", "lqr", "cartpole_lqr", "--tradeoff", "R=1e-3:1e2", "--poin
 SWEEP = ["sweep", "cartpole_lqr", "--param", "plant.pole_mass=0.05:0.5", "--samples", "400", "--workers", "2"]
 
 
+def _preloading(pid: int) -> bool:
+    """True once the forkserver has loaded NumPy's C extension: its preload is under way (SciPy, CasADi next)."""
+    for server in _forkserver(pid):
+        try:
+            if "_multiarray_umath" in Path(f"/proc/{server}/maps").read_text():
+                return True
+        except OSError:
+            continue
+    return False
+
+
 @pytest.mark.parametrize(
     ("command", "moment"),
     [
-        # the forkserver has just started: it preloads, then its first workers import NumPy, SciPy, CasADi
-        ([*TRADEOFF, "--out", "t"], "forkserver"),
-        # the workers run samples
-        ([*SWEEP, "--method", "pool", "--out", "t"], "workers"),
+        # the forkserver imports its preload list (was: its KeyboardInterrupt traceback from SciPy's import)
+        ([*TRADEOFF, "--out", "t"], "preloading"),
+        # the forkserver has just started, Python itself still starting up (was: it died of the signal and the
+        # parent's next submit failed with an EOFError traceback, exit 1)
+        ([*SWEEP, "--method", "pool", "--out", "t"], "starting"),
     ],
-    ids=["tradeoff-starting", "sweep-running"],
+    ids=["tradeoff-forkserver-preloading", "sweep-forkserver-starting"],
 )
 def test_ctrl_c_with_pool_workers_exits_130_and_no_worker_prints(tmp_path, command, moment):
-    # was: exit 130 after a worker's (or the forkserver's) KeyboardInterrupt traceback from its imports
     proc = _start(command, tmp_path)
-    if moment == "forkserver":
+    if moment == "starting":
         _wait_for(proc, lambda: bool(_forkserver(proc.pid)))
     else:
-        _wait_for(proc, lambda: len(_pool_workers(proc.pid)) >= 2)
+        _wait_for(proc, lambda: _preloading(proc.pid))
+    err = _ctrl_c(proc)[1]
+    _assert_interrupted(proc, err)
+    assert not (tmp_path / "t").exists()
+
+
+def test_ctrl_c_while_sweep_workers_run_exits_130(tmp_path):
+    proc = _start([*SWEEP, "--method", "pool", "--out", "t"], tmp_path)
+    _wait_for(proc, lambda: len(_pool_workers(proc.pid)) >= 2)  # the workers run samples
     err = _ctrl_c(proc)[1]
     _assert_interrupted(proc, err)
     assert not (tmp_path / "t").exists()
