@@ -6,11 +6,12 @@ Three places lose or mangle a Ctrl-C unless told otherwise:
   stops IPOPT, but CasADi swallows it and returns the status ``NonIpopt_Exception_Thrown`` (the status of any
   other exception in a callback), which a caller would report as a failed solve. :func:`solve_interruptibly`
   (built on :func:`interrupts`) re-raises the ``KeyboardInterrupt``.
-- **Pool workers** are in the terminal's process group, so a Ctrl-C reaches them too; a worker still importing
-  NumPy or SciPy (before any initializer can run) printed a ``KeyboardInterrupt`` traceback, and so did the
-  forkserver while it preloaded its modules. :func:`forkserver_context` starts the forkserver with SIGINT
-  ignored: an ignored signal stays ignored across ``exec`` and Python then leaves it alone, the server keeps it
-  for the workers it forks, so no worker ever sees a Ctrl-C. The parent alone handles it: it stops the workers
+- **Pool workers** are in the terminal's process group, so a Ctrl-C reaches them too: the forkserver printed a
+  ``KeyboardInterrupt`` traceback when it came while the server preloaded its modules (SciPy...), or died of it
+  while Python started (the parent's next submit then failed with ``EOFError``), and a worker can be hit while
+  it imports what its initializer needs, before that initializer runs. :func:`forkserver_context` starts the
+  forkserver with SIGINT ignored: an ignored signal stays ignored across ``exec`` and Python then leaves it
+  alone, the server keeps it for the workers it forks, so no worker ever sees a Ctrl-C. The parent alone handles it: it stops the workers
   (:func:`stop_pool`) and exits 130. (Blocking SIGINT instead is not inherited: the spawn resets the mask.)
 - The **parent** must not lose a Ctrl-C that arrives while it starts those processes: :func:`deferred_interrupts`
   holds it and raises it when the block ends, once every started worker is registered and can be stopped.
