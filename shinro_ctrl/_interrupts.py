@@ -11,8 +11,9 @@ Three places lose or mangle a Ctrl-C unless told otherwise:
   while Python started (the parent's next submit then failed with ``EOFError``), and a worker can be hit while
   it imports what its initializer needs, before that initializer runs. :func:`forkserver_context` starts the
   forkserver with SIGINT ignored: an ignored signal stays ignored across ``exec`` and Python then leaves it
-  alone, the server keeps it for the workers it forks, so no worker ever sees a Ctrl-C. The parent alone handles it: it stops the workers
-  (:func:`stop_pool`) and exits 130. (Blocking SIGINT instead is not inherited: the spawn resets the mask.)
+  alone, the server keeps it for the workers it forks, so no worker ever sees a Ctrl-C. The parent alone
+  handles it: it stops the workers (:func:`stop_pool`) and exits 130. (Blocking SIGINT instead is not
+  inherited: the spawn resets the mask.)
 - The **parent** must not lose a Ctrl-C that arrives while it starts those processes: :func:`deferred_interrupts`
   holds it and raises it when the block ends, once every started worker is registered and can be stopped.
 
