@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl._interrupts import deferred_interrupts, forkserver_context, ignore_sigint, stop_pool
 from shinro_ctrl.config import load_scenario
 from shinro_ctrl.errors import InvalidArgument, ShinroError
 from shinro_ctrl.files import atomic_folder, atomic_write, dump_json
@@ -462,21 +463,18 @@ def _run_pool(
     in the pool; those chunks are run again one point at a time, each in a fresh worker, so the point that
     kills its worker is named (:data:`WORKER_DIED`) and every other point keeps its result.
     """
-    import multiprocessing
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
-
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(_POOL_PRELOAD)
+    ctx = forkserver_context(_POOL_PRELOAD)  # its workers never see a Ctrl-C, not even while importing
     results: list[tuple[int, dict[str, float], str]] = []
     broken: list[_Job] = []
     current: Any = None
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=ignore_sigint)
     try:
-        futures = {pool.submit(run_job, job): job for job in jobs}
-        cur_future = pool.submit(_evaluate, *current_args)
+        with deferred_interrupts():  # the workers start here: each is registered before a Ctrl-C is raised
+            futures = {pool.submit(run_job, job): job for job in jobs}
+            cur_future = pool.submit(_evaluate, *current_args)
         for f in as_completed(futures):
             try:
                 results.extend(f.result())
@@ -494,7 +492,7 @@ def _run_pool(
         if current is None:
             current = _isolated_current(ctx, current_args)
     except BaseException:  # Ctrl-C (or an error): stop the workers now, not after their queued chunks
-        _stop_pool(pool)
+        stop_pool(pool)
         raise
     return results, current
 
@@ -503,15 +501,15 @@ def _isolated(ctx: Any, run_job: Any, job: _Job) -> list[tuple[int, dict[str, fl
     """One point in a fresh one-worker pool: its result, or :data:`WORKER_DIED` if it kills the worker."""
     from concurrent.futures.process import BrokenProcessPool
 
-    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
-
-    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=ignore_sigint)
     try:
-        out = pool.submit(run_job, job).result()
+        with deferred_interrupts():  # the worker starts here
+            future = pool.submit(run_job, job)
+        out = future.result()
     except BrokenProcessPool:
         out = [(job.indices[0], dict.fromkeys(COLUMNS, math.nan), WORKER_DIED)]
     except BaseException:
-        _stop_pool(pool)
+        stop_pool(pool)
         raise
     pool.shutdown(wait=True)
     return out
@@ -520,15 +518,15 @@ def _isolated(ctx: Any, run_job: Any, job: _Job) -> list[tuple[int, dict[str, fl
 def _isolated_current(ctx: Any, current_args: tuple[Any, ...]) -> dict[str, float]:
     from concurrent.futures.process import BrokenProcessPool
 
-    from shinro_ctrl.sweep.executors import _ignore_sigint, _stop_pool
-
-    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=ignore_sigint)
     try:
-        current = pool.submit(_evaluate, *current_args).result()
+        with deferred_interrupts():  # the worker starts here
+            future = pool.submit(_evaluate, *current_args)
+        current = future.result()
     except BrokenProcessPool:
         current = dict.fromkeys(COLUMNS, math.nan)  # the scenario's own design: not starred on the plot
     except BaseException:
-        _stop_pool(pool)
+        stop_pool(pool)
         raise
     pool.shutdown(wait=True)
     return current

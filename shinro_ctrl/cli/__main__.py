@@ -1,7 +1,5 @@
-"""``python -m shinro_ctrl.cli``: the same command as ``shinro-ctrl``."""
+"""``python -m shinro_ctrl.cli``: the same command as ``shinro-ctrl`` (the same entry point and Ctrl-C handling)."""
 
-import sys
+from shinro_ctrl._entry import main
 
-from shinro_ctrl.cli import main
-
-sys.exit(main())
+main()

@@ -16,6 +16,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from shinro_ctrl._interrupts import caused_by_interrupt
 from shinro_ctrl.errors import InvalidArgument, ShinroError
 
 __all__ = ["parse_number", "parse_vector", "side_by_side"]
@@ -170,14 +171,7 @@ def _check_scheduler(address: str, timeout: float = 5.0) -> None:
 _NUMERIC_ERRORS = (OverflowError, FloatingPointError, RecursionError, MemoryError)
 
 
-def _caused_by_interrupt(exc: BaseException) -> bool:
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
+_caused_by_interrupt = caused_by_interrupt  # one definition, shared with the console entry point
 
 
 def _one_line(exc: BaseException) -> str:

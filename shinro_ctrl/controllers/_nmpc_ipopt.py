@@ -10,18 +10,14 @@ iteration) the ``cold_start="ipopt"`` first trajectory.
 
 from __future__ import annotations
 
-import contextlib
 import math
-import signal
-import threading
 import time
-from collections.abc import Iterator
-from types import FrameType
 from typing import Any
 
 import casadi as cs
 import numpy as np
 
+from shinro_ctrl._interrupts import solve_interruptibly
 from shinro_ctrl.controllers._nmpc_ocp import NMPCProblem, failed_solution
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import MPCInfeasible
@@ -149,13 +145,19 @@ class IpoptSolver:
             Xg = guess[:nX].reshape(N + 1, n)[1:, self._bounded]
             viol = np.maximum(Xg - o.x_max[self._bounded], o.x_min[self._bounded] - Xg)
             guess[nX + N * m :] = np.maximum(viol, 0.0).ravel(order="F")
-        with _interrupts() as interrupted:
-            sol = self._nlp(
-                x0=guess, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg, p=np.concatenate([x, ref])
+        try:  # a Ctrl-C inside IPOPT is raised, not returned as 'NonIpopt_Exception_Thrown'
+            sol = solve_interruptibly(
+                self._nlp,
+                x0=guess,
+                lbx=self._lbw,
+                ubx=self._ubw,
+                lbg=self._lbg,
+                ubg=self._ubg,
+                p=np.concatenate([x, ref]),
             )
-        if interrupted:  # CasADi caught the KeyboardInterrupt and returned 'NonIpopt_Exception_Thrown'
+        except KeyboardInterrupt:
             self._guess = None
-            raise KeyboardInterrupt
+            raise
         stats = self._nlp.stats()
         self.status = str(stats.get("return_status", ""))
         w = np.asarray(sol["x"], dtype=float).ravel()
@@ -167,35 +169,3 @@ class IpoptSolver:
         X = w[:nX].reshape(N + 1, n)
         U = w[nX : nX + N * m].reshape(N, m)
         return X, U, stats, float(sol["f"])
-
-
-@contextlib.contextmanager
-def _interrupts() -> Iterator[list[bool]]:
-    """Record a Ctrl-C (SIGINT) that arrives inside the block; the list yielded becomes ``[True]``.
-
-    CasADi polls Python's signal handlers during an IPOPT solve: the handler's
-    ``KeyboardInterrupt`` stops IPOPT, but CasADi swallows it and reports the
-    return status ``NonIpopt_Exception_Thrown`` (the same status as any other
-    exception inside a callback). This wraps the current SIGINT handler so the
-    interrupt is recorded and the caller can re-raise it. Only the main thread
-    receives signals in Python; elsewhere (or when SIGINT is not handled by a
-    Python callable) nothing is changed.
-    """
-    hit: list[bool] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield hit
-        return
-    previous = signal.getsignal(signal.SIGINT)
-    if not callable(previous):  # SIG_IGN, SIG_DFL or None: no Python handler runs
-        yield hit
-        return
-
-    def record(signum: int, frame: FrameType | None) -> None:
-        hit.append(True)
-        previous(signum, frame)
-
-    signal.signal(signal.SIGINT, record)
-    try:
-        yield hit
-    finally:
-        signal.signal(signal.SIGINT, previous)

@@ -38,6 +38,7 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
+from shinro_ctrl._interrupts import solve_interruptibly
 from shinro_ctrl.errors import InvalidArgument, PlanningFailed
 from shinro_ctrl.planning._capture import _captured
 from shinro_ctrl.planning.trajectory import METHODS, Trajectory, check_transcription_size
@@ -393,8 +394,8 @@ class TrajectoryOptimizer:
         iters = 0
         with _captured(not self.verbose) as out:
             for attempt in range(2):
-                try:
-                    sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=weights)
+                try:  # a Ctrl-C inside IPOPT is raised, not returned as the status 'NonIpopt_Exception_Thrown'
+                    sol = solve_interruptibly(solver, x0=w0, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=weights)
                 except RuntimeError as exc:  # CasADi raises on evaluation errors (NaN in a function)
                     sol, error = None, str(exc)
                 else:

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from shinro_ctrl._interrupts import deferred_interrupts, forkserver_context, ignore_sigint, stop_pool
 from shinro_ctrl.config import Scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError
 from shinro_ctrl.progress import Progress
@@ -183,30 +184,17 @@ _POOL_PRELOAD = [
 
 
 def run_pool(base: SweepJob, values: np.ndarray, workers: int, bar: Progress) -> list[Outcome]:
-    import multiprocessing
-
-    # forkserver: workers fork from a clean server process (safe when this process runs threads,
-    # e.g. a Dask client), and the preloaded imports are paid once, not once per worker.
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(_POOL_PRELOAD)
+    # forkserver, started with SIGINT blocked: its workers never see a Ctrl-C (not even while importing), the
+    # preloaded imports are paid once, and forking from a clean server is safe when this process runs threads.
+    ctx = forkserver_context(_POOL_PRELOAD)
     jobs = _jobs(base, values, workers * 4)
     out: list[Outcome] = []
-    import signal
-
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=ignore_sigint)
     try:
         # Ctrl-C is held while the workers start (submit starts them), so every started worker is registered
         # and can be stopped; it is raised right after.
-        held: list[int] = []
-        main = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGINT, lambda sig, frame: held.append(sig)) if main else None
-        try:
+        with deferred_interrupts():
             futures = [pool.submit(_run_job, job) for job in jobs]
-        finally:
-            if main:
-                signal.signal(signal.SIGINT, previous)
-        if held:
-            raise KeyboardInterrupt
         broken: list[SweepJob] = []
         by_future = dict(zip(futures, jobs, strict=True))
         for fut in as_completed(futures):
@@ -222,7 +210,7 @@ def run_pool(base: SweepJob, values: np.ndarray, workers: int, bar: Progress) ->
                 out.extend(_isolated(ctx, one))
                 bar.update(len(out))
     except BaseException:  # Ctrl-C (or an error): stop the workers now, not after their queued chunks
-        _stop_pool(pool)
+        stop_pool(pool)
         raise
     return out
 
@@ -233,34 +221,18 @@ WORKER_DIED = "WorkerDied: the worker process died while running this sample (ki
 
 def _isolated(ctx: Any, job: SweepJob) -> list[Outcome]:
     """One sample in a fresh one-worker pool: its outcome, or :data:`WORKER_DIED` if it kills the worker."""
-    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=ignore_sigint)
     try:
-        out = pool.submit(_run_job, job).result()
+        with deferred_interrupts():  # the worker starts here
+            future = pool.submit(_run_job, job)
+        out = future.result()
     except BrokenProcessPool:
         out = [(job.indices[0], _nan_metrics(), False, WORKER_DIED, _nan_timing())]
     except BaseException:
-        _stop_pool(pool)
+        stop_pool(pool)
         raise
     pool.shutdown(wait=True)
     return out
-
-
-def _ignore_sigint() -> None:
-    """Worker initializer: Ctrl-C reaches the whole process group; the parent alone handles it (and stops us)."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Cancel the queued chunks and terminate the workers (promptly, without their tracebacks)."""
-    processes = list(getattr(pool, "_processes", {}).values())  # concurrent.futures has no public terminate (<3.14)
-    pool.shutdown(wait=False, cancel_futures=True)
-    for proc in processes:
-        if proc.is_alive():
-            proc.terminate()
-    for proc in processes:
-        proc.join(timeout=5)
 
 
 def run_dask(base: SweepJob, values: np.ndarray, scheduler: Any, bar: Progress) -> tuple[list[Outcome], int]:
