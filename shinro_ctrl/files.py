@@ -56,6 +56,7 @@ __all__ = [
     "atomic_folder",
     "atomic_write",
     "atomic_write_set",
+    "check_not_input",
     "check_output_file",
     "check_output_folder",
     "check_replaceable",
@@ -577,6 +578,18 @@ def write_output(
     return atomic_write(path, write, binary=binary)
 
 
+def check_not_input(path: str | Path, inputs: Iterable[str | Path | None], *, what: str = "output") -> None:
+    """Refuse an output ``path`` that is one of the command's ``inputs`` (also through a link or ``..``).
+
+    Raises:
+        InvalidArgument: naming ``what``, the path and the input.
+    """
+    p = Path(path)
+    for inp in inputs:
+        if inp is not None and _same_file(p, Path(inp)):
+            raise InvalidArgument(f"{what} '{p}' is the input file '{inp}': an output never overwrites an input")
+
+
 def check_output_file(
     path: str | Path, *, inputs: Iterable[str | Path] = (), what: str = "output", kind: str | None = None
 ) -> Path:
@@ -592,9 +605,7 @@ def check_output_file(
         InvalidArgument: naming the path and the reason.
     """
     p = Path(path)
-    for inp in inputs:
-        if inp is not None and _same_file(p, Path(inp)):
-            raise InvalidArgument(f"{what} '{p}' is the input file '{inp}': an output never overwrites an input")
+    check_not_input(p, inputs, what=what)
     check_replaceable(p, what=what, kind=kind)
     if _is_device(p):
         return p  # a device or pipe: written through

@@ -140,7 +140,7 @@ def _check_step(option: str, value: float) -> None:
     """A finite-difference step in :data:`EPS_RANGE`, finite (named with the range in the message)."""
     lo, hi = EPS_RANGE
     if not (math.isfinite(value) and lo <= value <= hi):
-        raise InvalidArgument(f"{option} must be a finite-difference step in [{lo:g}, {hi:g}], got {value:g}")
+        raise InvalidArgument(f"{option} must be a finite step in [{lo:g}, {hi:g}] (finite differences), got {value:g}")
 
 
 def _check_count(option: str, value: int, limit: int, *, low: int = 1) -> None:
@@ -155,11 +155,16 @@ PLOT_HELP = "PNG, PDF or SVG by its extension: .png, .pdf, .svg"
 
 def _check_output(path: str, inputs: Sequence[str | None] = ()) -> None:
     """``--plot``: a .png, .pdf or .svg name; no input, link, folder or file shinro-ctrl did not write."""
-    from shinro_ctrl.files import check_output_file
+    from shinro_ctrl.files import check_not_input, check_output_file
     from shinro_ctrl.plots._figure import plot_format
 
-    fmt = plot_format(path, what="--plot")  # refuses another extension, naming --plot and the allowed ones
-    check_output_file(path, inputs=[i for i in inputs if i], what="--plot", kind=fmt.upper())
+    inputs = [i for i in inputs if i]
+    try:
+        fmt = plot_format(path, what="--plot")  # refuses another extension, naming --plot and the allowed ones
+    except InvalidArgument:
+        check_not_input(path, inputs, what="--plot")  # naming the input file is the first thing to say
+        raise
+    check_output_file(path, inputs=inputs, what="--plot", kind=fmt.upper())
 
 
 def _same_path(a: str | Path, b: str | Path) -> bool:
