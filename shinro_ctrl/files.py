@@ -15,7 +15,7 @@ it can take (their writer died), never another live writer's.
 Nothing a user owns is overwritten. Every file the workbench writes for a
 user carries the marker :data:`GENERATOR` inside it (a PNG ``tEXt`` chunk
 ``Software``, a GIF comment, an HTML ``<meta name="generator">``, PDF
-``Creator``/``Producer`` metadata, an NPZ member, an MP4 comment) and every
+``Creator``/``Producer`` metadata, an SVG ``<dc:creator>``, an NPZ member, an MP4 comment) and every
 folder it writes carries the manifest :data:`RUN_MANIFEST` (which covers the
 folder's CSV, JSON and NPZ files). :func:`check_output_file`,
 :func:`check_output_folder` and :func:`write_output` replace an existing file
@@ -32,6 +32,7 @@ import ctypes.util
 import errno
 import json
 import os
+import re
 import shutil
 import struct
 import tempfile
@@ -55,11 +56,13 @@ __all__ = [
     "atomic_folder",
     "atomic_write",
     "atomic_write_set",
+    "check_not_input",
     "check_output_file",
     "check_output_folder",
     "check_replaceable",
     "dump_json",
     "dump_toml",
+    "is_device",
     "recover_journals",
     "remove_stale_temps",
     "write_output",
@@ -418,6 +421,16 @@ def _png_marked(f: Any) -> bool:
             f.seek(length + 4, os.SEEK_CUR)
 
 
+#: The creator matplotlib writes into an SVG's ``<metadata>`` for ``metadata={"Creator": GENERATOR}``.
+_SVG_MARK = re.compile(rb"<dc:creator>\s*<cc:Agent>\s*<dc:title>" + re.escape(_MARK) + rb"</dc:title>")
+
+
+def _svg_marked(f: Any) -> bool:
+    """An SVG whose ``<metadata>`` names :data:`GENERATOR` as its creator (matplotlib writes it near the top)."""
+    head = f.read(2**16)
+    return b"<svg" in head and _SVG_MARK.search(head) is not None
+
+
 def _gif_marked(f: Any) -> bool:
     """A comment extension holding exactly :data:`GENERATOR` (Pillow writes it before the first frame)."""
     return b"\x21\xfe" + bytes([len(_MARK)]) + _MARK + b"\0" in f.read(2**20)
@@ -454,8 +467,9 @@ def written_by_us(path: str | Path) -> bool:
     """Whether the regular file ``path`` carries our marker (judged by its content, whatever its name).
 
     PNG: a ``tEXt`` chunk ``Software=shinro-ctrl``; GIF: that comment; PDF:
-    ``/Creator (shinro-ctrl)``; HTML: ``<meta name="generator" content="shinro-ctrl">``
-    in its head; NPZ: a member ``generator`` holding it; MP4: a ``comment``
+    ``/Creator (shinro-ctrl)``; SVG: ``<dc:creator>`` holding it in its ``<metadata>``;
+    HTML: ``<meta name="generator" content="shinro-ctrl">`` in its head;
+    NPZ: a member ``generator`` holding it; MP4: a ``comment``
     tag holding it. Anything else (an empty file too) is not ours.
     """
     p = Path(path)
@@ -469,6 +483,8 @@ def written_by_us(path: str | Path) -> bool:
                 return _gif_marked(f)
             if head.startswith(b"%PDF"):
                 return _contains(f, b"/Creator (" + _MARK + b")")
+            if head.lstrip(b"\xef\xbb\xbf \t\r\n").startswith((b"<?xml", b"<svg")):
+                return _svg_marked(f) or HTML_MARKER.encode() in f.read(4096).lower()
             if head[4:8] == b"ftyp":
                 return _contains(f, _MARK)
             if head.startswith(b"PK\x03\x04"):
@@ -486,12 +502,16 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def _is_device(p: Path) -> bool:
+def is_device(path: str | Path) -> bool:
     """A character device, pipe or socket (``/dev/null``, ``/dev/stdout``): written through, never renamed over."""
+    p = Path(path)
     try:
         return p.exists() and not p.is_file() and not p.is_dir()
     except OSError:
         return False
+
+
+_is_device = is_device
 
 
 def _kind_name(p: Path, kind: str | None) -> str:
@@ -558,6 +578,18 @@ def write_output(
     return atomic_write(path, write, binary=binary)
 
 
+def check_not_input(path: str | Path, inputs: Iterable[str | Path | None], *, what: str = "output") -> None:
+    """Refuse an output ``path`` that is one of the command's ``inputs`` (also through a link or ``..``).
+
+    Raises:
+        InvalidArgument: naming ``what``, the path and the input.
+    """
+    p = Path(path)
+    for inp in inputs:
+        if inp is not None and _same_file(p, Path(inp)):
+            raise InvalidArgument(f"{what} '{p}' is the input file '{inp}': an output never overwrites an input")
+
+
 def check_output_file(
     path: str | Path, *, inputs: Iterable[str | Path] = (), what: str = "output", kind: str | None = None
 ) -> Path:
@@ -573,9 +605,7 @@ def check_output_file(
         InvalidArgument: naming the path and the reason.
     """
     p = Path(path)
-    for inp in inputs:
-        if inp is not None and _same_file(p, Path(inp)):
-            raise InvalidArgument(f"{what} '{p}' is the input file '{inp}': an output never overwrites an input")
+    check_not_input(p, inputs, what=what)
     check_replaceable(p, what=what, kind=kind)
     if _is_device(p):
         return p  # a device or pipe: written through
@@ -610,7 +640,9 @@ def _check_folder_replaceable(d: Path, what: str = "output folder") -> None:
         )
 
 
-def check_output_folder(directory: str | Path, names: Iterable[str], *, inputs: Iterable[str | Path] = ()) -> Path:
+def check_output_folder(
+    directory: str | Path, names: Iterable[str], *, inputs: Iterable[str | Path] = (), what: str = "output folder"
+) -> Path:
     """Refuse, before any work, an output folder whose contents are not an earlier output.
 
     The folder may be new, empty, or one shinro-ctrl wrote (it holds the
@@ -619,8 +651,14 @@ def check_output_folder(directory: str | Path, names: Iterable[str], *, inputs: 
     anything else (the input scenario, the user's own ``metrics.json``) or a
     symbolic link is refused rather than lost.
 
+    Args:
+        directory: The output folder.
+        names: The files the command writes into it.
+        inputs: The command's input files, never overwritten.
+        what: How the message names the folder, with its option (``"--out folder"``).
+
     Raises:
-        InvalidArgument: naming the folder and the reason.
+        InvalidArgument: naming ``what``, the folder and the reason.
     """
     d = Path(directory)
     allowed = {*names, RUN_MANIFEST}
@@ -628,20 +666,20 @@ def check_output_folder(directory: str | Path, names: Iterable[str], *, inputs: 
         for inp in inputs:
             if inp is not None and any(_same_file(e, Path(inp)) for e in d.iterdir()):
                 raise InvalidArgument(
-                    f"output folder '{d}' holds the input file '{inp}': an output never overwrites an input; "
+                    f"{what} '{d}' holds the input file '{inp}': an output never overwrites an input; "
                     "choose another folder"
                 )
-    _check_folder_replaceable(d)
+    _check_folder_replaceable(d, what)
     if d.is_dir():
         foreign = sorted(e.name for e in d.iterdir() if e.name not in allowed)
         if foreign:
             raise InvalidArgument(
-                f"output folder '{d}' holds '{foreign[0]}'"
+                f"{what} '{d}' holds '{foreign[0]}'"
                 + (f" and {len(foreign) - 1} more entries" if len(foreign) > 1 else "")
                 + f", which is not a run output ({', '.join(sorted(names))}); it is replaced as a whole, "
                 "so choose a new or empty folder"
             )
-    _check_writable_parent(d, "output folder")
+    _check_writable_parent(d, what)
     return d
 
 

@@ -41,9 +41,37 @@ def data_root(kind: str) -> Path:
     raise FileNotFoundError(f"shinro_ctrl data folder '{kind}' is missing from the installation")
 
 
-def find_data(kind: str, name: str | Path, suffix: str) -> Path:
-    """An existing file path as given, else the shipped file of that name (see :func:`find_shipped`)."""
+#: What one file of each data folder is, for messages.
+_FILE_KIND = {"configs": "scenario", "assets": "model"}
+
+
+def _file_kind(kind: str) -> str:
+    return _FILE_KIND.get(kind, kind.rstrip("s"))
+
+
+def _check_name(kind: str, name: str | Path) -> Path:
+    """``name`` as a path that can name a file: not empty, not a folder.
+
+    Raises:
+        FileNotFoundError: an empty name (an unset shell variable?).
+        IsADirectoryError: ``name`` is a folder (``'.'``, ``'configs/'``), here or in the ``kind`` folder.
+    """
+    if not str(name).strip():
+        raise FileNotFoundError(f"the {_file_kind(kind)} name is empty (an unset shell variable?): give a file or name")
     p = Path(name)
+    if p.is_dir() or not p.name or p.name in (".", ".."):
+        raise IsADirectoryError(f"'{name}' is a folder, not a {_file_kind(kind)} file")
+    return p
+
+
+def find_data(kind: str, name: str | Path, suffix: str) -> Path:
+    """An existing file path as given, else the shipped file of that name (see :func:`find_shipped`).
+
+    Raises:
+        FileNotFoundError: no such file (or an empty name), listing the shipped ones.
+        IsADirectoryError: ``name`` is a folder, not a file.
+    """
+    p = _check_name(kind, name)
     if p.is_file():
         return p.resolve()
     return find_shipped(kind, name, suffix)
@@ -53,14 +81,17 @@ def find_shipped(kind: str, name: str | Path, suffix: str) -> Path:
     """The shipped file ``name`` (``suffix`` optional) in the ``kind`` folder only.
 
     Raises:
-        FileNotFoundError: no such file, listing the shipped ones.
+        FileNotFoundError: no such file (or an empty name), listing the shipped ones.
+        IsADirectoryError: ``name`` is a folder (also a folder of the shipped ones, ``regression/``).
     """
-    p = Path(name)
+    p = _check_name(kind, name)
     root = data_root(kind)
     candidates = [root / p] if p.suffix else [root / p, root / p.with_suffix(suffix)]
     for candidate in candidates:
         if candidate.is_file():
             return candidate
+    if (root / p).is_dir() and not p.is_absolute():
+        raise IsADirectoryError(f"'{name}' is a folder of shipped {kind}, not a {_file_kind(kind)} file")
     shipped = ", ".join(list_data(kind, suffix)) or "none"
     raise FileNotFoundError(f"no {kind[:-1]} named '{name}'; shipped {kind}: {shipped}")
 

@@ -348,10 +348,12 @@ def test_plot_never_overwrites_a_file_that_is_not_a_png(name, content, tmp_path,
     monkeypatch.chdir(tmp_path)
     target = tmp_path / name
     target.write_text(content)
+    # a name with an extension no plot is written in (.txt, .jpg) is refused for it, before any work
+    needle = "not a PNG file" if name.endswith(".png") else f"--plot '{name}': a plot is written as .png, .pdf, .svg"
     for args in (["run", "--plot", name, "--duration", "0.1"], ["crosscheck", "pendulum", "--plot", name]):
         assert main(args) == 2
         out, err = capsys.readouterr()
-        assert "not a PNG file" in err and "running" not in out
+        assert needle in err and "running" not in out, err
     assert target.read_text() == content
 
 

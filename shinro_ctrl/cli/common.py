@@ -19,7 +19,7 @@ from pathlib import Path
 from shinro_ctrl._interrupts import caused_by_interrupt
 from shinro_ctrl.errors import InvalidArgument, ShinroError
 
-__all__ = ["parse_number", "parse_vector", "side_by_side"]
+__all__ = ["parse_number", "parse_vector", "path_arg", "side_by_side"]
 
 EXIT_USER_ERROR = 2
 _USER_ERRORS = (ShinroError, OSError)  # anything else is a bug and keeps its traceback
@@ -111,6 +111,19 @@ def side_by_side(blocks: Sequence[tuple[str, np.ndarray]], gap: str = "   ") -> 
 
 
 # ------------------------------------------------------------ argument checks
+def path_arg(text: str) -> str:
+    """The argparse ``type`` of every path argument (``--out``, ``--plot``, ``--video``, ``--report``, ``--plan``,
+    ``regress DIR``): an empty or blank path (an unset shell variable) is refused, never taken for ``'.'`` or
+    ignored; argparse names the option in its one-line error (``argument --out: empty path ...``).
+
+    Raises:
+        argparse.ArgumentTypeError: the path is empty or blank.
+    """
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"empty path {text!r} (an unset shell variable?): give a file or folder name")
+    return text
+
+
 RUN_FILES = ("result.npz", "metrics.json", "scenario.toml", "run.png")
 RUN_FILES_BOTH = ("standalone", "mujoco", "run.png")
 SWEEP_FILES = ("sweep.csv", "sweep.json", "sweep.png")
@@ -119,9 +132,16 @@ MAX_SAMPLES = 1_000_000
 MAX_WORKERS = 256
 
 
+#: The finite-difference steps ``--eps`` accepts: below, rounding swamps the difference (1e-300 divides
+#: by a step that ``x + eps`` does not even register); above, truncation error swamps the derivative.
+EPS_RANGE = (1e-12, 1e-1)
+
+
 def _check_step(option: str, value: float) -> None:
-    if not (math.isfinite(value) and 0 < value <= 1.0):
-        raise InvalidArgument(f"{option} must be a finite step in (0, 1], got {value:g}")
+    """A finite-difference step in :data:`EPS_RANGE`, finite (named with the range in the message)."""
+    lo, hi = EPS_RANGE
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise InvalidArgument(f"{option} must be a finite step in [{lo:g}, {hi:g}] (finite differences), got {value:g}")
 
 
 def _check_count(option: str, value: int, limit: int, *, low: int = 1) -> None:
@@ -130,12 +150,22 @@ def _check_count(option: str, value: int, limit: int, *, low: int = 1) -> None:
         raise InvalidArgument(f"{option} must be an integer in [{low}, {limit:,}] (the limit), got {value}")
 
 
+#: The plot formats, for the help of every ``--plot`` (:data:`shinro_ctrl.plots._figure.PLOT_FORMATS`).
+PLOT_HELP = "PNG, PDF or SVG by its extension: .png, .pdf, .svg"
+
+
 def _check_output(path: str, inputs: Sequence[str | None] = ()) -> None:
-    """``--plot`` (PDF for a ``.pdf`` name, else PNG): no input, link, folder or file shinro-ctrl did not write."""
-    from shinro_ctrl.files import check_output_file
+    """``--plot``: a .png, .pdf or .svg name; no input, link, folder or file shinro-ctrl did not write."""
+    from shinro_ctrl.files import check_not_input, check_output_file
     from shinro_ctrl.plots._figure import plot_format
 
-    check_output_file(path, inputs=[i for i in inputs if i], what="--plot", kind=plot_format(path).upper())
+    inputs = [i for i in inputs if i]
+    try:
+        fmt = plot_format(path, what="--plot")  # refuses another extension, naming --plot and the allowed ones
+    except InvalidArgument:
+        check_not_input(path, inputs, what="--plot")  # naming the input file is the first thing to say
+        raise
+    check_output_file(path, inputs=inputs, what="--plot", kind=fmt.upper())
 
 
 def _same_path(a: str | Path, b: str | Path) -> bool:
@@ -149,18 +179,45 @@ def _inside(path: str | Path, folder: str | Path) -> bool:
     return d == p or d in p.parents
 
 
-def _check_scheduler(address: str, timeout: float = 5.0) -> None:
-    """Fail fast (one line, a few seconds) when a Dask scheduler address cannot be reached."""
-    import socket
+#: The Dask comm protocols a ``--scheduler`` address may name (``tcp://`` when it names none).
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+
+
+def _check_scheduler_address(address: str) -> tuple[str, int]:
+    """``--scheduler`` as ``[PROTOCOL://]HOST:PORT``: its host and port, or one line naming --scheduler.
+
+    Raises:
+        InvalidArgument: an empty address, another protocol, a missing host or port, a port outside
+            [1, 65535], or text that is not an address (``'tcp://[::1'``, ``'a b'``).
+    """
     from urllib.parse import urlparse
 
-    try:  # urlparse itself raises on a malformed IPv6 host ('tcp://[::1')
+    form = f"--scheduler must look like tcp://HOST:PORT (protocol one of {', '.join(SCHEDULER_SCHEMES)})"
+    if not address.strip():
+        raise InvalidArgument(f"{form}, got an empty address (an unset shell variable?)")
+    if any(c.isspace() for c in address):
+        raise InvalidArgument(f"{form}, got '{address}' (it holds a space)")
+    try:  # urlparse itself raises on a malformed IPv6 host ('tcp://[::1'), .port on a port out of range
         url = urlparse(address if "://" in address else f"tcp://{address}")
         host, port = url.hostname, url.port
     except ValueError:
-        host, port = None, None
-    if not host or not port:
-        raise InvalidArgument(f"--scheduler must look like tcp://HOST:PORT, got '{address}'")
+        raise InvalidArgument(f"{form}, got '{address}' (not a host and a port in [1, 65535])") from None
+    if url.scheme not in SCHEDULER_SCHEMES:
+        raise InvalidArgument(f"{form}, got the protocol '{url.scheme}' in '{address}'")
+    if url.path not in ("", "/") or url.query or url.fragment:
+        raise InvalidArgument(f"{form}, got '{address}' (text after the port)")
+    if not host:
+        raise InvalidArgument(f"{form}, got '{address}' (no host)")
+    if not port:
+        raise InvalidArgument(f"{form}, got '{address}' (no port, or port 0)")
+    return host, port
+
+
+def _check_scheduler(address: str, timeout: float = 5.0) -> None:
+    """Fail fast (one line, a few seconds) when a Dask scheduler address is malformed or cannot be reached."""
+    import socket
+
+    host, port = _check_scheduler_address(address)
     try:
         socket.create_connection((host, port), timeout=timeout).close()
     except OSError as exc:

@@ -10,6 +10,7 @@ if TYPE_CHECKING:
 import argparse
 from typing import Any
 
+from shinro_ctrl.cli.common import path_arg
 from shinro_ctrl.errors import InvalidArgument
 
 __all__ = ["cmd_design", "register"]
@@ -20,11 +21,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("design", help="design a controller from a scenario and print it")
     p.add_argument("kind", choices=("lqr", "mpc"))
     p.add_argument("config", metavar="CONFIG")
-    p.add_argument("--report", metavar="FILE.html", help="write a self-contained HTML design report (plots embedded)")
+    p.add_argument(
+        "--report",
+        type=path_arg,
+        metavar="FILE.html",
+        help="write a self-contained HTML design report (plots embedded)",
+    )
     p.add_argument("--tradeoff", metavar="KEY=LO:HI", help="LQR weight trade-off, e.g. R=1e-3:1e2 or Q[2]=1:1000")
     p.add_argument("--points", type=int, default=20, metavar="N", help="trade-off points, log-spaced (default 20)")
     p.add_argument("--engine", choices=("standalone", "mujoco"), help="trade-off: loop of the nonlinear runs")
-    p.add_argument("--out", metavar="DIR", help="trade-off: write tradeoff.csv, tradeoff.json, tradeoff.png here")
+    p.add_argument(
+        "--out", type=path_arg, metavar="DIR", help="trade-off: write tradeoff.csv, tradeoff.json, tradeoff.png here"
+    )
     p.add_argument("--workers", type=int, default=2, metavar="W", help="trade-off: worker processes (default 2)")
     p.set_defaults(func=cmd_design)
 
@@ -66,7 +74,7 @@ def _check_design_options(args: argparse.Namespace) -> None:
         from shinro_ctrl.analysis.tradeoff import OUTPUT_FILES
         from shinro_ctrl.files import check_output_folder
 
-        check_output_folder(args.out, OUTPUT_FILES, inputs=[args.config])
+        check_output_folder(args.out, OUTPUT_FILES, inputs=[args.config], what="--out folder")
     elif args.out or args.engine or args.points != 20 or args.workers != 2:
         raise InvalidArgument("--out, --engine, --points and --workers go with --tradeoff KEY=LO:HI")
     if args.report:

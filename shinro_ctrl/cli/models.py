@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import argparse
 
-from shinro_ctrl.cli.common import CROSSCHECK_PLANTS, _check_output, _check_step, parse_vector, side_by_side
+from shinro_ctrl.cli.common import (
+    CROSSCHECK_PLANTS,
+    PLOT_HELP,
+    _check_output,
+    _check_step,
+    parse_vector,
+    path_arg,
+    side_by_side,
+)
 from shinro_ctrl.errors import InvalidArgument
 
 __all__ = ["cmd_crosscheck", "cmd_linearize", "cmd_list", "register"]
@@ -24,7 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--u0", help="operating input, e.g. '0'")
     p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
     p.add_argument("--eps-sweep", action="store_true", help="FD error against the step size (complex-step reference)")
-    p.add_argument("--plot", metavar="PNG", help="with --eps-sweep: plot the V-shaped error curve")
+    p.add_argument(
+        "--plot", type=path_arg, metavar="FILE", help=f"with --eps-sweep: plot the V-shaped error curve ({PLOT_HELP})"
+    )
     p.set_defaults(func=cmd_linearize)
 
     p = sub.add_parser("crosscheck", help="exact vs finite differences vs MuJoCo's mjd_transitionFD")
@@ -36,7 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--x0", help="operating state (pi allowed)")
     p.add_argument("--u0", help="operating input")
     p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
-    p.add_argument("--plot", metavar="PNG", help="draw the exact / FD / MuJoCo comparison")
+    p.add_argument(
+        "--plot", type=path_arg, metavar="FILE", help=f"draw the exact / FD / MuJoCo comparison ({PLOT_HELP})"
+    )
     p.set_defaults(func=cmd_crosscheck)
 
     p = sub.add_parser("list", help="plants, controllers and shipped scenarios")
@@ -150,6 +162,8 @@ def _plant_argument(name: str):
         raise InvalidArgument(
             "PLANT is empty (an unset shell variable?): give a plant name, a model file or a scenario"
         )
+    if Path(name).is_dir() and not _is_plant_name(name):
+        raise IsADirectoryError(f"'{name}' is a folder, not a plant name, model file or scenario file")
     if is_model_file(name):  # an MJCF/URDF model file: the plant is the file
         return plant_from_name(name)
     if Path(name).is_file() or name.lower().endswith(".toml"):
@@ -164,6 +178,13 @@ def _plant_argument(name: str):
         except FileNotFoundError:
             raise ConfigError(f"{exc}; or give a scenario file or shipped scenario name (shinro-ctrl list)") from None
         return _scenario_plant(name, plant_class)
+
+
+def _is_plant_name(name: str) -> bool:
+    """``name`` is a plant class name or alias (a same-named folder in the current directory does not shadow it)."""
+    from shinro_ctrl.plants import PLANT_ALIASES, PLANT_REGISTRY
+
+    return name in PLANT_ALIASES or name in PLANT_REGISTRY.shipped()
 
 
 def _scenario_plant(name: str, plant_class):

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from shinro_ctrl.cli.common import RUN_FILES, RUN_FILES_BOTH
+from shinro_ctrl.cli.common import PLOT_HELP, RUN_FILES, RUN_FILES_BOTH, path_arg
 from shinro_ctrl.errors import InvalidArgument
 
 __all__ = ["DEFAULT_SCENARIO", "cmd_plan", "cmd_run", "format_metric_comparison", "register"]
@@ -26,16 +26,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="override the scenario's loop; 'both' runs the two loops and overlays them with their differences",
     )
     p.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the scenario's)")
-    p.add_argument("--plot", metavar="PNG", help="where to write the plot")
-    p.add_argument("--out", metavar="DIR", help="save result.npz, metrics.json, scenario.toml and run.png")
-    p.add_argument("--video", metavar="PATH", help="render the run offscreen with MuJoCo: .gif, or .mp4 with ffmpeg")
-    p.add_argument("--plan", metavar="FILE", help="track this saved plan (.npz from 'plan') instead of planning")
+    p.add_argument("--plot", type=path_arg, metavar="FILE", help=f"where to write the plot ({PLOT_HELP})")
+    p.add_argument(
+        "--out", type=path_arg, metavar="DIR", help="save result.npz, metrics.json, scenario.toml and run.png"
+    )
+    p.add_argument(
+        "--video", type=path_arg, metavar="PATH", help="render the run offscreen with MuJoCo: .gif, or .mp4 with ffmpeg"
+    )
+    p.add_argument(
+        "--plan", type=path_arg, metavar="FILE", help="track this saved plan (.npz from 'plan') instead of planning"
+    )
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("plan", help="solve a scenario's [plan] (trajectory optimization) and save it")
     p.add_argument("config", metavar="CONFIG", help="scenario file or shipped name")
-    p.add_argument("--plot", metavar="PNG", help="plot the planned states and inputs")
-    p.add_argument("--out", metavar="DIR", help="where to write <scenario>_plan.npz (default out/)")
+    p.add_argument("--plot", type=path_arg, metavar="FILE", help=f"plot the planned states and inputs ({PLOT_HELP})")
+    p.add_argument("--out", type=path_arg, metavar="DIR", help="where to write <scenario>_plan.npz (default out/)")
     p.set_defaults(func=cmd_plan)
 
 
@@ -70,11 +76,18 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _check_duration(duration: float | None, dt: float) -> None:
-    """``--duration``: a whole number of the plant's steps, at least one (never rounded silently)."""
+    """``--duration``: a whole number of the plant's steps, at least one (never rounded silently), and at most
+    the run's limit :data:`~shinro_ctrl.sim.MAX_STEPS` (checked before anything is printed)."""
     if duration is not None:
         from shinro_ctrl.config import whole_steps
+        from shinro_ctrl.sim import MAX_STEPS
 
-        whole_steps(duration, dt, "--duration")
+        steps = whole_steps(duration, dt, "--duration")
+        if steps > MAX_STEPS:
+            raise InvalidArgument(
+                f"--duration = {duration:g} s at dt = {dt:g} s is {steps:.3g} steps; a run keeps every step in "
+                f"memory and is limited to {MAX_STEPS:,} steps ({MAX_STEPS * dt:g} s at this dt)"
+            )
 
 
 def _check_config_argument(config: str | None, *, demo: bool = True) -> None:
@@ -95,13 +108,12 @@ def _check_run_args(args: argparse.Namespace) -> None:
     """
     from shinro_ctrl.cli.common import _check_output, _inside, _same_path
     from shinro_ctrl.files import check_output_file, check_output_folder
+    from shinro_ctrl.plots._figure import plot_format
     from shinro_ctrl.resources import config_path
 
     _check_config_argument(args.config)
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise InvalidArgument(f"--duration must be a positive finite number of seconds, got {args.duration:g}")
-    if args.plan is not None and not args.plan.strip():
-        raise InvalidArgument("--plan is empty: give a plan file (.npz from 'shinro-ctrl plan')")
     inputs = [config_path(args.config) if args.config else None, getattr(args, "plan", None)]
     both = args.engine == "both"
     if both and args.video:
@@ -121,12 +133,21 @@ def _check_run_args(args: argparse.Namespace) -> None:
                     f"directly in it (not one of {', '.join(names[:-1])}), or put it elsewhere"
                 )
             if option == "--plot":
+                plot_format(value, what="--plot")  # as _check_output checks a plot outside the folder
                 args.plot_in_out = rel.name  # the plot joins the folder's set under this name
                 names = (*names[:-1], rel.name)
             else:
                 args.video_in_out = rel.name  # so does the video
                 names = (*names, rel.name)
-        check_output_folder(args.out, names, inputs=inputs)
+        try:
+            check_output_folder(args.out, names, inputs=inputs, what="--out folder")
+        except InvalidArgument as exc:
+            inside = [
+                f"{o} '{v}'" for o, v in (("--plot", args.plot), ("--video", args.video)) if v and _inside(v, args.out)
+            ]
+            if inside:
+                raise InvalidArgument(f"{exc} ({' and '.join(inside)} is inside it)") from None
+            raise
     if args.plot and args.plot_in_out is None:
         _check_output(args.plot, inputs)
     if args.video and args.video_in_out is None:

@@ -6,7 +6,15 @@ import argparse
 import math
 import sys
 
-from shinro_ctrl.cli.common import MAX_SAMPLES, MAX_WORKERS, SWEEP_FILES, _check_count, _check_scheduler
+from shinro_ctrl.cli.common import (
+    MAX_SAMPLES,
+    MAX_WORKERS,
+    SWEEP_FILES,
+    _check_count,
+    _check_scheduler,
+    _check_scheduler_address,
+    path_arg,
+)
 from shinro_ctrl.errors import InvalidArgument
 
 __all__ = ["cmd_regress", "cmd_sweep", "register"]
@@ -16,7 +24,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add ``regress`` and ``sweep`` to the ``shinro-ctrl`` parser (``sub``: its subparsers)."""
     p = sub.add_parser("regress", help="run regression scenarios and compare with their baselines")
     p.add_argument(
-        "dir", nargs="?", metavar="DIR", help="folder of scenarios or one scenario file (default: the shipped set)"
+        "dir",
+        nargs="?",
+        type=path_arg,
+        metavar="DIR",
+        help="folder of scenarios or one scenario file (default: the shipped set)",
     )
     p.add_argument(
         "--update", action="store_true", help="rewrite the baselines as one set (the shipped ones only if DIR is named)"
@@ -30,7 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--grid", action="store_true", help="full grid of N points per parameter instead of random samples")
     p.add_argument("--workers", type=int, default=1, metavar="W", help="local worker processes (default 1)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the parameter draws (default 0)")
-    p.add_argument("--out", required=True, metavar="DIR", help="write sweep.csv, sweep.json and sweep.png here")
+    p.add_argument(
+        "--out", required=True, type=path_arg, metavar="DIR", help="write sweep.csv, sweep.json and sweep.png here"
+    )
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask cluster (dask.distributed scheduler address)")
     p.add_argument("--engine", choices=("standalone", "mujoco"), help="override the scenario's loop")
     p.add_argument("--method", choices=("auto", "pool", "dask", "batch", "serial"), default="auto")
@@ -71,9 +85,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise InvalidArgument(f"--seed must be a non-negative integer, got {args.seed}")
     if args.stable_tol is not None and not (math.isfinite(args.stable_tol) and args.stable_tol > 0):
         raise InvalidArgument(f"--stable-tol must be a positive finite number, got {args.stable_tol:g}")
+    if args.scheduler is not None:  # an empty address too (an unset shell variable), never taken for "none"
+        _check_scheduler_address(args.scheduler)
     params = parse_params(args.param)
-    check_output_folder(args.out, SWEEP_FILES, inputs=[config_path(args.config)])
-    if args.scheduler:
+    check_output_folder(args.out, SWEEP_FILES, inputs=[config_path(args.config)], what="--out folder")
+    if args.scheduler is not None:
         _check_scheduler(args.scheduler)
     result = run_sweep(  # writes the three files of one sweep as one set (or leaves the previous ones)
         args.config,

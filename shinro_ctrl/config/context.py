@@ -29,9 +29,17 @@ def whole_steps(duration: float, dt: float, what: str = "duration") -> int:
         what: How the message names the duration (``"[sim] duration"``, ``"--duration"``).
 
     Raises:
-        ConfigError: shorter than one step, or not a whole number of steps.
+        ConfigError: not a finite positive number, shorter than one step, not a whole number of steps, or so
+            long that its number of steps overflows float64 (``1e308`` s).
     """
+    if not (math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"{what} must be a positive finite number of seconds, got {duration:g}")
     ratio = duration / dt
+    if not math.isfinite(ratio):
+        raise ConfigError(
+            f"{what} = {duration:g} s is too long: its number of steps of dt = {dt:g} s overflows float64 "
+            "(give a shorter duration)"
+        )
     steps = round(ratio)
     if ratio < 1 - STEP_RTOL:
         raise ConfigError(f"{what} = {duration:g} s is shorter than one step (dt = {dt:g} s): give at least {dt:g} s")

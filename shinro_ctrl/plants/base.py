@@ -294,7 +294,8 @@ class Plant:
                 xdot = None
             if xdot is None or not np.all(np.isfinite(xdot)):
                 raise NonFiniteError(
-                    f"{type(self).__name__}.dynamics overflows float64 at x = {x.tolist()}, u = {u.tolist()}"
+                    f"{type(self).__name__}.dynamics overflows float64 at state x = {x.tolist()}, "
+                    f"input u = {u.tolist()} (reduce the state or the input)"
                 )
             return xdot
         try:
@@ -392,7 +393,9 @@ class Plant:
         else:
             raise InvalidArgument(f"unknown linearization method {method!r}; valid: exact, fd")
         if not all_finite(A, B):
-            where = f"at x0 = {x0.tolist()}, u0 = {u0.tolist()}" + (f" with eps = {eps:g}" if method == "fd" else "")
+            where = f"at state x0 = {x0.tolist()}, input u0 = {u0.tolist()}" + (
+                f" with eps = {eps:g}" if method == "fd" else ""
+            )
             self._check_finite_model(A, B, f"{type(self).__name__}.linearize ({method}) {where}")
         return A, B
 
@@ -418,7 +421,7 @@ class Plant:
             self._exact_step = ExactJacobian(self.symbolic_step(), self._pvec)
         A, B = self._exact_step(x0, u0)
         if not all_finite(A, B):
-            self._check_finite_model(A, B, f"{type(self).__name__} step model at x0 = {x0.tolist()}")
+            self._check_finite_model(A, B, f"{type(self).__name__} step model at state x0 = {x0.tolist()}")
         return A, B
 
     def _check_finite_model(self, A: np.ndarray, B: np.ndarray, what: str) -> None:

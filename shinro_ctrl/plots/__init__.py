@@ -1,7 +1,7 @@
 """Plots a control engineer reads: closed-loop runs (one loop, or standalone and MuJoCo overlaid).
 
 Every function draws on a fresh :class:`matplotlib.figure.Figure` with the Agg
-canvas and writes a PNG atomically; none touches pyplot's global state or
+canvas and writes a PNG, PDF or SVG (by the extension) atomically; none touches pyplot's global state or
 calls ``matplotlib.use`` (the backend is the caller's choice).
 
 Units come from the plant's state and input names (:func:`unit_of`: a plant
