@@ -41,7 +41,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from shinro_ctrl._text_formats import _json_safe, dump_toml
+from shinro_ctrl._text_formats import dump_toml, json_safe
 from shinro_ctrl.errors import InvalidArgument
 
 try:  # POSIX advisory locks; without them (Windows) nothing counts as provably stale
@@ -696,5 +696,5 @@ def _check_writable_parent(p: Path, what: str) -> None:
 # ---------------------------------------------------------------- formats
 def dump_json(path: str | Path, data: Any) -> Path:
     """Write ``data`` as indented JSON atomically (infinities as the strings ``"inf"``)."""
-    text = json.dumps(_json_safe(data), indent=2, sort_keys=True) + "\n"
+    text = json.dumps(json_safe(data), indent=2, sort_keys=True) + "\n"
     return atomic_write(path, lambda f: f.write(text))

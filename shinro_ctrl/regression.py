@@ -159,7 +159,7 @@ def read_baseline(path: str | Path) -> dict[str, float | bool | None]:
 def baseline_text(result: Any) -> str:
     """The baseline file's JSON text for ``result`` (a :class:`~shinro_ctrl.sim.SimResult`)."""
     from shinro_ctrl import __version__
-    from shinro_ctrl.files import _json_safe
+    from shinro_ctrl._text_formats import json_safe
 
     data = {
         "format": BASELINE_FORMAT,
@@ -168,7 +168,7 @@ def baseline_text(result: Any) -> str:
         "shinro_ctrl": __version__,
         "metrics": result.metrics,
     }
-    return json.dumps(_json_safe(data), indent=2, sort_keys=True) + "\n"
+    return json.dumps(json_safe(data), indent=2, sort_keys=True) + "\n"
 
 
 def write_baseline(path: str | Path, result: Any) -> Path:

@@ -256,7 +256,7 @@ def _plain(value: Any) -> Any:
     """JSON-ready: arrays as lists, numpy scalars as Python numbers, ±inf as strings (as saved)."""
     import json
 
-    from shinro_ctrl._text_formats import _json_safe
+    from shinro_ctrl._text_formats import json_safe
 
     def conv(v: Any) -> Any:
         if isinstance(v, np.ndarray):
@@ -271,7 +271,7 @@ def _plain(value: Any) -> Any:
             return str(v)
         return v
 
-    return json.loads(json.dumps(_json_safe(conv(value)), sort_keys=True))
+    return json.loads(json.dumps(json_safe(conv(value)), sort_keys=True))
 
 
 def _differences(saved: Any, now: Any, where: str) -> list[str]:

@@ -229,7 +229,7 @@ class Trajectory:
         Raises:
             InvalidArgument: ``path`` is a file shinro-ctrl did not write, a link or a folder.
         """
-        from shinro_ctrl._text_formats import _json_safe
+        from shinro_ctrl._text_formats import json_safe
         from shinro_ctrl.files import GENERATOR, NPZ_MARKER, write_output
 
         path = Path(path)
@@ -248,7 +248,7 @@ class Trajectory:
         if self.xdot_right is not None:
             arrays["xdot_right"] = self.xdot_right
         if self.origin is not None:
-            arrays["origin"] = np.array(json.dumps(_json_safe(self.origin), sort_keys=True))
+            arrays["origin"] = np.array(json.dumps(json_safe(self.origin), sort_keys=True))
         path.parent.mkdir(parents=True, exist_ok=True)
         write_output(path, lambda f: np.savez(f, **arrays), binary=True, what="plan file", kind="NPZ")
         return path
