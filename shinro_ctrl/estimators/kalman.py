@@ -242,13 +242,8 @@ class KalmanFilter(Estimator):
         Returns:
             ``x̂ (n,)``, or ``[x̂; d̂] (n + m,)`` with the input disturbance.
         """
-        guard = self._busy
-        if not guard.acquire(False):
-            raise guard.refused()
-        try:
+        with self._busy:  # one thread at a time (class docstring)
             return self._update(y, u)
-        finally:
-            guard.release()
 
     def _update(self, y: Vector, u: Vector) -> np.ndarray:
         y = as_vector("y", y, self.p)
@@ -446,13 +441,8 @@ class ExtendedKalmanFilter(Estimator):
 
     def update(self, y: Vector, u: Vector) -> np.ndarray:
         """Predict one RK4 step with ``u (m,)`` (skipped right after :meth:`reset`), correct with ``y (p,)``."""
-        guard = self._busy
-        if not guard.acquire(False):
-            raise guard.refused()
-        try:
+        with self._busy:  # one thread at a time (class docstring)
             return self._update(y, u)
-        finally:
-            guard.release()
 
     def _update(self, y: Vector, u: Vector) -> np.ndarray:
         self._y[:] = as_vector("y", y, self.p)

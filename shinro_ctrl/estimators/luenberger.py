@@ -150,13 +150,8 @@ class Luenberger(Estimator):
 
     def update(self, y: Vector, u: Vector) -> np.ndarray:
         """Predict with ``u (m,)`` (skipped right after :meth:`reset`) and correct with ``y (p,)``; ``x̂ (n,)``."""
-        guard = self._busy
-        if not guard.acquire(False):
-            raise guard.refused()
-        try:
+        with self._busy:  # one thread at a time (class docstring)
             return self._update(y, u)
-        finally:
-            guard.release()
 
     def _update(self, y: Vector, u: Vector) -> np.ndarray:
         y = as_vector("y", y, self.p)

@@ -417,13 +417,8 @@ class ArmRobot(Plant):
             ConcurrentUse: another thread is stepping this arm.
         """
         u = self._input(u)
-        guard = self._step_guard
-        if not guard.acquire(False):
-            raise guard.refused()
-        try:
+        with self._step_guard:  # one thread at a time (Plant's class docstring)
             return self._step(u)
-        finally:
-            guard.release()
 
     def _step(self, u: np.ndarray) -> np.ndarray:
         x = self.get_state()

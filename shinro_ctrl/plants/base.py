@@ -153,6 +153,9 @@ class Plant:
     aliases: ClassVar[tuple[str, ...]] = ()
     #: True for a plant that takes an IK solver at construction (``ik=``; the arm).
     takes_ik: ClassVar[bool] = False
+    #: Declared state bounds ``(lo (n,), hi (n,))`` (±inf: none) of plants that take ``state_bounds``; the
+    #: default :meth:`clip_state` stops the state there and :meth:`state_limits` reports them.
+    state_bounds: tuple[np.ndarray, np.ndarray] | None = None
 
     def __init_subclass__(cls, **kwargs: object) -> None:
         """Register every subclass under its class name (and its ``aliases``) in :data:`PLANT_REGISTRY`."""
@@ -564,7 +567,9 @@ class Plant:
         return self.clip_state(np.array(new))
 
     def clip_state(self, x: np.ndarray) -> np.ndarray:
-        """Hook: the plant's documented state limits as inelastic stops (:meth:`stop`); identity by default.
+        """Hook: the plant's documented state limits as inelastic stops (:meth:`stop`).
+
+        By default :attr:`state_bounds` (identity without them).
 
         Args:
             x: One state ``(n,)`` or a batch ``(N, n)`` (may be modified in place).
@@ -572,7 +577,8 @@ class Plant:
         Returns:
             The clipped state(s), same shape.
         """
-        return x
+        bounds = self.state_bounds
+        return x if bounds is None else self.stop(x, *bounds)
 
     def stop(self, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Inelastic stops at ``lo``/``hi`` ``(n,)`` (±inf: none), in place on ``x (n,)`` or ``(N, n)``.
@@ -667,7 +673,9 @@ class Plant:
 
     # ------------------------------------------------------- limits and outputs
     def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Declared limits ``(lo (n,), hi (n,))`` of the state (±inf where none), e.g. ``state_bounds``."""
+        """Declared limits ``(lo (n,), hi (n,))`` of the state (±inf where none): :attr:`state_bounds` by default."""
+        if self.state_bounds is not None:
+            return self.state_bounds[0].copy(), self.state_bounds[1].copy()
         return np.full(self.state_dim, -np.inf), np.full(self.state_dim, np.inf)
 
     def body_force_map(self, body: str) -> np.ndarray:

@@ -121,18 +121,6 @@ class DoublePendulum(Plant):
         pot = -(m1 + m2) * g * l1 * np.cos(th1) - m2 * g * l2 * np.cos(th2)
         return kin + pot
 
-    def clip_state(self, x: np.ndarray) -> np.ndarray:
-        """``state_bounds`` as inelastic stops (see :meth:`Plant.stop`): ``(n,)`` or ``(N, n)``, in place."""
-        if self.state_bounds is None:
-            return x
-        return self.stop(x, *self.state_bounds)
-
-    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """``state_bounds`` (±inf without)."""
-        if self.state_bounds is None:
-            return super().state_limits()
-        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
-
     # engine mode: hinges "hinge_1" (absolute) and "hinge_2" (relative), motors "torque_1"/"torque_2"
     def mjcf_patch(self) -> MjcfPatch:
         return MjcfPatch(

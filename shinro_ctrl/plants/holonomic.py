@@ -194,13 +194,8 @@ class HolonomicMobileRobot(Plant):
             NonFiniteError: ``u_world`` holds NaN or inf.
         """
         u = self._input(u_world)
-        guard = self._step_guard
-        if not guard.acquire(False):
-            raise guard.refused()
-        try:
+        with self._step_guard:  # one thread at a time (Plant's class docstring)
             return self._step(u)
-        finally:
-            guard.release()
 
     def _step(self, u: np.ndarray) -> np.ndarray:
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below, not warned about

@@ -83,18 +83,6 @@ class InvertedPendulum(Plant):
         theta_ddot = p["gravity"] / p["length"] * bk.sin(theta) + (tau - p["damping"] * theta_dot) / ml2
         return bk.stack([theta_dot, theta_ddot])
 
-    def clip_state(self, x: np.ndarray) -> np.ndarray:
-        """``state_bounds`` as inelastic stops (see :meth:`Plant.stop`): ``(n,)`` or ``(N, n)``, in place."""
-        if self.state_bounds is None:
-            return x
-        return self.stop(x, *self.state_bounds)
-
-    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """``state_bounds`` (±inf without)."""
-        if self.state_bounds is None:
-            return super().state_limits()
-        return self.state_bounds[0].copy(), self.state_bounds[1].copy()
-
     # engine mode: hinge "hinge", motor actuator "hinge"
     def mjcf_patch(self) -> MjcfPatch:
         return MjcfPatch(
