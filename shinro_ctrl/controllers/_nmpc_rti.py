@@ -60,7 +60,7 @@ class RealTimeIteration:
         self._du = np.zeros(N * m)
         self._ref = ocp.x0.copy()
         self.qp: CondensedLTV | SparseLTV
-        soft = dict(soft=o.soft, soft_weights=(o.soft_weight_l1, o.soft_weight_quad))
+        soft = dict(soft=o.soft, soft_weight_l1=o.soft_weight_l1, soft_weight_quad=o.soft_weight_quad)
         if o.solver == "osqp":
             settings = dict(o.osqp_settings) if o.osqp_settings is not None else None
             self.qp = SparseLTV(

@@ -61,7 +61,7 @@ class CondensedLTV:
         u_min, u_max: Input bounds ``(m,)`` (±inf where none).
         x_min, x_max: State bounds ``(n,)`` on ``x_1 … x_N`` (±inf where none).
         soft: Soften the state bounds with one slack per state-bound row (stage and bounded component).
-        soft_weights: ``(w_1, w_2)`` of the slack penalty.
+        soft_weight_l1, soft_weight_quad: ``w_1``, ``w_2`` of the slack penalty ``w_1 1ᵀ s + ½ w_2 ‖s‖²``.
         daqp_settings: Keyword settings for ``daqp.solve`` (``primal_tol``, …).
     """
 
@@ -76,7 +76,8 @@ class CondensedLTV:
         x_max: np.ndarray,
         *,
         soft: bool = False,
-        soft_weights: tuple[float, float] = (1e2, 1e2),
+        soft_weight_l1: float = 1e2,
+        soft_weight_quad: float = 1e2,
         daqp_settings: dict[str, Any] | None = None,
     ):
         N, n, w_ = G.shape
@@ -119,7 +120,7 @@ class CondensedLTV:
         self.xbar_rows = np.empty(N * w)  # x̄ + c on the bounded rows
         self.Phi_rows = np.empty((N * w, n))
         if self.soft:
-            w1, w2 = soft_weights
+            w1, w2 = soft_weight_l1, soft_weight_quad
             self.H[:] = 0.0
             self.H[nu:, nu:] = w2 * np.eye(self.ns)
             self.g0[nu:] = w1

@@ -49,7 +49,7 @@ class SparseLTV:
     Args:
         G: The stage matrices ``(N, n, n + m + 1)`` (bound, as for :class:`CondensedLTV`).
         Q: Stage weight ``(n, n)`` (on ``x_0 … x_{N-1}``).
-        W, R, u_min, u_max, x_min, x_max, soft, soft_weights: As for :class:`CondensedLTV`.
+        W, R, u_min, u_max, x_min, x_max, soft, soft_weight_l1, soft_weight_quad: As for :class:`CondensedLTV`.
         osqp_settings: Overrides of :data:`SPARSE_OSQP_SETTINGS`.
     """
 
@@ -65,7 +65,8 @@ class SparseLTV:
         x_max: np.ndarray,
         *,
         soft: bool = False,
-        soft_weights: tuple[float, float] = (1e2, 1e2),
+        soft_weight_l1: float = 1e2,
+        soft_weight_quad: float = 1e2,
         osqp_settings: dict[str, Any] | None = None,
     ):
         N, n, w_ = G.shape
@@ -81,7 +82,7 @@ class SparseLTV:
         self.nx, self.nu, self.ns = nx, nu, ns
         nz = nx + nu + ns
         self.nvar = nz
-        P = self._cost(Q, W, R, soft_weights)
+        P = self._cost(Q, W, R, (soft_weight_l1, soft_weight_quad))
         rows, cols, vals, nrow = self._constraint_triplets()
         rows_a, cols_a = np.concatenate(rows), np.concatenate(cols)
         self._vals = np.concatenate(vals)
@@ -106,11 +107,11 @@ class SparseLTV:
         self.status = ""
         self.dX = np.empty((N, n))
 
-    def _cost(self, Q: np.ndarray, W: np.ndarray, R: np.ndarray, soft_weights: tuple[float, float]) -> sp.csc_matrix:
+    def _cost(self, Q: np.ndarray, W: np.ndarray, R: np.ndarray, weights: tuple[float, float]) -> sp.csc_matrix:
         """The constant cost: ``P`` (upper triangle, returned), ``Pfull`` and the linear term ``q``."""
         N, ns, nx, nu = self.N, self.ns, self.nx, self.nu
         nz = self.nvar
-        blocks = [Q] + [W[k] for k in range(N)] + [R] * N + ([soft_weights[1] * np.eye(ns)] if ns else [])
+        blocks = [Q] + [W[k] for k in range(N)] + [R] * N + ([weights[1] * np.eye(ns)] if ns else [])
         Pfull = sp.block_diag(blocks, format="csc")
         self.Pfull = Pfull
         P = sp.csc_matrix(sp.triu(Pfull, format="csc"))
@@ -118,7 +119,7 @@ class SparseLTV:
         self.R = R
         self.q = np.zeros(nz)
         if ns:
-            self.q[nx + nu :] = soft_weights[0]
+            self.q[nx + nu :] = weights[0]
         return P
 
     def _constraint_triplets(self) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], int]:
