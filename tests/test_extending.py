@@ -171,3 +171,86 @@ def test_a_cli_command_added_from_outside(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err == "error: unknown plant type 'extending_crt'; did you mean 'extending_cart'?\n", err
     assert "describe-plant" in cli.build_parser().format_help()
+
+
+# ------------------------------------------------------ "Add a solver backend"
+class BoxLsqBackend:
+    """A LinearMPC backend written outside the package: the condensed input-only QP with input bounds,
+    ``min ½ Uᵀ H U + fᵀ U, lo ≤ U ≤ hi``, solved as the bounded least squares ``min ½ ‖Lᵀ U + L⁻¹ f‖²``
+    (``H = L Lᵀ``) by scipy's ``lsq_linear``. No state or rate bounds (refused)."""
+
+    name = "box_lsq"
+
+    def __init__(self, problem, options):
+        import scipy.linalg
+
+        from tests.test_mpc import condensed
+
+        if np.isfinite(options.x_min).any() or np.isfinite(options.x_max).any() or options.du_max is not None:
+            raise InvalidArgument("box_lsq takes input bounds only")
+        self.problem, self.options, self.settled = problem, options, True
+        p = problem
+        self._condensed = lambda x: condensed(p.A, p.B, p.Q, p.R, p.Qf, p.N, x)
+        H, _ = self._condensed(np.zeros(p.A.shape[0]))
+        self._L = scipy.linalg.cholesky(H, lower=True)
+        m = p.B.shape[1]
+        self._lo = np.tile(options.u_min - options.u0, p.N)
+        self._hi = np.tile(options.u_max - options.u0, p.N)
+        self._m = m
+
+    def solve(self, x, ref, u_ref, u_prev):
+        import scipy.linalg
+        from scipy.optimize import lsq_linear
+
+        from shinro_ctrl.controllers.mpc import MPCSolution
+
+        p, o = self.problem, self.options
+        e0 = x - o.x0
+        H, f = self._condensed(e0)
+        b = -scipy.linalg.solve_triangular(self._L, f, lower=True)
+        res = lsq_linear(self._L.T, b, bounds=(self._lo, self._hi), method="bvls", tol=1e-14, max_iter=1000)
+        U = res.x.reshape(p.N, self._m)
+        X = [e0]
+        for k in range(p.N):
+            X.append(p.A @ X[-1] + p.B @ U[k])
+        return MPCSolution(
+            status="solved",
+            iterations=int(res.nit),
+            solve_time_s=0.0,
+            objective=float(0.5 * res.x @ H @ res.x + f @ res.x),
+            states=np.array(X) + o.x0,
+            inputs=U + o.u0,
+            u=np.clip(U[0] + o.u0, o.u_min, o.u_max),
+            backend=self.name,
+        )
+
+    def reset(self):
+        pass
+
+    def describe(self):
+        return f"box_lsq: {self.problem.N * self._m} inputs, scipy lsq_linear (BVLS)"
+
+
+def test_a_solver_backend_added_from_outside_runs_linear_mpc(monkeypatch):
+    """Registered in BACKENDS, its name is a valid ``solver``; its first moves equal DAQP's exact ones."""
+    from shinro_ctrl.controllers import LinearMPC
+    from shinro_ctrl.controllers.qp import dispatch
+    from shinro_ctrl.plants import CartPole
+
+    with pytest.raises(InvalidArgument, match="solver must be one of 'auto', 'osqp', 'daqp', got 'box_lsq'"):
+        LinearMPC.from_plant(CartPole(), [10, 1, 100, 1], [0.1], horizon=20, solver="box_lsq")
+    monkeypatch.setitem(dispatch.BACKENDS, "box_lsq", BoxLsqBackend)
+    kw = dict(horizon=20, u_min=-3.0, u_max=3.0)
+    ours = LinearMPC.from_plant(CartPole(), [10, 1, 100, 1], [0.1], solver="box_lsq", **kw)
+    exact = LinearMPC.from_plant(CartPole(), [10, 1, 100, 1], [0.1], solver="daqp", **kw)
+    assert isinstance(ours.backend, BoxLsqBackend) and "box_lsq: 20 inputs" in ours.describe()
+    plant = CartPole()
+    plant.set_state([0.0, 0.0, 0.25, 0.0])
+    saturated = 0
+    for _ in range(100):
+        x = plant.get_state()
+        u = ours(x)
+        np.testing.assert_allclose(u, exact(x), atol=1e-7)
+        saturated += abs(u[0]) >= 3.0 - 1e-9
+        plant.step(u)
+    assert saturated > 0 and abs(plant.get_state()[2]) < 0.05  # the bounds were active; the pole is caught

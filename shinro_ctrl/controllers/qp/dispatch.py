@@ -10,6 +10,7 @@ DAQP on the condensed QP while it is small, else OSQP on the sparse QP.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
@@ -17,7 +18,7 @@ import numpy as np
 from shinro_ctrl.controllers.qp.backend_daqp import DaqpBackend
 from shinro_ctrl.controllers.qp.backend_osqp import OsqpBackend
 from shinro_ctrl.controllers.qp.condensed import MAX_DENSE_SIZE, condensed_size
-from shinro_ctrl.controllers.qp.options import MPCOptions
+from shinro_ctrl.controllers.qp.options import MPCOptions, MPCProblem
 from shinro_ctrl.controllers.qp.solution import MPCSolution
 
 __all__ = ["AUTO_DAQP_MAX_VARIABLES", "BACKENDS", "MPCBackend", "choose_solver", "dense_size"]
@@ -44,8 +45,10 @@ class MPCBackend(Protocol):
         ...
 
 
-#: The backends by name (``LinearMPC(solver=...)``).
-BACKENDS: dict[str, type[OsqpBackend] | type[DaqpBackend]] = {"osqp": OsqpBackend, "daqp": DaqpBackend}
+#: The backends by name (``LinearMPC(solver=...)``): each a class built as ``cls(problem, options)``
+#: that satisfies :class:`MPCBackend`. An entry added here is a valid ``solver`` name (see
+#: ``docs/extending.md``, "Add a solver backend").
+BACKENDS: dict[str, Callable[[MPCProblem, MPCOptions], MPCBackend]] = {"osqp": OsqpBackend, "daqp": DaqpBackend}
 
 #: ``solver="auto"`` uses DAQP while the condensed QP has at most this many
 #: variables ``N·m`` plus slacks (and fits :data:`~shinro_ctrl.controllers.qp.condensed.MAX_DENSE_SIZE`).

@@ -22,7 +22,7 @@ import numpy as np
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.validation import as_vector, bound_pair, bound_vector, check_positive, weight_matrix
 
-__all__ = ["DEFAULT_OSQP_SETTINGS", "PLANT_GIVEN", "SOLVERS", "MPCOptions", "MPCProblem"]
+__all__ = ["DEFAULT_OSQP_SETTINGS", "PLANT_GIVEN", "MPCOptions", "MPCProblem"]
 
 #: Defaults tuned for closed-loop control of the cart-pole benchmark (see
 #: benchmarks/mpc.py and docs/mpc.md). eps <= 1e-4 keeps the first move within
@@ -47,8 +47,6 @@ DEFAULT_OSQP_SETTINGS: dict[str, Any] = {
     "verbose": False,
 }
 
-#: QP backends of LinearMPC: ``"auto"`` picks by problem size (see ``LinearMPC``).
-SOLVERS = ("auto", "osqp", "daqp")
 
 #: Options ``from_plant`` fills in from the plant (a scenario cannot set them).
 PLANT_GIVEN = ("dt", "offset", "state_names", "input_names")
@@ -143,8 +141,11 @@ class MPCOptions:
             raise InvalidArgument(f"fallback must be None or 'shift', got {self.fallback!r}")
         if self.disturbance_model not in (None, "input"):
             raise InvalidArgument(f"disturbance_model must be None or 'input', got {self.disturbance_model!r}")
-        if self.solver not in SOLVERS:
-            raise InvalidArgument(f"solver must be one of {', '.join(map(repr, SOLVERS))}, got {self.solver!r}")
+        from shinro_ctrl.controllers.qp.dispatch import BACKENDS
+
+        valid = ("auto", *BACKENDS)  # a backend added to BACKENDS is a valid solver name
+        if self.solver not in valid:
+            raise InvalidArgument(f"solver must be one of {', '.join(map(repr, valid))}, got {self.solver!r}")
         tc = self.terminal_cost
         if isinstance(tc, str):
             tc = "lqr" if tc == "dare" else tc
