@@ -102,7 +102,8 @@ def test_urdf_mimic_and_friction_listed_at_once_in_the_urdfs_terms(capsys):
     with pytest.raises(InvalidArgument) as info:
         MjcfPlant(path)
     msg = str(info.value)
-    assert f"URDF '{path}'" in msg and "shinro_ctrl_urdf" not in msg and "/tmp" not in msg
+    assert f"URDF '{path}'" in msg and "shinro_ctrl_urdf" not in msg
+    assert "/tmp" not in msg.replace(str(path), "")  # no temporary translation (the checkout itself may be in /tmp)
     assert "<mimic> on joint 'finger_right_joint' (of 'finger_left_joint')" in msg
     assert "<dynamics friction> on joints 'wrist_roll', 'finger_left_joint'" in msg
     assert 'set friction="0"' in msg and "remove the <mimic>" in msg
