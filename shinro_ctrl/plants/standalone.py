@@ -115,31 +115,36 @@ class StandaloneEngine:
             NonFiniteError: the state is where the plant's model is undefined (``check_model_domain``).
             SimulationDiverged: the new state is not finite (overflow or NaN).
         """
-        plant, x = self.plant, self._x
-        if self._domain is not None:
-            self._domain(x)
-        try:
-            new = plant.integrate(x, self._u)
-        except (OverflowError, ZeroDivisionError):  # Python-float arithmetic of a diverging state
-            new = np.full(x.shape[0], np.nan)
-        if self._force_rate is not None:
-            new = new + plant.dt * self._force_rate
-        if not math.isfinite(sum(new.tolist())) and not np.all(np.isfinite(new)):
-            raise SimulationDiverged(
-                f"{type(plant).__name__} state became non-finite after a step from "
-                f"{np.array2string(x, precision=4)} with u = {np.array2string(np.asarray(self._u), precision=4)}"
-            )
-        self._x = new
+        self.advance(self.plant, self._u)
 
     def read(self, plant: Plant) -> np.ndarray:
         """The current state ``(n,)`` (the engine's own array: copy it before changing it)."""
         return self._x
 
     def advance(self, plant: Plant, u: np.ndarray) -> np.ndarray:
-        """``apply(plant, u)``, ``step()``, then ``read(plant)``: one step of the plant (``Plant.step``'s path)."""
+        """``apply(plant, u)``, ``step()``, then ``read(plant)``: one step of the plant (``Plant.step``'s path).
+
+        Raises:
+            NonFiniteError: the state is where the plant's model is undefined (``check_model_domain``).
+            SimulationDiverged: the new state is not finite (overflow or NaN).
+        """
         self._u = u
-        self.step()
-        return self._x
+        x = self._x
+        if self._domain is not None:
+            self._domain(x)
+        try:
+            new = self.plant.integrate(x, u)
+        except (OverflowError, ZeroDivisionError):  # Python-float arithmetic of a diverging state
+            new = np.full(x.shape[0], np.nan)
+        if self._force_rate is not None:
+            new = new + self.plant.dt * self._force_rate
+        if not math.isfinite(sum(new.tolist())) and not np.all(np.isfinite(new)):
+            raise SimulationDiverged(
+                f"{type(self.plant).__name__} state became non-finite after a step from "
+                f"{np.array2string(x, precision=4)} with u = {np.array2string(np.asarray(u), precision=4)}"
+            )
+        self._x = new
+        return new
 
     def write(self, plant: Plant, x: np.ndarray) -> None:
         """Set the state ``(n,)`` (a copy is kept)."""
