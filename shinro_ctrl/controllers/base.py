@@ -39,7 +39,8 @@ from __future__ import annotations
 import abc
 import functools
 import inspect
-from typing import TYPE_CHECKING, Any, ClassVar
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -54,17 +55,19 @@ if TYPE_CHECKING:
 __all__ = ["CONTROLLER_REGISTRY", "CallGuard", "Controller", "check_operating_point", "check_plant", "checks_plant"]
 
 
+T = TypeVar("T")
+
 #: Every concrete :class:`Controller` subclass defined so far, by class name (``Controller.__init_subclass__``).
 CONTROLLER_REGISTRY: Registry[Controller] = Registry("controller", "shinro_ctrl.controllers")
 
 
-def checks_plant(func: Any) -> Any:
+def checks_plant(func: Callable[..., T]) -> Callable[..., T]:
     """``from_plant`` preceded by :func:`check_plant` (every controller's, applied by ``__init_subclass__``)."""
     if getattr(func, "plant_checked", False):
         return func
 
     @functools.wraps(func)
-    def from_plant(cls: type, *args: Any, **kwargs: Any) -> Any:
+    def from_plant(cls: type, *args: Any, **kwargs: Any) -> T:
         if args or "plant" in kwargs:
             check_plant(args[0] if args else kwargs["plant"], f"{cls.__name__}.from_plant")
         return func(cls, *args, **kwargs)
