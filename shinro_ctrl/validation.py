@@ -195,10 +195,12 @@ def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False, rtol
         raise NonFiniteError(f"{name} must be finite")
     tiny = np.finfo(float).tiny
     scale = max(float(np.max(np.abs(arr), initial=0.0)), tiny)
-    asym = float(np.max(np.abs(arr - arr.T), initial=0.0))
-    if asym > rtol * scale:
-        raise InvalidArgument(f"{name} must be symmetric; max |{name} - {name}ᵀ| = {asym:.3g} (scale {scale:.3g})")
-    W = 0.5 * (arr + arr.T)
+    half = 0.5 * arr  # halves first: arr ± arrᵀ may overflow float64 for entries near its limit
+    half_asym = float(np.max(np.abs(half - half.T), initial=0.0))
+    if half_asym > 0.5 * rtol * scale:
+        asym = f"{2.0 * half_asym:.3g}" if half_asym < 8e307 else f"{half_asym:.3g}·2"
+        raise InvalidArgument(f"{name} must be symmetric; max |{name} - {name}ᵀ| = {asym} (scale {scale:.3g})")
+    W = half + half.T
     try:
         lam_min = float(np.linalg.eigvalsh(W).min()) if W.size else 0.0
     except np.linalg.LinAlgError:
