@@ -18,6 +18,7 @@ from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 
 __all__ = [
     "MAX_MODEL_ENTRY",
+    "MAX_WEIGHT_ENTRY",
     "all_finite",
     "as_matrix",
     "as_vector",
@@ -195,6 +196,11 @@ def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False, rtol
         raise NonFiniteError(f"{name} must be finite")
     tiny = np.finfo(float).tiny
     scale = max(float(np.max(np.abs(arr), initial=0.0)), tiny)
+    if scale > MAX_WEIGHT_ENTRY:
+        raise InvalidArgument(
+            f"{name}: entries up to {scale:.3g} are too large for the design's arithmetic (|entry| <= "
+            f"{MAX_WEIGHT_ENTRY:.0e}); scale the weights down (only their ratios matter)"
+        )
     half = 0.5 * arr  # halves first: arr ± arrᵀ may overflow float64 for entries near its limit
     half_asym = float(np.max(np.abs(half - half.T), initial=0.0))
     if half_asym > 0.5 * rtol * scale:
@@ -213,6 +219,9 @@ def weight_matrix(name: str, value: Any, n: int, *, definite: bool = False, rtol
         raise InvalidArgument(f"{name} must be positive semidefinite; smallest eigenvalue {lam_min:.3g}")
     return W
 
+
+#: Largest weight entry a design accepts: a Riccati solution scales with the weights and meets the model's entries.
+MAX_WEIGHT_ENTRY = 1e150
 
 #: Largest model-matrix entry a design accepts: products like ``Aᵀ S A`` stay within float64 up to about 1e100.
 MAX_MODEL_ENTRY = 1e100

@@ -27,7 +27,7 @@ OVERFLOW_CASES = {
     "Q_huge": (
         GOOD.replace("[10, 1, 100, 1]", "[1e308, 1e308, 1e308, 1e308]"),
         ["design", "lqr"],
-        "Q: its eigenvalues cannot be computed",
+        "Q: entries up to 1e+308 are too large for the design's arithmetic",
     ),
     "horizon_over_limit": (
         GOOD.replace('type = "LQR"', 'type = "LinearMPC"\nhorizon = 99999\nu_min = [-1]\nu_max = [1]'),
@@ -192,6 +192,6 @@ def test_huge_weights_are_checked_without_a_numpy_overflow_warning(M):
         try:
             W = weight_matrix("Q", np.array(M, dtype=float), 2)
         except InvalidArgument as exc:
-            assert str(exc).startswith("Q must be")
+            assert str(exc).startswith("Q must be") or "too large for the design" in str(exc)
         else:
             assert np.all(np.isfinite(W))
