@@ -5,6 +5,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 from shinro_ctrl.cli import main
 from shinro_ctrl.resources import regression_dir
@@ -38,3 +39,15 @@ def _copy_regression(tmp_path, names=("cartpole_lqr", "double_pendulum_lqr")) ->
         shutil.copy(regression_dir() / f"{name}.toml", tmp_path)
         shutil.copy(regression_dir() / f"{name}.baseline.json", tmp_path)
     return {p.name: p.read_text() for p in tmp_path.glob("*.baseline.json")}
+
+
+def child_processes() -> dict[int, list[int]]:
+    """Parent pid -> its children's pids, read from ``/proc`` (the pool and forkserver tests find workers by it)."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    return children

@@ -16,6 +16,8 @@ import pytest
 from shinro_ctrl.cli import main
 from shinro_ctrl.planning import Trajectory
 
+from .bad_input_helpers import child_processes
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -259,26 +261,15 @@ def test_a_killed_tradeoff_worker_names_its_point_and_keeps_the_others():
     assert np.isfinite(current["rms_error"])
 
 
-def _children() -> dict[int, list[int]]:
-    children: dict[int, list[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
-    return children
-
-
 def _pool_workers(pid: int) -> list[int]:
     """The pool's worker processes: children of the forkserver, itself a child of ``pid``."""
-    children = _children()
+    children = child_processes()
     return [w for c in children.get(pid, []) for w in children.get(c, [])]
 
 
 def _descendants(pid: int) -> list[int]:
     """Process ids below ``pid`` (from /proc)."""
-    children = _children()
+    children = child_processes()
     out, todo = [], [pid]
     while todo:
         for c in children.get(todo.pop(), []):

@@ -15,6 +15,8 @@ from shinro_ctrl.estimators.kalman import ExtendedKalmanFilter, KalmanFilter
 from shinro_ctrl.estimators.luenberger import Luenberger
 from shinro_ctrl.plants import CartPole, InvertedPendulum, Quadrotor
 
+from .thread_helpers import BlockingArray, in_threads
+
 QN, RN = np.array([[0.2]]), np.diag([1e-4, 4e-4])
 
 
@@ -243,31 +245,6 @@ def _estimators(plant):
     }
 
 
-def _in_threads(work, n):
-    import threading
-
-    barrier = threading.Barrier(n)
-    out = [None] * n
-
-    errors = []
-
-    def run(i):
-        barrier.wait()
-        try:
-            out[i] = work(i)
-        except BaseException as exc:  # re-raised in the calling thread below
-            errors.append(exc)
-
-    threads = [threading.Thread(target=run, args=(i,)) for i in range(n)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    if errors:
-        raise errors[0]
-    return out
-
-
 @pytest.mark.parametrize("kind", list(_estimators(CartPole())))
 def test_one_estimator_per_thread_gives_the_serial_estimates(kind):
     build = _estimators(CartPole(dt=0.01))[kind]
@@ -281,7 +258,7 @@ def test_one_estimator_per_thread_gives_the_serial_estimates(kind):
 
     serial = [run(build(), i) for i in range(4)]
     own = [build() for _ in range(4)]
-    threaded = _in_threads(lambda i: run(own[i], i), 4)
+    threaded = in_threads(lambda i: run(own[i], i), range(4))
     for s, t in zip(serial, threaded, strict=True):
         np.testing.assert_array_equal(s, t)
 
@@ -298,15 +275,7 @@ def test_an_estimator_shared_between_threads_refuses_the_second_caller(kind):
         est.reset(np.zeros(4))
     y0, y1, u = np.array([0.01, 0.02]), np.array([0.02, 0.01]), np.array([0.3])
 
-    class Blocking:
-        entered, release = threading.Event(), threading.Event()
-
-        def __array__(self, dtype=None, copy=None):
-            self.entered.set()
-            assert self.release.wait(30)
-            return y0
-
-    held, result = Blocking(), {}
+    held, result = BlockingArray(y0), {}
     inside = threading.Thread(target=lambda: result.setdefault("x", shared.update(held, u)))
     inside.start()
     assert held.entered.wait(30)
@@ -327,7 +296,7 @@ def test_an_estimator_shared_between_threads_refuses_the_second_caller(kind):
             except ConcurrentUse:
                 pass
 
-    _in_threads(hammer, 4)
+    in_threads(hammer, range(4))
     fresh = build()
     for est in (shared, fresh):
         est.reset(np.zeros(4))

@@ -10,6 +10,8 @@ from shinro_ctrl.controllers import LQR
 from shinro_ctrl.errors import NonFiniteError, NotStabilizable
 from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum
 
+from .thread_helpers import BlockingArray, in_threads
+
 
 def test_discrete_gain_equals_scipy_dare():
     plant = CartPole(dt=0.01)
@@ -330,53 +332,12 @@ def test_the_linear_model_keeps_the_plant_names():
 
 
 # --------------------------------------------------------------- threads (issue 23.3)
-def _in_threads(work, chunks):
-    """``work(chunk)`` in one thread per chunk, started together; the results in chunk order."""
-    import threading
-
-    barrier = threading.Barrier(len(chunks))
-    out = [None] * len(chunks)
-
-    errors = []
-
-    def run(i):
-        barrier.wait()
-        try:
-            out[i] = work(chunks[i])
-        except BaseException as exc:  # re-raised in the calling thread below
-            errors.append(exc)
-
-    threads = [threading.Thread(target=run, args=(i,)) for i in range(len(chunks))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    if errors:
-        raise errors[0]
-    return out
-
-
-class _Blocking:
-    """An array-like whose conversion waits until released: holds a call inside the object (no sleeps)."""
-
-    def __init__(self, value):
-        import threading
-
-        self.value = np.asarray(value, dtype=float)
-        self.entered, self.release = threading.Event(), threading.Event()
-
-    def __array__(self, dtype=None, copy=None):
-        self.entered.set()
-        assert self.release.wait(30)
-        return self.value if dtype is None else self.value.astype(dtype)
-
-
 def test_one_lqr_called_from_four_threads_gives_the_serial_results():
     ctrl = LQR.from_plant(CartPole(), [10, 1, 100, 1], [0.1], u_min=[-5], u_max=[5], feedforward=True)
     X = np.random.default_rng(0).normal(scale=0.5, size=(4, 1000, 4))
     refs = np.random.default_rng(1).normal(scale=0.2, size=(4, 1000, 2, 4))
     serial = [np.array([ctrl(x, ref=r) for x, r in zip(X[i], refs[i], strict=True)]) for i in range(4)]
-    threaded = _in_threads(lambda i: np.array([ctrl(x, ref=r) for x, r in zip(X[i], refs[i], strict=True)]), range(4))
+    threaded = in_threads(lambda i: np.array([ctrl(x, ref=r) for x, r in zip(X[i], refs[i], strict=True)]), range(4))
     for s, t in zip(serial, threaded, strict=True):
         np.testing.assert_array_equal(s, t)
 
@@ -396,12 +357,12 @@ def test_an_lqi_shared_between_threads_refuses_the_second_caller_and_one_per_thr
         c = build()
         serial.append(np.array([c(x, ref) for x in X[i]]))
     own = [build() for _ in range(4)]
-    threaded = _in_threads(lambda i: np.array([own[i](x, ref) for x in X[i]]), range(4))
+    threaded = in_threads(lambda i: np.array([own[i](x, ref) for x in X[i]]), range(4))
     for s, t in zip(serial, threaded, strict=True):
         np.testing.assert_array_equal(s, t)
     # one object, two threads: the second call is refused while the first is inside; the first completes
     shared, twin = build(), build()
-    held = _Blocking(X[0, 0])
+    held = BlockingArray(X[0, 0])
     result = {}
     inside = threading.Thread(target=lambda: result.setdefault("u", shared(held, ref)))
     inside.start()

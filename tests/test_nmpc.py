@@ -15,6 +15,8 @@ from shinro_ctrl.errors import ConcurrentUse, InvalidArgument, MPCInfeasible, No
 from shinro_ctrl.plants import CartPole, Quadrotor
 from shinro_ctrl.sim import RobotSim
 
+from .thread_helpers import BlockingArray
+
 Q_CP = [1e3, 1e-2, 1e3, 1e-2]
 R_CP = [1e-2]
 X_BOUND = ([-2.0, -np.inf, -np.inf, -np.inf], [2.0, np.inf, np.inf, np.inf])
@@ -325,7 +327,6 @@ def test_ctrl_c_during_an_ipopt_solve_exits_130(tmp_path):
     import signal
     import subprocess
     import sys
-    import threading
 
     scenario = tmp_path / "ipopt_swingup.toml"
     scenario.write_text(IPOPT_SCENARIO)
@@ -345,20 +346,6 @@ def test_ctrl_c_during_an_ipopt_solve_exits_130(tmp_path):
     assert "Traceback" not in err and "NonIpopt" not in err
     assert "interrupted" in err
     assert "rms_error" not in out  # the run did not finish
-
-
-class _Blocking:
-    """A state that holds the call converting it (``np.asarray``) until released: a call provably in progress."""
-
-    def __init__(self, value):
-        self.value = np.asarray(value, dtype=float)
-        self.entered = threading.Event()
-        self.release = threading.Event()
-
-    def __array__(self, dtype=None, copy=None):
-        self.entered.set()
-        assert self.release.wait(60)
-        return self.value if dtype is None else self.value.astype(dtype)
 
 
 def _small_nmpc() -> NonlinearMPC:
@@ -391,7 +378,7 @@ def test_threads_one_controller_per_thread_equals_serial_and_sharing_is_refused(
 
     shared = _small_nmpc()
     x = starts[1]
-    blocker = _Blocking(x)
+    blocker = BlockingArray(x)
     with ThreadPoolExecutor(1) as pool:
         first = pool.submit(shared, blocker)
         assert blocker.entered.wait(60)

@@ -11,6 +11,7 @@ from shinro_ctrl.errors import ConfigError, NonFiniteError
 from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum, plant_class
 
 from .conftest import PENDULUM_FAMILY, random_params
+from .thread_helpers import in_threads
 
 
 @pytest.mark.parametrize("cls", PENDULUM_FAMILY, ids=lambda c: c.__name__)
@@ -334,27 +335,6 @@ def test_dynamics_with_nan_or_inf_raises_non_finite_error_like_step(plant, bad, 
             plant.step(u)
 
 
-def _run_threads(fn, args_per_thread):
-    import threading
-
-    out: list = [None] * len(args_per_thread)
-    errors: list = []
-
-    def work(i):
-        try:
-            out[i] = fn(*args_per_thread[i])
-        except Exception as exc:
-            errors.append(exc)
-
-    threads = [threading.Thread(target=work, args=(i,)) for i in range(len(args_per_thread))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    assert not errors, errors
-    return out
-
-
 @pytest.mark.parametrize("plant", _built_in_plants(), ids=lambda p: type(p).__name__)
 def test_dynamics_and_linearize_from_4_threads_equal_the_serial_results(plant):
     rng = np.random.default_rng(11)
@@ -371,7 +351,7 @@ def test_dynamics_and_linearize_from_4_threads_equal_the_serial_results(plant):
         return [(plant.dynamics(x, u), *plant.linearize(x, u)) for x, u in zip(X, U, strict=True)]
 
     serial = [calls(X, U) for X, U in pts]
-    threaded = _run_threads(calls, pts)
+    threaded = in_threads(lambda args: calls(*args), pts)
     for s_run, t_run in zip(serial, threaded, strict=True):
         for s, t in zip(s_run, t_run, strict=True):
             for a, b in zip(s, t, strict=True):
@@ -397,7 +377,7 @@ def test_a_plant_stepped_from_4_threads_is_correct_or_refuses_with_concurrent_us
                 refused += 1
         return done, refused
 
-    results = _run_threads(steps, [()] * 4)
+    results = in_threads(lambda _: steps(), range(4))
     total = sum(d for d, _ in results)
     assert total + sum(r for _, r in results) == 2000
     ref = type(plant)()  # the same number of steps, serially: every successful step is F(x, u)

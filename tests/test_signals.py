@@ -22,6 +22,8 @@ import pytest
 
 from shinro_ctrl.resources import shipped_config
 
+from .bad_input_helpers import child_processes
+
 ROOT = Path(__file__).resolve().parents[1]
 
 pytestmark = pytest.mark.skipif(not Path("/proc").is_dir(), reason="process groups and /proc (Linux)")
@@ -75,21 +77,10 @@ def _assert_interrupted(proc: subprocess.Popen, err: str) -> None:
     assert err.strip() == "interrupted", err
 
 
-def _children() -> dict[int, list[int]]:
-    children: dict[int, list[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
-    return children
-
-
 def _forkserver(pid: int) -> list[int]:
     """The command's forkserver process (a child), once the pool starts it."""
     found = []
-    for child in _children().get(pid, []):
+    for child in child_processes().get(pid, []):
         try:
             if b"forkserver" in Path(f"/proc/{child}/cmdline").read_bytes():
                 found.append(child)
@@ -100,7 +91,7 @@ def _forkserver(pid: int) -> list[int]:
 
 def _pool_workers(pid: int) -> list[int]:
     """The pool's worker processes: children of the forkserver, itself a child of ``pid``."""
-    children = _children()
+    children = child_processes()
     return [w for c in children.get(pid, []) for w in children.get(c, [])]
 
 

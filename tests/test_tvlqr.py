@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -15,6 +14,8 @@ from shinro_ctrl.linearization import complex_step_jacobians, discretize
 from shinro_ctrl.planning import TrajectoryOptimizer
 from shinro_ctrl.plants import CartPole, DoublePendulum
 from shinro_ctrl.sim import RobotSim
+
+from .thread_helpers import BlockingArray
 
 INF = np.inf
 Q = np.array([10.0, 1.0, 10.0, 1.0])
@@ -176,20 +177,6 @@ def test_quadrotor_point_to_point_in_mujoco_under_two_seconds_with_the_thrust_bo
     np.testing.assert_allclose(res.x[-1, :3], [3.0, 0.0, 1.0], atol=0.05)
 
 
-class _Blocking:
-    """A state that holds the call converting it (``np.asarray``) until released: a call provably in progress."""
-
-    def __init__(self, value):
-        self.value = np.asarray(value, dtype=float)
-        self.entered = threading.Event()
-        self.release = threading.Event()
-
-    def __array__(self, dtype=None, copy=None):
-        self.entered.set()
-        assert self.release.wait(60)
-        return self.value if dtype is None else self.value.astype(dtype)
-
-
 def test_threads_at_time_is_correct_and_a_concurrent_call_is_refused(plant, tvlqr, rng):
     """Thread policy: 4 threads x 1,000 at_time calls on one object equal a serial run; __call__ detects reentry."""
     samples = [
@@ -209,7 +196,7 @@ def test_threads_at_time_is_correct_and_a_concurrent_call_is_refused(plant, tvlq
 
     tvlqr.reset()
     x = np.array([0.1, 0.0, np.pi - 0.1, 0.0])
-    blocker = _Blocking(x)
+    blocker = BlockingArray(x)
     with ThreadPoolExecutor(1) as pool:
         first = pool.submit(tvlqr, blocker)
         assert blocker.entered.wait(60)
