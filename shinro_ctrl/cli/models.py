@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterable
 
 from shinro_ctrl.cli.common import (
     CROSSCHECK_PLANTS,
@@ -23,14 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     from shinro_ctrl.plants import PLANT_ALIASES
 
     p = sub.add_parser("linearize", help="exact (CasADi) and finite-difference Jacobians side by side")
-    p.add_argument(
-        "plant",
-        metavar="PLANT",
-        help=f"one of: {', '.join(PLANT_ALIASES)}; an MJCF/URDF file; or a scenario file or name (its plant)",
-    )
-    p.add_argument("--x0", help="operating state, e.g. '0,0,0.1,0' (pi allowed: 'pi,pi,0,0')")
-    p.add_argument("--u0", help="operating input, e.g. '0'")
-    p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
+    _model_arguments(p, PLANT_ALIASES)
     p.add_argument("--eps-sweep", action="store_true", help="FD error against the step size (complex-step reference)")
     p.add_argument(
         "--plot", type=path_arg, metavar="FILE", help=f"with --eps-sweep: plot the V-shaped error curve ({PLOT_HELP})"
@@ -38,14 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_linearize)
 
     p = sub.add_parser("crosscheck", help="exact vs finite differences vs MuJoCo's mjd_transitionFD")
-    p.add_argument(
-        "plant",
-        metavar="PLANT",
-        help=f"one of: {', '.join(CROSSCHECK_PLANTS)}; an MJCF/URDF file; or a scenario file or name (its plant)",
-    )
-    p.add_argument("--x0", help="operating state (pi allowed)")
-    p.add_argument("--u0", help="operating input")
-    p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
+    _model_arguments(p, CROSSCHECK_PLANTS)
     p.add_argument(
         "--plot", type=path_arg, metavar="FILE", help=f"draw the exact / FD / MuJoCo comparison ({PLOT_HELP})"
     )
@@ -53,6 +40,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("list", help="plants, controllers and shipped scenarios")
     p.set_defaults(func=cmd_list)
+
+
+def _model_arguments(p: argparse.ArgumentParser, plants: Iterable[str]) -> None:
+    """What ``linearize`` and ``crosscheck`` share: PLANT, ``--x0``, ``--u0`` and ``--eps``."""
+    p.add_argument(
+        "plant",
+        metavar="PLANT",
+        help=f"one of: {', '.join(plants)}; an MJCF/URDF file; or a scenario file or name (its plant)",
+    )
+    p.add_argument("--x0", help="operating state, e.g. '0,0,0.1,0' (pi allowed: 'pi,pi,0,0')")
+    p.add_argument("--u0", help="operating input, e.g. '0'")
+    p.add_argument("--eps", type=float, default=1e-6, help="finite-difference step (default 1e-6)")
 
 
 # ------------------------------------------------------------------ linearize
