@@ -1,0 +1,22 @@
+"""Exact rigid-body dynamics of robots read from model files.
+
+* :mod:`~shinro_ctrl.multibody.tree`: the plain description (bodies, joints,
+  actuators, options) a model file is read into;
+* :mod:`~shinro_ctrl.multibody.rigid_body`: :class:`RigidBodyTree`, its
+  equations of motion on any scalar type (CasADi ``SX``, floats, complex).
+"""
+
+from shinro_ctrl.multibody.rigid_body import CASADI_OPS, NUMPY_OPS, Ops, RigidBodyTree, Scalar
+from shinro_ctrl.multibody.tree import ActuatorInfo, BodyInfo, JointInfo, ModelTree
+
+__all__ = [
+    "CASADI_OPS",
+    "NUMPY_OPS",
+    "ActuatorInfo",
+    "BodyInfo",
+    "JointInfo",
+    "ModelTree",
+    "Ops",
+    "RigidBodyTree",
+    "Scalar",
+]
