@@ -19,15 +19,18 @@ import html
 import io
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from shinro_ctrl.analysis._report_tables import _CSS, _num, _tables
+from shinro_ctrl.analysis._report_tables import _CSS, _num, _table, _tables
 from shinro_ctrl.analysis.design import DesignAnalysis
 from shinro_ctrl.analysis.margins import _crossings, _siso_response, frequency_grid, loop_statespace, sensitivity_peaks
 from shinro_ctrl.analysis.response import closed_loop_response
 from shinro_ctrl.plots.units import axis_label, unit_of
+
+if TYPE_CHECKING:
+    from shinro_ctrl.engine.model_gap import ModelGap
 
 __all__ = ["render_report", "report_figures", "write_report"]
 
@@ -351,6 +354,7 @@ def render_report(
     x_ref: Any = None,
     u_min: Any = None,
     u_max: Any = None,
+    model_gap: ModelGap | None = None,
 ) -> str:
     """The report as one HTML string (see :func:`write_report`)."""
     e = html.escape
@@ -380,6 +384,8 @@ def render_report(
         )
         if caption == "Pole map":
             out.append(_tables(a))
+    if model_gap is not None:
+        out.append(_model_gap_section(model_gap))
     out.append("</body></html>")
     return "\n".join(out)
 
@@ -391,7 +397,9 @@ def write_report(path: str | Path, analysis: DesignAnalysis, **kwargs: Any) -> P
         path: Output ``.html`` file.
         analysis: A :class:`~shinro_ctrl.analysis.design.DesignAnalysis`.
         **kwargs: ``title``, ``description``, ``nonlinear=(t (T+1,), x (T+1, n), u (T, m))``
-            of a nonlinear run to overlay, its ``x_ref (T+1, n)``, ``u_min``/``u_max (m,)``.
+            of a nonlinear run to overlay, its ``x_ref (T+1, n)``, ``u_min``/``u_max (m,)``;
+            ``model_gap``: a :class:`~shinro_ctrl.engine.model_gap.ModelGap` for a "Model gap" section
+            (what the smooth design model leaves out of the model file at the operating point).
 
     Returns:
         The path written.
@@ -405,3 +413,77 @@ def write_report(path: str | Path, analysis: DesignAnalysis, **kwargs: Any) -> P
         p, lambda f: f.write(text), what="report", kind="HTML report"
     )  # only over a report of ours (the meta tag)
     return p
+
+
+# ------------------------------------------------------------------ model gap
+def _pct(v: float | None) -> str:
+    return "—" if v is None else ("−∞" if math.isinf(v) else f"{100 * v:.1f} %")
+
+
+def _range(r: tuple[float, float] | None) -> str:
+    return "—" if r is None else f"[{r[0]:.4g}, {r[1]:.4g}]"
+
+
+def _model_gap_section(gap: ModelGap) -> str:
+    """The "Model gap" section: joints, actuators, contacts and the warnings of a model-gap report."""
+    e = html.escape
+    t = gap.thresholds
+    parts = [
+        "<h2>Model gap: what the smooth design model leaves out</h2>",
+        f"<p>Measured by MuJoCo on {e(gap.model)} at the operating point. Warnings: friction loss above "
+        f"{t.friction:.0%} of the joint's load torque τ<sub>load</sub> = qfrc_bias − qfrc_passive, u0 or its force "
+        f"within {t.clamp:.0%} of a clamp, any contact, a joint within {t.limit:.0%} of a limit.</p>",
+    ]
+    if gap.warnings:
+        items = "".join(
+            f'<li><span class="flag">{e(w.level)}</span>: {e(w.message)}</li>'
+            if w.level == "error"
+            else f"<li>{e(w.level)}: {e(w.message)}</li>"
+            for w in gap.warnings
+        )
+        parts.append(f"<ul>{items}</ul>")
+    else:
+        parts.append('<p class="ok">No effect above its threshold.</p>')
+    rows = []
+    for d in gap.dofs:
+        ratio = d.friction_ratio
+        fr = "—" if ratio is None else ("∞" if math.isinf(ratio) else f"{100 * ratio:.1f} %")
+        rows.append(
+            [
+                e(d.name),
+                _num(d.q),
+                _range(d.range),
+                _pct(d.limit_margin),
+                _num(d.load),
+                _num(d.actuator),
+                _num(d.frictionloss) if d.frictionloss else "—",
+                fr + (' <span class="flag">holds</span>' if d.friction_holds else ""),
+            ]
+        )
+    head = ["joint", "q", "range", "limit margin", "load τ", "actuator τ at u0", "frictionloss", "friction / load"]
+    parts.append(_table(head, rows))
+    rows = [
+        [
+            e(a.name),
+            _num(a.ctrl),
+            _range(a.ctrlrange),
+            _pct(a.ctrl_margin),
+            _num(a.force),
+            _range(a.forcerange),
+            _pct(a.force_margin),
+            _num(a.applied_force),
+        ]
+        for a in gap.actuators
+    ]
+    head = ["actuator", "u0", "ctrlrange", "margin", "force (smooth)", "forcerange", "margin", "force MuJoCo applies"]
+    parts.append(_table(head, rows))
+    if gap.contacts:
+        rows = [[e(c.geom1), e(c.geom2), _num(c.dist)] for c in gap.contacts]
+        parts.append(
+            f"<p>{gap.n_contacts} contact(s) at x0, max penetration {_num(gap.max_penetration)} m "
+            "(the design model has none):</p>"
+        )
+        parts.append(_table(["geom", "geom", "distance [m]"], rows, left=2))
+    else:
+        parts.append("<p>No contacts at x0.</p>")
+    return "\n".join(parts)

@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import numpy as np
 
+    from shinro_ctrl.engine.model_gap import ModelGap
+
 import argparse
 from typing import Any
 
@@ -134,6 +136,14 @@ def _print_mpc(sim: Any) -> None:
     print(f"constraint violations: {result.metrics['constraint_violations']}")
 
 
+def _model_gap(sim: Any) -> ModelGap | None:
+    """The model-gap report at the controller's operating point, for a plant built from a model file."""
+    from shinro_ctrl.cli.models import model_gap_of
+
+    ctrl = sim.controller
+    return model_gap_of(sim.plant, ctrl.x0[: sim.plant.state_dim], ctrl.u0)
+
+
 def _design_analysis(args: argparse.Namespace, sim) -> int:
     """``design``: poles, structure, margins, linear step metrics; ``--report`` and ``--tradeoff``."""
     from shinro_ctrl.analysis import analyze_controller
@@ -152,6 +162,9 @@ def _design_analysis(args: argparse.Namespace, sim) -> int:
     if args.kind == "mpc":
         print("linear analysis of the unconstrained first move (finite-horizon Riccati gain):")
     print(analysis.format())
+    gap = _model_gap(sim)
+    if gap is not None:
+        print(gap.format())
     if args.report:
         from shinro_ctrl.analysis.report import write_report
         from shinro_ctrl.sim import RobotSim
@@ -166,6 +179,7 @@ def _design_analysis(args: argparse.Namespace, sim) -> int:
             u_min=run.u_min,
             u_max=run.u_max,
             description=repr(plant),
+            model_gap=gap,
         )
         print(f"report: {path}")
     if args.tradeoff:

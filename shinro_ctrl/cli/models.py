@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 from shinro_ctrl.cli.common import (
     CROSSCHECK_PLANTS,
@@ -15,6 +16,11 @@ from shinro_ctrl.cli.common import (
     side_by_side,
 )
 from shinro_ctrl.errors import InvalidArgument
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from shinro_ctrl.engine.model_gap import ModelGap
 
 __all__ = ["cmd_crosscheck", "cmd_linearize", "cmd_list", "register"]
 
@@ -114,11 +120,22 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     u0 = None if args.u0 is None else parse_vector(args.u0, what="--u0")
     result = crosscheck(plant, x0, u0, eps=args.eps)
     print(format_crosscheck(result))
+    gap = model_gap_of(plant, result.x0, result.u0)
+    if gap is not None:
+        print()
+        print(gap.format())
     if args.plot:
         from shinro_ctrl.plots.linearization import plot_crosscheck
 
         print(f"plot: {plot_crosscheck(result, args.plot)}")
     return 0
+
+
+def model_gap_of(plant: object, x0: np.ndarray, u0: np.ndarray) -> ModelGap | None:
+    """The model-gap report of a plant built from a model file at ``(x0, u0)``; None for other plants."""
+    from shinro_ctrl.plants import MjcfPlant
+
+    return plant.model_gap(x0, u0) if isinstance(plant, MjcfPlant) else None
 
 
 # ----------------------------------------------------------------------- list

@@ -46,6 +46,7 @@ from shinro_ctrl.validation import as_vector, check_positive, closest
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
+    from shinro_ctrl.engine.model_gap import GapThresholds, ModelGap
     from shinro_ctrl.engine.model_tree import RobotModel
 
 __all__ = ["MODEL_SUFFIXES", "MjcfPlant", "is_model_file"]
@@ -327,6 +328,33 @@ class MjcfPlant(Plant):
                 f"acceleration {np.array2string(res, precision=3)} (expected 0)"
             )
         return u
+
+    def model_gap(
+        self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, thresholds: GapThresholds | None = None
+    ) -> ModelGap:
+        """What the smooth model leaves out at ``(x0, u0)`` and how large it is, measured by MuJoCo on the file.
+
+        Friction loss per joint against its load torque, the distance of ``u0`` to each ``ctrlrange`` /
+        ``forcerange`` clamp, the contacts active at ``x0`` and the joint-limit margins, with a warning
+        for each effect above its threshold (see :mod:`shinro_ctrl.engine.model_gap`).
+
+        Args:
+            x0: State ``(n,)``; default the operating state.
+            u0: Input ``(m,)``; default the operating input. Actuators that are not inputs get 0.
+            thresholds: When an effect warns (default :class:`~shinro_ctrl.engine.model_gap.GapThresholds`).
+
+        Raises:
+            InvalidArgument: wrong shapes.
+            NonFiniteError: NaN or inf in ``x0`` or ``u0``.
+        """
+        # the model file's reader family (agreed exception to the layering, like engine.model_tree)
+        from shinro_ctrl.engine.model_gap import model_gap_of_file
+
+        x = as_vector("x0", self._x0 if x0 is None else x0, self.state_dim)
+        u = as_vector("u0", self._u0 if u0 is None else u0, self.input_dim)
+        ctrl = np.zeros(self.tree.nu)
+        ctrl[list(self.active_actuators)] = u
+        return model_gap_of_file(self.model_path, x, ctrl, thresholds=thresholds, source=self.source_path)
 
     def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
         """Joint ranges of limited joints for the positions; ±inf elsewhere."""
