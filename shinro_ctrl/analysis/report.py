@@ -32,7 +32,7 @@ from shinro_ctrl.plots.units import axis_label, unit_of
 if TYPE_CHECKING:
     from shinro_ctrl.engine.model_gap import ModelGap
 
-__all__ = ["render_report", "report_figures", "write_report"]
+__all__ = ["model_gap_section", "render_report", "report_figures", "write_report"]
 
 _LIN = "#1f77b4"
 _NL = "#d62728"
@@ -385,7 +385,7 @@ def render_report(
         if caption == "Pole map":
             out.append(_tables(a))
     if model_gap is not None:
-        out.append(_model_gap_section(model_gap))
+        out.append(model_gap_section(model_gap))
     out.append("</body></html>")
     return "\n".join(out)
 
@@ -424,8 +424,9 @@ def _range(r: tuple[float, float] | None) -> str:
     return "—" if r is None else f"[{r[0]:.4g}, {r[1]:.4g}]"
 
 
-def _model_gap_section(gap: ModelGap) -> str:
-    """The "Model gap" section: joints, actuators, contacts and the warnings of a model-gap report."""
+def model_gap_section(gap: ModelGap) -> str:
+    """The HTML "Model gap" section of the design report: the warnings, then the joint, actuator and contact rows
+    of a :class:`~shinro_ctrl.engine.model_gap.ModelGap` (what the smooth design model leaves out)."""
     e = html.escape
     t = gap.thresholds
     parts = [
