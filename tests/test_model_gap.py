@@ -16,7 +16,15 @@ import numpy as np
 import pytest
 
 from shinro_ctrl.cli import main
-from shinro_ctrl.engine.model_gap import CLAMP_WARN, FRICTION_WARN, LIMIT_WARN, GapThresholds, model_gap
+from shinro_ctrl.engine import MujocoEngine
+from shinro_ctrl.engine.model_gap import (
+    CLAMP_WARN,
+    FRICTION_WARN,
+    LIMIT_WARN,
+    GapThresholds,
+    engine_model_gap,
+    model_gap,
+)
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 from shinro_ctrl.plants import MjcfPlant
 
@@ -278,15 +286,58 @@ def test_crosscheck_and_design_print_the_report(arm_file, tmp_path, capsys):
     model = tmp_path / "pendulum.xml"
     model.write_text(PENDULUM_XML)
     scenario = tmp_path / "pendulum.toml"
+    u0 = -0.5 * G * 0.3 * math.cos(0.3) / 1.6  # gravity torque at q = 0.3 over the gear: 6 % from the clamp
+    for loop in ("standalone", "mujoco"):  # the file itself, or the model the scenario's MuJoCo loop runs
+        scenario.write_text(
+            f'[plant]\ntype = "MjcfPlant"\nmodel = "{model}"\nx0 = [0.3, 0]\n[engine]\ntype = "{loop}"\n'
+            '[controller]\ntype = "LQR"\nQ = [10, 1]\nR = [1]\n[sim]\nduration = 0.2\n'
+        )
+        assert main(["design", "lqr", str(scenario)]) == 0
+        out = capsys.readouterr().out
+        assert "model gap at the operating point" in out and "contacts at x0: none" in out
+        assert f"warning: actuator 'motor': u0 = {u0:.4g} against ctrlrange [-1, 1]" in out
+    # a built-in plant in its MuJoCo loop: the report of its MuJoCo twin (no file of the user's)
     scenario.write_text(
-        f'[plant]\ntype = "MjcfPlant"\nmodel = "{model}"\nx0 = [0.3, 0]\n'
+        '[plant]\ntype = "InvertedPendulum"\n[engine]\ntype = "mujoco"\n'
         '[controller]\ntype = "LQR"\nQ = [10, 1]\nR = [1]\n[sim]\nduration = 0.2\n'
     )
     assert main(["design", "lqr", str(scenario)]) == 0
     out = capsys.readouterr().out
-    u0 = -0.5 * G * 0.3 * math.cos(0.3) / 1.6  # gravity torque at q = 0.3 over the gear: 6 % from the clamp
-    assert "model gap at the operating point" in out and "contacts at x0: none" in out
-    assert f"warning: actuator 'motor': u0 = {u0:.4g} against ctrlrange [-1, 1]" in out
+    assert "model gap at the operating point" in out and "inverted_pendulum.xml" not in out.split("model gap")[0]
+
+
+def test_engine_model_gap_reads_the_engines_state_and_leaves_it(arm_file):
+    engine = MujocoEngine(arm_file)
+    x, u = np.array([0.4, -0.3, 0.2, 0.1]), np.array([0.3, -0.5])
+    engine.set_state_vector(x)
+    engine.set_ctrl(u)
+    gap = engine_model_gap(engine)
+    ref = model_gap(mujoco.MjModel.from_xml_path(arm_file), x, u)
+    assert (gap.dofs, gap.actuators, gap.contacts, gap.warnings) == (
+        ref.dofs,
+        ref.actuators,
+        ref.contacts,
+        ref.warnings,
+    )
+    np.testing.assert_array_equal(engine.get_state_vector(), x)
+    np.testing.assert_array_equal(engine.data.ctrl, u)
+
+
+def test_free_joint_dofs_are_named_by_axis():
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body name="b"><freejoint name="root"/><geom size="0.1" mass="2"/>'
+        '<body><joint name="neck" type="ball"/><geom size="0.05" pos="0 0 0.2" mass="1"/></body></body>'
+        "</worldbody></mujoco>"
+    )
+    x = np.r_[0, 0, 1, 1, 0, 0, 0, 1, 0, 0, 0, np.zeros(m.nv)]
+    gap = model_gap(m, x, np.zeros(0))
+    assert [d.name for d in gap.dofs] == [
+        *(f"root.{a}" for a in ("x", "y", "z", "wx", "wy", "wz")),
+        "neck.wx",
+        "neck.wy",
+        "neck.wz",
+    ]
+    assert gap.dofs[2].load == pytest.approx(3 * G) and all(d.q is None and d.range is None for d in gap.dofs)
 
 
 def test_the_html_report_section(arm):

@@ -137,11 +137,25 @@ def _print_mpc(sim: Any) -> None:
 
 
 def _model_gap(sim: Any) -> ModelGap | None:
-    """The model-gap report at the controller's operating point, for a plant built from a model file."""
+    """The model-gap report at the controller's operating point: on the scenario's MuJoCo model when its loop
+    is MuJoCo (any plant), else on the model file of a plant built from one; None otherwise."""
     from shinro_ctrl.cli.models import model_gap_of
 
-    ctrl = sim.controller
-    return model_gap_of(sim.plant, ctrl.x0[: sim.plant.state_dim], ctrl.u0)
+    plant, ctrl = sim.plant, sim.controller
+    x0, u0 = ctrl.x0[: plant.state_dim], ctrl.u0
+    if sim.engine is None:
+        return model_gap_of(plant, x0, u0)
+    from shinro_ctrl.engine.model_gap import engine_model_gap
+
+    engine = sim.engine
+    z, ctrl_now = engine.get_state_vector(), engine.data.ctrl.copy()
+    try:
+        plant.engine_write(engine, x0)
+        plant.engine_apply(engine, u0)
+        return engine_model_gap(engine)
+    finally:  # the loop's engine is left as it was
+        engine.set_state_vector(z)
+        engine.data.ctrl[:] = ctrl_now
 
 
 def _design_analysis(args: argparse.Namespace, sim) -> int:

@@ -57,15 +57,19 @@ import copy
 import functools
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import mujoco
 import numpy as np
 from numpy.typing import ArrayLike
 
-from shinro_ctrl.engine.model_tree import load_model
+if TYPE_CHECKING:
+    from shinro_ctrl.engine.core import MujocoEngine
+
+from shinro_ctrl.engine.model_tree import ModelWarning, load_model
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.validation import as_vector
 
@@ -79,6 +83,7 @@ __all__ = [
     "GapThresholds",
     "GapWarning",
     "ModelGap",
+    "engine_model_gap",
     "model_gap",
     "model_gap_of_file",
 ]
@@ -91,6 +96,8 @@ CLAMP_WARN = 0.10
 LIMIT_WARN = 0.05
 
 _D = mujoco.mjtDisableBit
+#: Names of a free or ball joint's degrees of freedom (MuJoCo's ``qvel`` order: linear, then angular).
+_DOF_SUFFIXES = {"free": ("x", "y", "z", "wx", "wy", "wz"), "ball": ("wx", "wy", "wz")}
 _KINDS = {
     int(mujoco.mjtJoint.mjJNT_HINGE): "hinge",
     int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
@@ -125,7 +132,8 @@ class DofGap:
     """One degree of freedom at ``x0``: its joint limit, load, actuator torque and friction loss.
 
     Attributes:
-        name: The joint's name (``joint[k]`` for the ``k``-th dof of a ball or free joint).
+        name: The joint's name; for a free joint ``<joint>.x``, ``.y``, ``.z`` (translation), ``.wx``, ``.wy``,
+            ``.wz`` (rotation), for a ball joint ``.wx``, ``.wy``, ``.wz``.
         kind: ``"hinge"``, ``"slide"``, ``"ball"`` or ``"free"``.
         q: Position at ``x0`` (None for ball and free joints) [rad or m].
         range: ``(lo, hi)`` of a limited hinge/slide joint, else None.
@@ -394,7 +402,7 @@ def _dofs(
 ) -> list[DofGap]:
     rows = []
     for j in range(m.njnt):
-        kind = _KINDS.get(int(m.jnt_type[j]), "joint")
+        kind = _KINDS[int(m.jnt_type[j])]
         name = _label(m, "joint", j)
         ndof = {"free": 6, "ball": 3}.get(kind, 1)
         scalar = ndof == 1
@@ -434,7 +442,7 @@ def _dofs(
             ld = float(load[dof])
             ratio = None if fl == 0.0 else (fl / abs(ld) if ld != 0.0 else math.inf)
             holds = fl > 0.0 and abs(ld) <= fl
-            label = name if scalar else f"{name}[{k}]"
+            label = name if scalar else f"{name}.{_DOF_SUFFIXES[kind][k]}"
             if ratio is not None and ratio > t.friction:
                 if holds:
                     msg = (
@@ -551,7 +559,9 @@ def _contacts(m: mujoco.MjModel, d: mujoco.MjData, off: dict[str, bool], warns: 
 
 @functools.lru_cache(maxsize=8)
 def _load(path: str, mtime_ns: int) -> mujoco.MjModel:
-    return load_model(path)[0]
+    with warnings.catch_warnings():  # the plant reading this file has reported MuJoCo's warnings about it once
+        warnings.simplefilter("ignore", ModelWarning)
+        return load_model(path)[0]
 
 
 def model_gap_of_file(
@@ -562,7 +572,8 @@ def model_gap_of_file(
     thresholds: GapThresholds | None = None,
     source: str | None = None,
 ) -> ModelGap:
-    """:func:`model_gap` of a model file as MuJoCo loads it (compiled once per file version).
+    """:func:`model_gap` of a model file as MuJoCo loads it (compiled once per file version; MuJoCo's own
+    warnings while loading are not repeated: the plant that read the file reported them).
 
     ``source`` names the file in the report (default ``path``; e.g. the user's URDF when ``path`` is its
     MJCF translation).
@@ -574,6 +585,18 @@ def model_gap_of_file(
     p = Path(path).resolve()
     model = _load(str(p), p.stat().st_mtime_ns)
     return model_gap(model, x0, u0, thresholds=thresholds, source=source or str(p))
+
+
+def engine_model_gap(engine: MujocoEngine, *, thresholds: GapThresholds | None = None) -> ModelGap:
+    """:func:`model_gap` of the model an engine simulates, at the state and controls it holds now.
+
+    For any plant with a MuJoCo loop (a built-in plant's MuJoCo twin as much as a model file): write the
+    operating point first with ``plant.engine_write(engine, x0)`` and ``plant.engine_apply(engine, u0)``.
+    The engine's state is not changed.
+    """
+    d = engine.data
+    x = np.concatenate([d.qpos, d.qvel, d.act])
+    return model_gap(engine.model, x, np.array(d.ctrl), thresholds=thresholds, source=engine.source)
 
 
 # ----------------------------------------------------------------- format
