@@ -796,7 +796,13 @@ def _unsupported(m: mujoco.MjModel, label: _Label) -> list[str]:
                 )
             )
     if m.opt.density != 0.0 or m.opt.viscosity != 0.0:
-        out.append(("fluid forces", "", 'not supported yet; fix: <option density="0" viscosity="0"/>'))
+        out.append(
+            (
+                "fluid forces",
+                f'(<option density="{m.opt.density:g}" viscosity="{m.opt.viscosity:g}">)',
+                'drag and lift on every moving body, not supported yet; fix: <option density="0" viscosity="0"/>',
+            )
+        )
     return _group(out)
 
 

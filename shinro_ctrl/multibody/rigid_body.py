@@ -140,13 +140,20 @@ class RigidBodyTree:
         self._tendons = [
             t for t in tree.tendons if (t.stiffness and tree.springs_enabled) or (t.damping and tree.damping_enabled)
         ]
-        gravity_on = tree.gravity_enabled and bool(np.any(np.asarray(tree.gravity) != 0.0))
-        # gravity compensation: the force -s m g at each body's COM (bodies welded to the world feel none)
+        # gravity compensation: the force -s m g at each body's COM (bodies welded to the world feel none);
+        # MuJoCo computes it with the passive forces, so it is off when springs and dampers both are
+        gravity_on = (
+            tree.gravity_enabled
+            and bool(np.any(np.asarray(tree.gravity) != 0.0))
+            and (tree.springs_enabled or tree.damping_enabled)
+        )
         self._gravcomp = [
             (b, -body.gravcomp * body.mass * np.asarray(tree.gravity, dtype=float))
             for b, body in enumerate(tree.bodies)
             if gravity_on and body.gravcomp and body.mass and self._body_frame[b][0] >= 0
         ]
+        # joints whose compensation MuJoCo routes through the actuators lose it with actuation disabled
+        self._gravcomp_joints = {i for i, j in enumerate(tree.joints) if tree.actuation_enabled or not j.actgravcomp}
         # children lists give each column of M its moving subtree
         self._subtree = [self._descendants(i) for i in range(self.nq)]
 
@@ -480,7 +487,13 @@ class RigidBodyTree:
         return tau
 
     def gravity_compensation(self, W: Transforms) -> list[Scalar]:
-        r"""``τ_gc = Σ_b J_{p,b}ᵀ (−s_b m_b g)`` ``(nq,)``: MuJoCo's ``gravcomp`` at each body's COM."""
+        r"""``τ_gc = Σ_b J_{p,b}ᵀ (−s_b m_b g)`` ``(nq,)``: MuJoCo's ``gravcomp`` at each body's COM.
+
+        Off when gravity is off or springs and dampers are both disabled (MuJoCo computes it with the
+        passive forces); on a joint with ``actuatorgravcomp`` it goes through the actuators, so it is
+        off there when actuation is disabled (MuJoCo then clamps it to the joint's
+        ``actuatorfrcrange``: its loop only).
+        """
         tau: list[Scalar] = [0.0] * self.nq
         for b, force in self._gravcomp:
             body = self.tree.bodies[b]
@@ -488,7 +501,7 @@ class RigidBodyTree:
             Jp, _ = self.point_jacobian(W, node, c)
             f = _const(force)
             for k, col in enumerate(Jp):
-                if col is not None:
+                if col is not None and k in self._gravcomp_joints:
                     tau[k] = _add(tau[k], _dot(col, f))
         return tau
 

@@ -501,6 +501,24 @@ class MjcfPlant(Plant):
             new[2 * nq :] += self._activation_steps * xd[2 * nq :]
         return self.clip_state(new)
 
+    def symbolic_step(self) -> cs.Function:
+        """The standalone step :meth:`integrate` (before the stops) as a CasADi ``Function`` ``F(x, u, p)``.
+
+        This is the ``discretization="step"`` model (LinearMPC's default): semi-implicit Euler for
+        the joints and MuJoCo's own activation update, exact for ``filterexact`` and Euler for
+        ``filter`` and ``integrator``.
+        """
+        nq, na = self.tree.nq, self.tree.na
+        x = cs.SX.sym("x", self.state_dim)
+        u = cs.SX.sym("u", self.input_dim)
+        p = cs.SX.sym("p", 0)
+        xd = self._fun(x, u)
+        v = x[nq : 2 * nq] + self.dt * xd[nq : 2 * nq]
+        parts = [x[:nq] + self.dt * v, v]
+        if na:
+            parts.append(x[2 * nq :] + cs.DM(self._activation_steps) * xd[2 * nq :])
+        return cs.Function("F", [x, u, p], [cs.vertcat(*parts)], ["x", "u", "p"], ["x_next"])
+
     @functools.cached_property
     def _activation_steps(self) -> np.ndarray:
         """Per activation, ``h`` with ``a⁺ = a + h ȧ``: ``dt``, or ``τ (1 − e^{−dt/τ})`` for filterexact."""
