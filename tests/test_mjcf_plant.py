@@ -344,14 +344,15 @@ def test_shipped_scenarios_settle_in_both_loops_within_the_torque_limits(name):
 BALL = """<mujoco><worldbody><body><joint name="wrist" type="ball"/><geom size="0.1"/></body></worldbody>
 <actuator><motor joint="wrist" gear="1 0 0"/></actuator></mujoco>"""
 NO_ACT = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody></mujoco>"""
-FILTER = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody>
-<actuator><general name="lagged" joint="j" dyntype="filter" dynprm="0.1"/></actuator></mujoco>"""
+MUSCLE = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody>
+<actuator><muscle name="lagged" joint="j" lengthrange="-1 1"/></actuator></mujoco>"""
 ROTOR = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/></body></worldbody>
 <actuator><motor name="geared" joint="j" armature="0.1"/></actuator></mujoco>"""
 POLY = """<mujoco><worldbody><body><joint name="soft" type="hinge" damping="0.1 0.3"/><geom size="0.1"/></body>
 </worldbody><actuator><motor joint="soft"/></actuator></mujoco>"""
-SITE = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1"/><site name="s"/></body>
-</worldbody><actuator><motor name="thruster" site="s" gear="0 0 1 0 0 0"/></actuator></mujoco>"""
+CRANK = """<mujoco><worldbody><body><joint name="j" type="slide"/><geom size="0.1"/><site name="s"/></body>
+<site name="c" pos="0 0 0.5"/></worldbody>
+<actuator><general name="crank" cranksite="c" slidersite="s" cranklength="0.6"/></actuator></mujoco>"""
 
 
 @pytest.mark.parametrize(
@@ -359,8 +360,8 @@ SITE = """<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size="0.1
     [
         (BALL, r"ball joint 'wrist' \(not supported yet"),
         (NO_ACT, "no actuators"),
-        (FILTER, r"activation dynamics \(filter\) on actuator 'lagged'"),
-        (SITE, "site transmission on actuator 'thruster'"),
+        (MUSCLE, r"activation dynamics \(muscle\) on actuator 'lagged'"),
+        (CRANK, "slidercrank transmission on actuator 'crank'"),
         (ROTOR, r"armature on actuator 'geared' \(not supported yet"),
         (POLY, r"nonlinear damping \(more than one damping coefficient\) on joint 'soft'"),
     ],

@@ -453,25 +453,31 @@ class MujocoEngine:
         return float(lo), float(hi)
 
     def get_state_vector(self) -> np.ndarray:
-        """``z = [qpos, qvel]``, shape ``(nq + nv,)``: MuJoCo's state order (as in
-        ``mjd_transitionFD`` when ``nq == nv``)."""
+        """``z = [qpos, qvel, act]``, shape ``(nq + nv + na,)``: MuJoCo's state order (as in
+        ``mjd_transitionFD`` when ``nq == nv``); ``act`` (the actuator activations) is empty
+        for a model without activation dynamics."""
+        if self.model.na:
+            return np.concatenate([self._qpos, self._qvel, self.data.act])
         return np.concatenate([self._qpos, self._qvel])
 
     def set_state_vector(self, z: ArrayLike) -> None:
-        """Set ``qpos`` and ``qvel`` from ``z = [qpos, qvel]`` ``(nq + nv,)`` and run :meth:`forward`.
+        """Set ``qpos``, ``qvel``, ``act`` from ``z = [qpos, qvel, act]`` ``(nq + nv + na,)``, run :meth:`forward`.
 
         Raises:
             ValueError: wrong shape.
             NonFiniteError: NaN or inf.
         """
-        nq, nv = self.model.nq, self.model.nv
+        nq, nv, na = self.model.nq, self.model.nv, self.model.na
         z = np.asarray(z, dtype=float).reshape(-1)
-        if z.shape != (nq + nv,):
-            raise InvalidArgument(f"state vector: expected shape ({nq + nv},) but found {z.shape}")
+        if z.shape != (nq + nv + na,):
+            what = "[qpos, qvel, act]" if na else "[qpos, qvel]"
+            raise InvalidArgument(f"state vector {what}: expected shape ({nq + nv + na},) but found {z.shape}")
         if not np.all(np.isfinite(z)):
             raise NonFiniteError(f"state vector must be finite, got {np.array2string(z, precision=4)}")
         self._qpos[:] = z[:nq]
-        self._qvel[:] = z[nq:]
+        self._qvel[:] = z[nq : nq + nv]
+        if na:
+            self.data.act[:] = z[nq + nv :]
         self.forward()
 
     # ---------------------------------------------------------- bodies, sites

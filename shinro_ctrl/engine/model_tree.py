@@ -41,7 +41,7 @@ import numpy as np
 
 from shinro_ctrl.engine.warnings import ModelWarning, collect_messages
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.multibody import ActuatorInfo, BodyInfo, JointInfo, ModelTree
+from shinro_ctrl.multibody import ActuatorInfo, BodyInfo, JointInfo, ModelTree, SiteInfo, TendonInfo
 from shinro_ctrl.resources import asset_path, list_assets
 
 __all__ = [
@@ -61,6 +61,18 @@ _BAD_JOINTS = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJN
 _GAIN = {int(mujoco.mjtGain.mjGAIN_FIXED): "fixed", int(mujoco.mjtGain.mjGAIN_AFFINE): "affine"}
 _BIAS = {int(mujoco.mjtBias.mjBIAS_NONE): "none", int(mujoco.mjtBias.mjBIAS_AFFINE): "affine"}
 _DSBL = mujoco.mjtDisableBit
+_TRANSMISSIONS = {
+    int(mujoco.mjtTrn.mjTRN_JOINT): "joint",
+    int(mujoco.mjtTrn.mjTRN_JOINTINPARENT): "joint",  # the same as joint for hinge and slide joints
+    int(mujoco.mjtTrn.mjTRN_TENDON): "tendon",
+    int(mujoco.mjtTrn.mjTRN_SITE): "site",
+}
+_DYNAMICS = {
+    int(mujoco.mjtDyn.mjDYN_NONE): "none",
+    int(mujoco.mjtDyn.mjDYN_FILTER): "filter",
+    int(mujoco.mjtDyn.mjDYN_FILTEREXACT): "filterexact",
+    int(mujoco.mjtDyn.mjDYN_INTEGRATOR): "integrator",
+}
 #: Root element -> model kind.
 _ROOTS = {"mujoco": "mjcf", "robot": "urdf"}
 #: Suffixes MuJoCo's ``MjSpec.from_file`` recognizes itself (it picks its decoder by the exact suffix).
@@ -436,7 +448,7 @@ class RobotModel:
         path: The MJCF file plant and engine load (for a URDF, its translation with motors).
         source: The user's file (the URDF itself for a URDF).
         kind: ``"mjcf"`` or ``"urdf"``.
-        keyframe: ``(name, [qpos; qvel] (2 nq,))`` of the model's first keyframe, or None.
+        keyframe: ``(name, [qpos; qvel; act] (2 nq + na,))`` of the model's first keyframe, or None.
         notes: What the user should know about how the file was read (MuJoCo's warnings
             are reported when it loads; these are ours, e.g. a URDF's base welded to the world).
     """
@@ -477,7 +489,7 @@ def read_robot(model: str | os.PathLike[str]) -> RobotModel:
     tree = _read(m, str(path), label)
     keyframe = None
     if m.nkey:
-        keyframe = (m.key(0).name, np.concatenate([m.key_qpos[0], m.key_qvel[0]]).astype(float))
+        keyframe = (m.key(0).name, np.concatenate([m.key_qpos[0], m.key_qvel[0], m.key_act[0]]).astype(float))
     notes = []
     if urdf is not None and urdf.root_mass > 0.0 and len(urdf.root_branches) >= 2:
         notes.append(
@@ -613,6 +625,16 @@ def _rows(arr: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.any(arr.reshape(arr.shape[0], -1) != 0.0, axis=1))
 
 
+def _is_fixed_tendon(m: mujoco.MjModel, t: int) -> bool:
+    """Whether tendon ``t`` is a fixed tendon (every wrap a joint)."""
+    adr, num = int(m.tendon_adr[t]), int(m.tendon_num[t])
+    return bool(num) and all(int(m.wrap_type[w]) == int(mujoco.mjtWrap.mjWRAP_JOINT) for w in range(adr, adr + num))
+
+
+def _tendon_actuators(m: mujoco.MjModel) -> list[int]:
+    return [a for a in range(m.nu) if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_TENDON)]
+
+
 def _unsupported(m: mujoco.MjModel, label: _Label) -> list[str]:
     """Every model feature MjcfPlant does not support, grouped by feature, with the fix where one exists."""
     urdf = label.urdf
@@ -656,49 +678,49 @@ def _unsupported(m: mujoco.MjModel, label: _Label) -> list[str]:
         out.append((f"flexible bodies (flex, {m.nflex})", "", "not supported yet"))
     if getattr(m, "nplugin", 0):
         out.append((f"engine plugins ({m.nplugin})", "", "not supported yet"))
+    driven = {int(m.actuator_trnid[a, 0]) for a in _tendon_actuators(m)}
     for t in range(m.ntendon):
-        forces = []
-        if m.tendon_stiffness[t] != 0.0:
-            forces.append("stiffness")
-        if m.tendon_damping[t] != 0.0:
-            forces.append("damping")
-        if m.tendon_frictionloss[t] != 0.0 and not flags & int(_DSBL.mjDSBL_FRICTIONLOSS):
-            forces.append("frictionloss")
-        if m.tendon_limited[t] and not flags & int(_DSBL.mjDSBL_LIMIT):
-            forces.append("a range")
+        if not _is_fixed_tendon(m, t):
+            forces = []
+            if m.tendon_stiffness[t] != 0.0:
+                forces.append("stiffness")
+            if m.tendon_damping[t] != 0.0:
+                forces.append("damping")
+            if m.tendon_frictionloss[t] != 0.0 and not flags & int(_DSBL.mjDSBL_FRICTIONLOSS):
+                forces.append("frictionloss")
+            if m.tendon_limited[t] and not flags & int(_DSBL.mjDSBL_LIMIT):
+                forces.append("a range")
+            if np.asarray(getattr(m, "tendon_armature", np.zeros(m.ntendon)))[t] != 0.0:
+                forces.append("armature")
+            if forces or t in driven:
+                what = f"with {' and '.join(forces)}" if forces else "driven by an actuator"
+                out.append(
+                    (
+                        "spatial tendon",
+                        f"{_tendon(m, t)} {what}",
+                        "its length follows a path through sites and wrapping geoms, not supported yet "
+                        "(fixed tendons are)",
+                    )
+                )
+            continue
         if np.asarray(getattr(m, "tendon_armature", np.zeros(m.ntendon)))[t] != 0.0:
-            forces.append("armature")
-        if forces:
+            out.append(("armature on tendon", _tendon(m, t), "it couples the joints' inertia: not supported yet"))
+        lo, hi = (float(v) for v in m.tendon_lengthspring[t])
+        if m.tendon_stiffness[t] != 0.0 and lo != hi:
             out.append(
                 (
-                    "tendon",
-                    f"{_tendon(m, t)} with {' and '.join(forces)}",
-                    "a tendon that exerts force is not supported yet; remove that force or the tendon",
+                    "a springlength dead band on tendon",
+                    f"{_tendon(m, t)} ([{lo:g}, {hi:g}])",
+                    "a spring slack inside a range is not smooth; give one springlength",
                 )
             )
-    for b in np.flatnonzero(m.body_gravcomp != 0.0):
-        out.append(("gravity compensation on body", _body(m, int(b)), 'not supported yet; fix: gravcomp="0"'))
-    if not flags & int(_DSBL.mjDSBL_FRICTIONLOSS):
-        for d in np.flatnonzero(m.dof_frictionloss != 0.0):
-            j = int(m.dof_jntid[d])
-            name = m.joint(j).name
-            if label.kind == "urdf" and name in urdf.friction:
-                out.append(
-                    (
-                        "<dynamics friction> on joint",
-                        f"'{name}'",
-                        'Coulomb friction, a constraint force the smooth model leaves out; set friction="0"',
-                    )
-                )
-            else:
-                out.append(
-                    (
-                        "frictionloss on joint",
-                        _joint(m, j),
-                        "a constraint force the smooth model leaves out; fix: "
-                        '<option><flag frictionloss="disable"/></option>, or frictionloss="0"',
-                    )
-                )
+        for attr, what in (
+            ("tendon_stiffnesspoly", "nonlinear stiffness on tendon"),
+            ("tendon_dampingpoly", "nonlinear damping on tendon"),
+            ("tendon_springyield", "a spring yield on tendon"),
+        ):
+            if t in set(_rows(getattr(m, attr, np.zeros(0))).tolist()):
+                out.append((what, _tendon(m, t), "not supported yet"))
     for attr, what in (
         ("dof_dampingpoly", "nonlinear damping (more than one damping coefficient) on joint"),
         ("jnt_stiffnesspoly", "nonlinear stiffness (more than one stiffness coefficient) on joint"),
@@ -724,18 +746,42 @@ def _unsupported(m: mujoco.MjModel, label: _Label) -> list[str]:
     for a in np.flatnonzero(np.asarray(getattr(m, "actuator_ctrlnum", np.ones(m.nu))) != 1):
         out.append(("several controls on actuator", _actuator(m, int(a)), "not supported yet"))
     for a in range(m.nu):
-        if int(m.actuator_trntype[a]) != int(mujoco.mjtTrn.mjTRN_JOINT):
-            kind = mujoco.mjtTrn(int(m.actuator_trntype[a])).name.removeprefix("mjTRN_").lower()
-            out.append(
-                (f"{kind} transmission on actuator", _actuator(m, a), "only joint transmissions are supported yet")
-            )
-        if int(m.actuator_dyntype[a]) != int(mujoco.mjtDyn.mjDYN_NONE):
-            kind = mujoco.mjtDyn(int(m.actuator_dyntype[a])).name.removeprefix("mjDYN_").lower()
+        trn = int(m.actuator_trntype[a])
+        if trn not in _TRANSMISSIONS:
+            kind = mujoco.mjtTrn(trn).name.removeprefix("mjTRN_").lower()
+            out.append((f"{kind} transmission on actuator", _actuator(m, a), "supported: joint, fixed tendon and site"))
+        elif trn == int(mujoco.mjtTrn.mjTRN_SITE) and int(m.actuator_trnid[a, 1]) >= 0:
+            rot = bool(np.any(m.actuator_gear[a, 3:6] != 0.0))
+            by_length = m.actuator_gainprm[a, 1] != 0.0 or m.actuator_biasprm[a, 1] != 0.0
+            if rot and by_length:
+                out.append(
+                    (
+                        "rotational site transmission with a refsite and a length-dependent gain or bias on actuator",
+                        _actuator(m, a),
+                        "MuJoCo's rotation length (an axis-angle) is not smooth at zero; set gear[3:6] to 0, "
+                        "or drop the length terms of the gain and bias",
+                    )
+                )
+        dyn = int(m.actuator_dyntype[a])
+        if dyn not in _DYNAMICS:
+            kind = mujoco.mjtDyn(dyn).name.removeprefix("mjDYN_").lower()
             out.append(
                 (
                     f"activation dynamics ({kind}) on actuator",
                     _actuator(m, a),
-                    "only actuators without (motor, position, velocity, general with dyntype none) are supported yet",
+                    "supported: none, filter, filterexact, integrator",
+                )
+            )
+        elif dyn != int(mujoco.mjtDyn.mjDYN_NONE) and int(m.actuator_actnum[a]) != 1:
+            out.append((f"{int(m.actuator_actnum[a])} activations on actuator", _actuator(m, a), "supported: one"))
+        elif dyn == int(mujoco.mjtDyn.mjDYN_NONE) and int(m.actuator_actnum[a]) != 0:
+            out.append(("an activation without dynamics on actuator", _actuator(m, a), "not supported yet"))
+        if dyn != int(mujoco.mjtDyn.mjDYN_NONE) and bool(m.actuator_actearly[a]):
+            out.append(
+                (
+                    "actearly on actuator",
+                    _actuator(m, a),
+                    'its force uses the next step\'s activation, a discrete-time effect; set actearly="false"',
                 )
             )
         gt, bt = int(m.actuator_gaintype[a]), int(m.actuator_biastype[a])
@@ -750,7 +796,13 @@ def _unsupported(m: mujoco.MjModel, label: _Label) -> list[str]:
                 )
             )
     if m.opt.density != 0.0 or m.opt.viscosity != 0.0:
-        out.append(("fluid forces", "", 'not supported yet; fix: <option density="0" viscosity="0"/>'))
+        out.append(
+            (
+                "fluid forces",
+                f'(<option density="{m.opt.density:g}" viscosity="{m.opt.viscosity:g}">)',
+                'drag and lift on every moving body, not supported yet; fix: <option density="0" viscosity="0"/>',
+            )
+        )
     return _group(out)
 
 
@@ -789,19 +841,40 @@ def _bad_numbers(m: mujoco.MjModel, label: _Label) -> list[str]:
             check(f"{joint} range", m.jnt_range[j], lambda v: bool(np.isfinite(v).all() and v[0] <= v[1]))
     for a in range(m.nu):
         act = f"actuator {_actuator(m, a)}"
-        check(
-            f"{act} gear (0: the actuator moves nothing)", m.actuator_gear[a, 0], lambda v: bool(np.isfinite(v) and v)
-        )
+        if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_SITE):
+            check(
+                f"{act} gear (all 0: the actuator moves nothing)",
+                m.actuator_gear[a],
+                lambda v: bool(np.isfinite(v).all() and np.any(v)),
+            )
+        else:
+            check(
+                f"{act} gear (0: the actuator moves nothing)",
+                m.actuator_gear[a, 0],
+                lambda v: bool(np.isfinite(v) and v),
+            )
+        if int(m.actuator_dyntype[a]) in (int(mujoco.mjtDyn.mjDYN_FILTER), int(mujoco.mjtDyn.mjDYN_FILTEREXACT)):
+            check(f"{act} dynprm (the time constant must be > 0)", m.actuator_dynprm[a, 0], lambda v: bool(v > 0.0))
         check(f"{act} gainprm", m.actuator_gainprm[a, :3])
         check(f"{act} biasprm", m.actuator_biasprm[a, :3])
         if m.actuator_ctrllimited[a]:
             check(f"{act} ctrlrange", m.actuator_ctrlrange[a], lambda v: bool(np.isfinite(v).all() and v[0] <= v[1]))
         if m.actuator_forcelimited[a]:
             check(f"{act} forcerange", m.actuator_forcerange[a], lambda v: bool(np.isfinite(v).all() and v[0] <= v[1]))
+    for t in range(m.ntendon):
+        ten = f"tendon {_tendon(m, t)}"
+        adr, num = int(m.tendon_adr[t]), int(m.tendon_num[t])
+        check(f"{ten} coef", m.wrap_prm[adr : adr + num])
+        check(f"{ten} stiffness", m.tendon_stiffness[t])
+        check(f"{ten} damping", m.tendon_damping[t])
+        check(f"{ten} springlength", m.tendon_lengthspring[t])
+    for b in range(1, m.nbody):
+        check(f"body {_body(m, b)} gravcomp", m.body_gravcomp[b])
     for k in range(m.nkey):
         key = f"keyframe '{m.key(k).name}'" if m.key(k).name else f"keyframe #{k}"
         check(f"{key} qpos", m.key_qpos[k])
         check(f"{key} qvel", m.key_qvel[k])
+        check(f"{key} act", m.key_act[k])
     if out:
         return [f"invalid numbers (non-finite or out of their domain; fix them in the file): {', '.join(out)}"]
     return []
@@ -813,6 +886,7 @@ def _read_joints(m: mujoco.MjModel) -> tuple[list[JointInfo], dict[int, list[int
     joints = []
     body_joints: dict[int, list[int]] = {}
     limits = not int(m.opt.disableflags) & int(_DSBL.mjDSBL_LIMIT)
+    friction = not int(m.opt.disableflags) & int(_DSBL.mjDSBL_FRICTIONLOSS)
     for j in range(m.njnt):
         d = int(m.jnt_dofadr[j])
         b = int(m.jnt_bodyid[j])
@@ -831,6 +905,8 @@ def _read_joints(m: mujoco.MjModel) -> tuple[list[JointInfo], dict[int, list[int
                 springref=float(m.qpos_spring[int(m.jnt_qposadr[j])]),
                 limited=bool(m.jnt_limited[j]) and limits,
                 range=(float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])),
+                frictionloss=float(m.dof_frictionloss[d]) if friction else 0.0,
+                actgravcomp=bool(m.jnt_actgravcomp[j]),
             )
         )
     return joints, body_joints
@@ -849,6 +925,7 @@ def _read_bodies(m: mujoco.MjModel, body_joints: dict[int, list[int]]) -> list[B
             iquat=np.array(m.body_iquat[b], dtype=float),
             inertia=np.array(m.body_inertia[b], dtype=float),
             joints=tuple(body_joints.get(b, ())),
+            gravcomp=float(m.body_gravcomp[b]),
         )
         for b in range(m.nbody)
     ]
@@ -870,11 +947,23 @@ def _read_actuator(m: mujoco.MjModel, a: int) -> ActuatorInfo:
     clamp_ctrl = bool(m.actuator_ctrllimited[a]) and not m.opt.disableflags & int(_DSBL.mjDSBL_CLAMPCTRL)
     ctrl = (float(m.actuator_ctrlrange[a, 0]), float(m.actuator_ctrlrange[a, 1]))
     force = (float(m.actuator_forcerange[a, 0]), float(m.actuator_forcerange[a, 1]))
+    trn = _TRANSMISSIONS[int(m.actuator_trntype[a])]
+    target = int(m.actuator_trnid[a, 0])
+    dyn = _DYNAMICS[int(m.actuator_dyntype[a])]
+    act_limited = dyn != "none" and bool(m.actuator_actlimited[a])
     return ActuatorInfo(
         name=m.actuator(a).name,
         kind=kind,
-        joint=int(m.actuator_trnid[a, 0]),
+        joint=target if trn == "joint" else -1,
         gear=float(m.actuator_gear[a, 0]),
+        transmission=trn,
+        target=target,
+        refsite=int(m.actuator_trnid[a, 1]) if trn == "site" else -1,
+        gear6=tuple(float(g) for g in m.actuator_gear[a]),
+        dyntype=dyn,
+        dynprm=(float(m.actuator_dynprm[a, 0]), float(m.actuator_dynprm[a, 1]), float(m.actuator_dynprm[a, 2])),
+        act=int(m.actuator_actadr[a]) if dyn != "none" else -1,
+        actrange=(float(m.actuator_actrange[a, 0]), float(m.actuator_actrange[a, 1])) if act_limited else None,
         gaintype=_GAIN[gt],
         gainprm=gain,
         biastype=_BIAS[bt],
@@ -882,6 +971,42 @@ def _read_actuator(m: mujoco.MjModel, a: int) -> ActuatorInfo:
         ctrlrange=ctrl if clamp_ctrl else None,
         forcerange=force if m.actuator_forcelimited[a] else None,
     )
+
+
+def _read_tendons(m: mujoco.MjModel) -> list[TendonInfo]:
+    """The tendons (fixed ones; :func:`_unsupported` refused spatial tendons that act)."""
+    flags = int(m.opt.disableflags)
+    out = []
+    for t in range(m.ntendon):
+        if not _is_fixed_tendon(m, t):
+            continue
+        adr, num = int(m.tendon_adr[t]), int(m.tendon_num[t])
+        out.append(
+            TendonInfo(
+                name=m.tendon(t).name,
+                joints=tuple(int(m.wrap_objid[w]) for w in range(adr, adr + num)),
+                coefs=tuple(float(m.wrap_prm[w]) for w in range(adr, adr + num)),
+                stiffness=float(m.tendon_stiffness[t]),
+                springlength=float(m.tendon_lengthspring[t, 0]),
+                damping=float(m.tendon_damping[t]),
+                frictionloss=0.0 if flags & int(_DSBL.mjDSBL_FRICTIONLOSS) else float(m.tendon_frictionloss[t]),
+                limited=bool(m.tendon_limited[t]) and not flags & int(_DSBL.mjDSBL_LIMIT),
+                range=(float(m.tendon_range[t, 0]), float(m.tendon_range[t, 1])),
+            )
+        )
+    return out
+
+
+def _read_sites(m: mujoco.MjModel) -> list[SiteInfo]:
+    return [
+        SiteInfo(
+            name=m.site(s).name,
+            body=int(m.site_bodyid[s]),
+            pos=np.array(m.site_pos[s], dtype=float),
+            quat=np.array(m.site_quat[s], dtype=float),
+        )
+        for s in range(m.nsite)
+    ]
 
 
 def _tree_with_options(
@@ -903,4 +1028,7 @@ def _tree_with_options(
         actuation_enabled=not flags & int(_DSBL.mjDSBL_ACTUATION),
         gravity_enabled=not flags & int(_DSBL.mjDSBL_GRAVITY),
         disableflags=flags,
+        tendons=tuple(_read_tendons(m)),
+        sites=tuple(_read_sites(m)),
+        frictionloss_enabled=not flags & int(_DSBL.mjDSBL_FRICTIONLOSS),
     )

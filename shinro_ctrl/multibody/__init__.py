@@ -3,11 +3,14 @@
 * :mod:`~shinro_ctrl.multibody.tree`: the plain description (bodies, joints,
   actuators, options) a model file is read into;
 * :mod:`~shinro_ctrl.multibody.rigid_body`: :class:`RigidBodyTree`, its
-  equations of motion on any scalar type (CasADi ``SX``, floats, complex).
+  equations of motion on any scalar type (CasADi ``SX``, floats, complex);
+* :mod:`~shinro_ctrl.multibody.transmission`: actuator transmissions (joint,
+  fixed tendon, site), the force law and activation dynamics.
 """
 
 from shinro_ctrl.multibody.rigid_body import CASADI_OPS, NUMPY_OPS, Ops, RigidBodyTree, Scalar
-from shinro_ctrl.multibody.tree import ActuatorInfo, BodyInfo, JointInfo, ModelTree
+from shinro_ctrl.multibody.transmission import Transmissions
+from shinro_ctrl.multibody.tree import ActuatorInfo, BodyInfo, JointInfo, ModelTree, SiteInfo, TendonInfo
 
 __all__ = [
     "CASADI_OPS",
@@ -19,4 +22,7 @@ __all__ = [
     "Ops",
     "RigidBodyTree",
     "Scalar",
+    "SiteInfo",
+    "TendonInfo",
+    "Transmissions",
 ]

@@ -67,6 +67,7 @@ from shinro_ctrl._scalar_algebra import (
     _vscale,
     quat_to_mat,
 )
+from shinro_ctrl.multibody.transmission import SiteFrame, Transmissions, tendon_length, tendon_velocity
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -126,7 +127,9 @@ class RigidBodyTree:
         self.tree = tree
         self.nq = tree.nq
         self.nu = tree.nu
-        self._nodes = self._build_nodes(tree)
+        self._nodes, self._body_frame = self._build_nodes(tree)
+        self.transmissions = Transmissions(tree)
+        self.na = tree.na
         self.parent = np.array([n.parent for n in self._nodes], dtype=int)
         g = np.asarray(tree.gravity, dtype=float) if tree.gravity_enabled else np.zeros(3)
         self._a_base = _const(-g)
@@ -134,12 +137,30 @@ class RigidBodyTree:
         self._stiffness = [j.stiffness if tree.springs_enabled else 0.0 for j in tree.joints]
         self._springref = [j.springref for j in tree.joints]
         self._armature = [j.armature for j in tree.joints]
+        self._tendons = [
+            t for t in tree.tendons if (t.stiffness and tree.springs_enabled) or (t.damping and tree.damping_enabled)
+        ]
+        # gravity compensation: the force -s m g at each body's COM (bodies welded to the world feel none);
+        # MuJoCo computes it with the passive forces, so it is off when springs and dampers both are
+        gravity_on = (
+            tree.gravity_enabled
+            and bool(np.any(np.asarray(tree.gravity) != 0.0))
+            and (tree.springs_enabled or tree.damping_enabled)
+        )
+        self._gravcomp = [
+            (b, -body.gravcomp * body.mass * np.asarray(tree.gravity, dtype=float))
+            for b, body in enumerate(tree.bodies)
+            if gravity_on and body.gravcomp and body.mass and self._body_frame[b][0] >= 0
+        ]
+        # joints whose compensation MuJoCo routes through the actuators lose it with actuation disabled
+        self._gravcomp_joints = {i for i, j in enumerate(tree.joints) if tree.actuation_enabled or not j.actgravcomp}
         # children lists give each column of M its moving subtree
         self._subtree = [self._descendants(i) for i in range(self.nq)]
 
     # ------------------------------------------------------------- structure
     @staticmethod
-    def _build_nodes(tree: ModelTree) -> list[_Node]:
+    def _build_nodes(tree: ModelTree) -> tuple[list[_Node], list[tuple[int, np.ndarray, np.ndarray]]]:
+        """The joint nodes, and each body's frame ``(node or -1, R, p)`` in its node's frame."""
         nb = len(tree.bodies)
         # Each body's frame relative to a node frame: (node index or -1 for the world, R, p).
         frame: list[tuple[int, np.ndarray, np.ndarray]] = [(-1, np.eye(3), np.zeros(3))] * nb
@@ -180,7 +201,7 @@ class RigidBodyTree:
         order = [n.dof for n in nodes]
         if order != list(range(len(tree.joints))):  # MuJoCo numbers dofs in body order
             raise ValueError(f"joints are not in tree order: {order}")
-        return nodes
+        return nodes, frame
 
     def _descendants(self, i: int) -> list[int]:
         out = [i]
@@ -215,6 +236,105 @@ class RigidBodyTree:
                 p = p0
             out.append((R, p))
         return out
+
+    def world_frames(self, X: Transforms) -> Transforms:
+        """Each node's world ``(R (3, 3), p (3,))`` from the node transforms ``X`` (forward kinematics)."""
+        out: list[tuple[list[list[Scalar]], list[Scalar]]] = []
+        for i, nd in enumerate(self._nodes):
+            R, p = X[i]
+            if nd.parent < 0:
+                out.append((R, p))
+                continue
+            Rp, pp = out[nd.parent]
+            Rw = [[_dot(Rp[r], [R[0][c], R[1][c], R[2][c]]) for c in range(3)] for r in range(3)]
+            out.append((Rw, _vadd(pp, _matvec(Rp, p))))
+        return out
+
+    def body_frame(
+        self, W: Transforms, body: int, pos: ArrayLike = (0.0, 0.0, 0.0), quat: ArrayLike = (1.0, 0.0, 0.0, 0.0)
+    ) -> tuple[int, list[list[Scalar]], list[Scalar]]:
+        """A frame fixed on ``body`` at ``pos``/``quat`` (body frame) in world coordinates.
+
+        Args:
+            W: World node frames (:meth:`world_frames`).
+            body: Body index.
+            pos: Frame origin in the body frame ``(3,)``.
+            quat: Frame orientation in the body frame ``(w, x, y, z)``.
+
+        Returns:
+            ``(node, R (3, 3), p (3,))``: the node the frame moves with (-1: welded to the world) and
+            the frame's world orientation and origin.
+        """
+        node, Rb, pb = self._body_frame[body]
+        Rl = Rb @ quat_to_mat(quat)
+        pl = pb + Rb @ np.asarray(pos, dtype=float)
+        if node < 0:
+            return node, [_const(r) for r in Rl], _const(pl)
+        Rn, pn = W[node]
+        Rl_ = [_const(r) for r in Rl]
+        R = [[_dot(Rn[r], [Rl_[0][c], Rl_[1][c], Rl_[2][c]]) for c in range(3)] for r in range(3)]
+        return node, R, _vadd(pn, _matvec(Rn, _const(pl)))
+
+    def point_jacobian(
+        self, W: Transforms, node: int, point: Sequence[Scalar]
+    ) -> tuple[list[list[Scalar] | None], list[list[Scalar] | None]]:
+        r"""Point and angular Jacobian columns of a point moving with ``node``.
+
+        Column ``k`` for each ancestor joint ``k`` of ``node`` (the node itself included), with
+        world axis ``z_k`` and origin ``o_k``: hinge ``(z_k × (p − o_k), z_k)``, slide ``(z_k, 0)``;
+        None (a structural zero) for the other joints, and for every joint when ``node`` is -1.
+
+        Args:
+            W: World node frames (:meth:`world_frames`).
+            node: The node the point moves with (-1: the world).
+            point: World position of the point ``(3,)``.
+
+        Returns:
+            ``(Jp, Jw)``: lists of ``nq`` columns, each a 3-list or None.
+        """
+        Jp: list[list[Scalar] | None] = [None] * self.nq
+        Jw: list[list[Scalar] | None] = [None] * self.nq
+        k = node
+        while k >= 0:
+            nd = self._nodes[k]
+            R, o = W[k]
+            z = _matvec(R, _const(nd.axis))
+            if nd.slide:
+                Jp[k] = z
+            else:
+                Jp[k] = _cross(z, [_sub(point[i], o[i]) for i in range(3)])
+                Jw[k] = z
+            k = nd.parent
+        return Jp, Jw
+
+    def site_frame(self, W: Transforms, site: int, at: Sequence[Scalar] | None = None) -> SiteFrame:
+        """World origin, orientation and Jacobian columns of a site (see :data:`SiteFrame`).
+
+        ``at``: the world point whose point Jacobian (moving with the site's body) is returned;
+        default the site's origin.
+        """
+        s = self.tree.sites[site]
+        node, R, p = self.body_frame(W, s.body, s.pos, s.quat)
+        Jp, Jw = self.point_jacobian(W, node, p if at is None else at)
+        return p, R, Jp, Jw
+
+    def frame_jacobian(
+        self, q: Sequence[Scalar], body: int, pos: ArrayLike = (0.0, 0.0, 0.0), ops: Ops = NUMPY_OPS
+    ) -> tuple[list[Scalar], list[list[Scalar]], list[list[Scalar]], list[list[Scalar]]]:
+        """World position, orientation and dense Jacobians of a point fixed on ``body``.
+
+        Returns:
+            ``(p (3,), R (3, 3), Jp (3, nq), Jw (3, nq))`` as nested lists (``ṗ = Jp q̇``, ``ω = Jw q̇``
+            in the world frame).
+        """
+        W = self.world_frames(self._joint_transforms(q, ops))
+        node, R, p = self.body_frame(W, body, pos)
+        Jp, Jw = self.point_jacobian(W, node, p)
+
+        def dense(cols: list[list[Scalar] | None]) -> list[list[Scalar]]:
+            return [[0.0 if c is None else c[r] for c in cols] for r in range(3)]
+
+        return p, R, dense(Jp), dense(Jw)
 
     # ------------------------------------------------------------------ RNEA
     def _rnea(
@@ -311,38 +431,105 @@ class RigidBodyTree:
         return self._rnea(X, qd, [0.0] * self.nq, self._a_base)
 
     def actuator_forces(
-        self, q: Sequence[Scalar], qd: Sequence[Scalar], u: Sequence[Scalar], active: Sequence[int]
+        self,
+        q: Sequence[Scalar],
+        qd: Sequence[Scalar],
+        u: Sequence[Scalar],
+        active: Sequence[int],
+        act: Sequence[Scalar] = (),
+        ops: Ops = NUMPY_OPS,
+        W: Transforms | None = None,
     ) -> list[Scalar]:
         """Generalized actuator forces ``(nq,)`` of the actuators ``active`` driven by ``u``.
 
-        Actuators not in ``active`` get control 0 (their bias still acts).
+        Actuators not in ``active`` get control 0 (their bias still acts); actuators with
+        activation dynamics are driven by their activation ``act (na,)`` instead (see
+        :mod:`~shinro_ctrl.multibody.transmission`).
         """
-        tau: list[Scalar] = [0.0] * self.nq
-        if not self.tree.actuation_enabled:
-            return tau
-        ctrl = dict(zip(active, u, strict=True))
-        for k, act in enumerate(self.tree.actuators):
-            j = act.joint
-            g = act.gear
-            length = _mul(g, q[j])
-            vel = _mul(g, qd[j])
-            p0, p1, p2 = (float(c) for c in act.gainprm)
-            gain: Scalar = p0 if act.gaintype == "fixed" else _add(p0, _mul(p1, length), _mul(p2, vel))
-            b0, b1, b2 = (float(c) for c in act.biasprm)
-            bias: Scalar = 0.0 if act.biastype == "none" else _add(b0, _mul(b1, length), _mul(b2, vel))
-            force = _add(_mul(gain, ctrl[k]) if k in ctrl else 0.0, bias)
-            tau[j] = _add(tau[j], _mul(g, force))
-        return tau
+        tr = self.transmissions
+        inputs = tr.actuator_inputs(u, act, active)
+        frames: dict[int, SiteFrame] = {}
+
+        def site(s: int, at: Sequence[Scalar] | None = None) -> SiteFrame:
+            nonlocal W
+            if W is None:
+                W = self.world_frames(self._joint_transforms(q, ops))
+            if at is not None:
+                return self.site_frame(W, s, at)
+            if s not in frames:
+                frames[s] = self.site_frame(W, s)
+            return frames[s]
+
+        return tr.generalized_forces(q, qd, inputs, site)
 
     def passive_forces(self, q: Sequence[Scalar], qd: Sequence[Scalar]) -> list[Scalar]:
-        """Joint damping and spring forces ``-b q̇ - k (q - q_spring)`` ``(nq,)``."""
-        return [
+        r"""Joint and tendon damping and spring forces ``(nq,)``.
+
+        ``−b ⊙ q̇ − k ⊙ (q − q_spring) + Σ_t c_t (−k_t (L_t − L_{s,t}) − b_t L̇_t)`` over the fixed
+        tendons ``t`` (length ``L_t = c_tᵀ q``).
+        """
+        tau = [
             _sub(
                 _mul(-self._damping[i], qd[i]) if self._damping[i] else 0.0,
                 _mul(self._stiffness[i], _sub(q[i], self._springref[i])) if self._stiffness[i] else 0.0,
             )
             for i in range(self.nq)
         ]
+        for t in self._tendons:
+            k = t.stiffness if self.tree.springs_enabled else 0.0
+            b = t.damping if self.tree.damping_enabled else 0.0
+            force = _sub(
+                _mul(-k, _sub(tendon_length(t, q), t.springlength)) if k else 0.0,
+                _mul(b, tendon_velocity(t, qd)) if b else 0.0,
+            )
+            for j, c in zip(t.joints, t.coefs, strict=True):
+                tau[j] = _add(tau[j], _mul(c, force))
+        return tau
+
+    def gravity_compensation(self, W: Transforms) -> list[Scalar]:
+        r"""``τ_gc = Σ_b J_{p,b}ᵀ (−s_b m_b g)`` ``(nq,)``: MuJoCo's ``gravcomp`` at each body's COM.
+
+        Off when gravity is off or springs and dampers are both disabled (MuJoCo computes it with the
+        passive forces); on a joint with ``actuatorgravcomp`` it goes through the actuators, so it is
+        off there when actuation is disabled (MuJoCo then clamps it to the joint's
+        ``actuatorfrcrange``: its loop only).
+        """
+        tau: list[Scalar] = [0.0] * self.nq
+        for b, force in self._gravcomp:
+            body = self.tree.bodies[b]
+            node, _, c = self.body_frame(W, b, body.ipos)
+            Jp, _ = self.point_jacobian(W, node, c)
+            f = _const(force)
+            for k, col in enumerate(Jp):
+                if col is not None and k in self._gravcomp_joints:
+                    tau[k] = _add(tau[k], _dot(col, f))
+        return tau
+
+    def generalized_forces(
+        self,
+        q: Sequence[Scalar],
+        qd: Sequence[Scalar],
+        u: Sequence[Scalar],
+        active: Sequence[int],
+        act: Sequence[Scalar] = (),
+        ops: Ops = NUMPY_OPS,
+        X: Transforms | None = None,
+    ) -> list[Scalar]:
+        r"""All applied generalized forces ``τ (nq,)``: actuators, passive forces and gravity compensation.
+
+        ``τ = τ_act(q, q̇, u, a) + τ_passive(q, q̇) + τ_gc(q)``; the forward dynamics solve
+        ``(M + diag(armature)) q̈ = τ − c(q, q̇)``.
+        """
+        W = None
+        if self._gravcomp or any(a.transmission == "site" for a in self.tree.actuators):
+            W = self.world_frames(self._joint_transforms(q, ops) if X is None else X)
+        ta = self.actuator_forces(q, qd, u, active, act, ops, W)
+        tp = self.passive_forces(q, qd)
+        out = [_add(ta[i], tp[i]) for i in range(self.nq)]
+        if self._gravcomp:
+            tg = self.gravity_compensation(W)
+            out = [_add(out[i], tg[i]) for i in range(self.nq)]
+        return out
 
     def accelerations(
         self,
@@ -351,32 +538,35 @@ class RigidBodyTree:
         u: Sequence[Scalar],
         active: Sequence[int],
         ops: Ops = NUMPY_OPS,
+        act: Sequence[Scalar] = (),
     ) -> list[Scalar]:
-        """Forward dynamics ``q̈ = (M + diag(a))⁻¹ (τ_act + τ_passive − c)`` ``(nq,)``."""
+        """Forward dynamics ``q̈ = (M + diag(a))⁻¹ (τ − c)`` ``(nq,)`` with ``τ`` from :meth:`generalized_forces`."""
         X = self._joint_transforms(q, ops)
         M = self.mass_matrix(q, ops, X)
         for i in range(self.nq):
             M[i][i] = _add(M[i][i], self._armature[i])
         c = self.bias(q, qd, ops, X)
-        ta = self.actuator_forces(q, qd, u, active)
-        tp = self.passive_forces(q, qd)
-        rhs = [_sub(_add(ta[i], tp[i]), c[i]) for i in range(self.nq)]
+        tau = self.generalized_forces(q, qd, u, active, act, ops, X)
+        rhs = [_sub(tau[i], c[i]) for i in range(self.nq)]
         return _ldl_solve(M, rhs)
 
     def xdot_sx(self, x: cs.SX, u: cs.SX, active: Sequence[int]) -> cs.SX:
-        """``ẋ = [q̇; q̈]`` as a CasADi ``SX`` column from symbols ``x (2nq,)`` and ``u (len(active),)``."""
-        n = self.nq
+        """``ẋ = [q̇; q̈; ȧ]`` as a CasADi ``SX`` column from ``x = [q; q̇; a] (2nq + na,)`` and ``u (len(active),)``."""
+        n, na = self.nq, self.na
         q = [x[i] for i in range(n)]
         qd = [x[n + i] for i in range(n)]
+        act = [x[2 * n + i] for i in range(na)]
         uu = [u[k] for k in range(len(active))]
-        qdd = self.accelerations(q, qd, uu, active, CASADI_OPS)
-        return cs.vertcat(*qd, *[cs.SX(v) if isinstance(v, float | int) else v for v in qdd])
+        qdd = self.accelerations(q, qd, uu, active, CASADI_OPS, act)
+        adot = self.transmissions.activation_rates(uu, act, active)
+        return cs.vertcat(*qd, *[cs.SX(v) if isinstance(v, float | int) else v for v in (*qdd, *adot)])
 
     def xdot_numpy(self, x: ArrayLike, u: ArrayLike, active: Sequence[int]) -> np.ndarray:
-        """``ẋ (2nq,)`` evaluated directly on numbers (float or complex; the complex-step path)."""
+        """``ẋ (2nq + na,)`` evaluated directly on numbers (float or complex; the complex-step path)."""
         n = self.nq
         x = np.asarray(x)
         u = np.asarray(u)
-        q, qd = list(x[:n]), list(x[n:])
-        qdd = self.accelerations(q, qd, list(u), active, NUMPY_OPS)
-        return np.array([*qd, *qdd], dtype=np.result_type(x, u, float))
+        q, qd, act = list(x[:n]), list(x[n : 2 * n]), list(x[2 * n :])
+        qdd = self.accelerations(q, qd, list(u), active, NUMPY_OPS, act)
+        adot = self.transmissions.activation_rates(list(u), act, active)
+        return np.array([*qd, *qdd, *adot], dtype=np.result_type(x, u, float))

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree"]
+__all__ = ["ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree", "SiteInfo", "TendonInfo"]
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,8 @@ class BodyInfo:
         iquat: Principal axes of inertia in the body frame ``(w, x, y, z)``.
         inertia: Principal moments of inertia about the COM ``(3,)`` [kg m²].
         joints: Indices of the body's joints, in application order.
+        gravcomp: Gravity compensation factor ``s``: MuJoCo applies the force ``−s m g`` at the body's
+            centre of mass (``1`` cancels the body's weight; see ``RigidBodyTree.gravity_compensation``).
     """
 
     name: str
@@ -39,6 +41,7 @@ class BodyInfo:
     iquat: np.ndarray
     inertia: np.ndarray
     joints: tuple[int, ...] = ()
+    gravcomp: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,10 @@ class JointInfo:
         springref: Spring rest coordinate.
         limited: Whether the joint has a range.
         range: ``(lo, hi)`` (meaningful when ``limited``).
+        frictionloss: Dry friction [N m or N] (0 when the model disables it). Recorded, never in
+            the smooth dynamics: MuJoCo applies it as a constraint force in its own loop.
+        actgravcomp: True when MuJoCo routes this joint's gravity compensation through the actuators
+            (``actuatorgravcomp``): the same force, then subject to the joint's actuator force clamp.
     """
 
     name: str
@@ -72,23 +79,84 @@ class JointInfo:
     springref: float = 0.0
     limited: bool = False
     range: tuple[float, float] = (-np.inf, np.inf)
+    frictionloss: float = 0.0
+    actgravcomp: bool = False
+
+
+@dataclass(frozen=True)
+class SiteInfo:
+    """A site: a frame fixed on a body (where site transmissions apply their wrench).
+
+    Attributes:
+        name: Site name.
+        body: Index of the body it is fixed on.
+        pos: Origin in the body frame ``(3,)`` [m].
+        quat: Orientation in the body frame ``(w, x, y, z)``.
+    """
+
+    name: str
+    body: int
+    pos: np.ndarray
+    quat: np.ndarray
+
+
+@dataclass(frozen=True)
+class TendonInfo:
+    r"""A fixed tendon: a linear combination of joint coordinates.
+
+    Length ``L(q) = Σ_k c_k q_{j_k}`` (MuJoCo uses ``qpos`` itself, not ``qpos − qpos0``), moment arm
+    ``∂L/∂q = c`` (constant), velocity ``L̇ = cᵀ q̇``. Its passive force ``F = −k (L − L_s) − b L̇``
+    acts on the joints as ``cᵀ F``.
+
+    Attributes:
+        name: Tendon name.
+        joints: Indices of the joints it couples.
+        coefs: Their coefficients ``c_k``.
+        stiffness: Spring stiffness ``k`` [N/m or N m/rad].
+        springlength: Spring rest length ``L_s``.
+        damping: Viscous damping ``b``.
+        frictionloss: Dry friction (recorded; MuJoCo-loop only, like a joint's).
+        limited: Whether the tendon has a length range (a constraint: MuJoCo-loop only).
+        range: ``(lo, hi)`` (meaningful when ``limited``).
+    """
+
+    name: str
+    joints: tuple[int, ...]
+    coefs: tuple[float, ...]
+    stiffness: float = 0.0
+    springlength: float = 0.0
+    damping: float = 0.0
+    frictionloss: float = 0.0
+    limited: bool = False
+    range: tuple[float, float] = (-np.inf, np.inf)
 
 
 @dataclass(frozen=True)
 class ActuatorInfo:
-    """One actuator with a joint transmission (see the module docstring for the force law).
+    """One actuator: its transmission, activation dynamics and force law.
+
+    The force law and the transmissions are in :mod:`shinro_ctrl.multibody.transmission`.
 
     Attributes:
         name: Actuator name.
         kind: ``"motor"``, ``"position"``, ``"velocity"`` or ``"general"`` (informative).
-        joint: Index of the driven joint.
-        gear: Gear ratio ``g``.
+        joint: Index of the driven joint (``transmission == "joint"``), else -1.
+        gear: Gear ratio ``g`` (the first gear component).
         gaintype: ``"fixed"`` or ``"affine"``.
         gainprm: ``(p₀, p₁, p₂)``.
         biastype: ``"none"`` or ``"affine"``.
         biasprm: ``(b₀, b₁, b₂)``.
         ctrlrange: ``(lo, hi)`` when MuJoCo clamps the control, else None.
         forcerange: ``(lo, hi)`` when MuJoCo clamps the force, else None.
+        transmission: ``"joint"``, ``"tendon"`` or ``"site"``.
+        target: Index of the joint, tendon or site the actuator drives.
+        refsite: Index of the reference site of a site transmission, else -1.
+        gear6: The full gear ``(6,)``: for a site, force along ``gear6[0:3]`` and torque about
+            ``gear6[3:6]`` in the site frame (the refsite frame when there is one).
+        dyntype: ``"none"``, ``"filter"``, ``"filterexact"`` or ``"integrator"``.
+        dynprm: ``(τ, ·, ·)``: the filter time constant ``τ`` [s].
+        act: Index of the actuator's activation in the activation state, else -1.
+        actrange: ``(lo, hi)`` when MuJoCo clamps the activation (its loop only), else None.
     """
 
     name: str
@@ -101,6 +169,14 @@ class ActuatorInfo:
     biasprm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ctrlrange: tuple[float, float] | None = None
     forcerange: tuple[float, float] | None = None
+    transmission: str = "joint"
+    target: int = -1
+    refsite: int = -1
+    gear6: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    dyntype: str = "none"
+    dynprm: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    act: int = -1
+    actrange: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -121,6 +197,9 @@ class ModelTree:
         springs_enabled: False when the model disables joint springs.
         actuation_enabled: False when the model disables actuation.
         disableflags: The model's raw ``opt.disableflags`` bit field.
+        tendons: Fixed tendons in MuJoCo's order.
+        sites: Sites in MuJoCo's order.
+        frictionloss_enabled: False when the model disables friction loss.
     """
 
     name: str
@@ -136,11 +215,19 @@ class ModelTree:
     springs_enabled: bool = True
     actuation_enabled: bool = True
     disableflags: int = 0
+    tendons: tuple[TendonInfo, ...] = ()
+    sites: tuple[SiteInfo, ...] = ()
+    frictionloss_enabled: bool = True
 
     @property
     def nq(self) -> int:
         """Number of joint coordinates (= velocities)."""
         return len(self.joints)
+
+    @property
+    def na(self) -> int:
+        """Number of activation states (actuators with activation dynamics)."""
+        return sum(1 for a in self.actuators if a.act >= 0)
 
     @property
     def nu(self) -> int:

@@ -8,9 +8,14 @@ the kinematic tree with :class:`~shinro_ctrl.multibody.RigidBodyTree`:
 .. math::
 
     \dot x = \begin{bmatrix} \dot q \\
-        (M(q) + \operatorname{diag}(a))^{-1}\,(\tau_{act}(q, \dot q, u) - b \odot \dot q
-        - k \odot (q - q_s) - c(q, \dot q)) \end{bmatrix},
-    \qquad x = [q; \dot q].
+        (M(q) + \operatorname{diag}(a))^{-1}\,(\tau(q, \dot q, u, a_{act}) - c(q, \dot q)) \\
+        \dot a_{act}(u, a_{act}) \end{bmatrix},
+    \qquad x = [q; \dot q; a_{act}],
+
+with ``τ`` every applied generalized force (actuators through their
+transmissions, joint and tendon springs and dampers, gravity compensation;
+``RigidBodyTree.generalized_forces``) and ``a_act`` the actuator activations
+(none for actuators without activation dynamics).
 
 The expression is a CasADi ``SX`` graph, so ``symbolic()``, exact
 ``linearize()``, ``get_model()`` and everything downstream work unchanged;
@@ -19,9 +24,10 @@ loads the same file (:meth:`MjcfPlant.mjcf_patch` edits nothing but the
 timestep), so the state map is the identity.
 
 What the symbolic model leaves out, because it is not smooth dynamics:
-contacts, joint-limit constraint forces, and MuJoCo's ``ctrlrange`` /
-``forcerange`` clamps. Keep trajectories inside the joint ranges and the
-inputs inside their ranges (the controller's bounds), or compare with care.
+contacts, joint-limit constraint forces, joint and tendon friction loss,
+and MuJoCo's ``ctrlrange`` / ``forcerange`` / ``actrange`` clamps. Keep
+trajectories inside the joint ranges and the inputs inside their ranges
+(the controller's bounds), or compare with care.
 """
 
 from __future__ import annotations
@@ -95,7 +101,7 @@ def _read(source: str, mtime_ns: int) -> tuple[RobotModel, RigidBodyTree]:
 def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
     """The compiled ``f(x, u) -> xdot`` of one model file version and actuator selection."""
     robot, rb = _read(source, mtime_ns)
-    x = cs.SX.sym("x", 2 * robot.tree.nq)
+    x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
     u = cs.SX.sym("u", len(active))
     return cs.Function("f", [x, u], [rb.xdot_sx(x, u, active)], ["x", "u"], ["xdot"])
 
@@ -132,20 +138,32 @@ class MjcfPlant(Plant):
     """A plant whose dynamics come from an MJCF (or URDF) model file.
 
     State ``x = [qpos; qvel]`` ``(2 nq,)`` in MuJoCo's joint order, named
-    after the joints (``shoulder``, …, ``shoulder_dot``, …); inputs ``u`` the
-    selected actuators' controls, named after the actuators. The physics are
-    the model's: bodies with full inertia tensors and off-axis centres of
-    mass, joint damping, stiffness and armature, gravity, and actuators with
-    a joint transmission (``motor``, ``position``/``velocity`` servos through
-    their gains and biases, ``general`` with fixed/affine gain and bias; see
-    :mod:`shinro_ctrl.multibody`).
+    after the joints (``shoulder``, …, ``shoulder_dot``, …), followed by
+    the actuator activations ``act`` ``(na,)`` in MuJoCo's order (named
+    ``<actuator>_act``) when actuators have activation dynamics; inputs
+    ``u`` the selected actuators' controls, named after the actuators. The
+    physics are the model's: bodies with full inertia tensors and off-axis
+    centres of mass, joint damping, stiffness and armature, fixed tendons
+    with their springs and dampers, gravity and gravity compensation
+    (``gravcomp``), and actuators with a joint, fixed-tendon or site
+    transmission (``motor``, ``position``/``velocity`` servos through their
+    gains and biases, ``general`` with fixed/affine gain and bias; filter,
+    filterexact and integrator activation dynamics; see
+    :mod:`shinro_ctrl.multibody.transmission`).
+
+    Kept out of the smooth model, though MuJoCo applies them in its loop:
+    joint and tendon ``frictionloss`` (recorded in ``tree.joints[i].frictionloss``),
+    joint and tendon limits, contacts, and the ``ctrlrange``,
+    ``forcerange`` and ``actrange`` clamps. :attr:`state_bounds` are the
+    joint ranges of the limited joints (±inf elsewhere): the standalone step
+    stops there, and controllers that take state bounds get them.
 
     The file's kind is read from its content (``<mujoco>`` or ``<robot>``),
     whatever its name. Everything in it the plant cannot model (free or ball
-    joints, equality constraints, tendons that exert force, frictionloss, an
+    joints, equality constraints, spatial tendons that act, fluid forces, an
     unsupported actuator ...) and every invalid number (a ``NaN`` gravity, an
     infinite mass) is refused in one error that lists them all by element
-    name, with the fix where one exists.
+    name, with the reason and the fix where one exists.
 
     A URDF file carries no actuators: its inputs are joint torques (forces
     for prismatic joints), one motor per joint named after the joint, in an
@@ -175,11 +193,13 @@ class MjcfPlant(Plant):
         actuators: Names of the actuators that are the inputs, in this order;
             None: all, in the model's order. Actuators left out get control 0.
         dt: Step [s]; default the model's ``opt.timestep``.
-        x0: Operating state ``(2 nq,)``; default the model's first keyframe
-            (``[key qpos; key qvel]``), else ``[qpos0; 0]`` with every joint
-            whose ``qpos0`` lies outside its range (or on its edge) moved
-            inside it, :data:`RANGE_MARGIN` of the range's width from the
-            nearer end. Must lie within the joint ranges.
+        x0: Operating state ``(2 nq + na,)``; default the model's first
+            keyframe (``[key qpos; key qvel; key act]``), else ``[qpos0; 0]``
+            with every joint whose ``qpos0`` lies outside its range (or on
+            its edge) moved inside it, :data:`RANGE_MARGIN` of the range's
+            width from the nearer end, and the activations that hold it
+            there when there are any (else 0). Must lie within the joint
+            ranges.
         u0: Operating input ``(m,)``; default :meth:`equilibrium_input` at
             ``x0`` when the actuators can hold it there (gravity
             compensation), else zeros.
@@ -238,16 +258,25 @@ class MjcfPlant(Plant):
         self.active_actuators = active
         nq = tree.nq
         self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
-        self.state_names = (*self.joint_names, *(f"{j}_dot" for j in self.joint_names))
+        acts = sorted((a.act, a.name or f"u{k}") for k, a in enumerate(tree.actuators) if a.act >= 0)
+        self.state_names = (
+            *self.joint_names,
+            *(f"{j}_dot" for j in self.joint_names),
+            *(f"{name}_act" for _, name in acts),
+        )
         self.input_names = tuple(names[k] or f"u{k}" for k in active)
         self.position_indices = tuple(range(nq))
         self.velocity_indices = tuple(range(nq, 2 * nq))
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
+        self.state_bounds = self._joint_range_bounds()
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
         if x0 is None:
             self._x0 = self._default_x0(robot.keyframe)
+            held = self._hold_activations(self._x0) if tree.na and robot.keyframe is None else None
+            if held is not None:
+                self._x0 = held[0]
         else:
-            self._x0 = as_vector("x0", x0, 2 * nq).copy()
+            self._x0 = as_vector("x0", x0, self.state_dim).copy()
             self._check_in_range(self._x0, "x0")
         self._u0 = as_vector("u0", u0, self.input_dim).copy() if u0 is not None else self._default_u0()
         self.state = self._x0.copy()
@@ -260,13 +289,66 @@ class MjcfPlant(Plant):
             name, x = keyframe
             self._check_in_range(x, f"keyframe '{name}'" if name else "the model's first keyframe")
             return x.copy()
-        x = np.r_[[j.qpos0 for j in self.tree.joints], np.zeros(nq)]
+        x = np.r_[[j.qpos0 for j in self.tree.joints], np.zeros(nq + self.tree.na)]
         for i, j in enumerate(self.tree.joints):
             if j.limited:
                 lo, hi = j.range
                 margin = RANGE_MARGIN * (hi - lo)
                 x[i] = min(max(x[i], lo + margin), hi - margin)
         return x
+
+    def _hold_activations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        r"""``(x, u)`` at the positions of ``x`` at rest with activations and inputs that hold it, or None.
+
+        ``q̈`` is affine in the inputs ``u`` and the activations ``a``: ``q̈ = a₀ + B_u u + B_a a``.
+        At an equilibrium ``ȧ = 0``: a filter's activation equals its input (``a = u``; 0 for an
+        actuator that is not an input), an integrator's input is 0 and its activation is free.
+        Solves for the free unknowns in the least-squares sense and accepts an exact solution.
+        """
+        nq, m = self.tree.nq, self.input_dim
+        x = x.copy()
+        x[nq:] = 0.0
+        z = np.zeros(m)
+        a0 = self._eval_one(x, z)[nq : 2 * nq]
+        cols, unknowns = [], []  # each unknown: (input index or -1, activation index or -1)
+        input_of = {a: k for k, a in enumerate(self.active_actuators)}
+        for a, act in enumerate(self.tree.actuators):
+            k = input_of.get(a, -1)
+            if act.act < 0 and k < 0:
+                continue
+            if act.act >= 0 and act.dyntype != "integrator" and k < 0:
+                continue  # a filter driven by 0 settles at 0
+            xe, ue = x.copy(), z.copy()
+            if act.act >= 0:
+                xe[2 * nq + act.act] = 1.0
+            if k >= 0 and act.dyntype != "integrator":
+                ue[k] = 1.0
+            cols.append(self._eval_one(xe, ue)[nq : 2 * nq] - a0)
+            unknowns.append((k if act.dyntype != "integrator" else -1, act.act))
+        if not cols:
+            return None
+        B = np.column_stack(cols)
+        if not (np.isfinite(a0).all() and np.isfinite(B).all()):
+            return None
+        sol, *_ = np.linalg.lstsq(B, -a0, rcond=None)
+        if np.abs(a0 + B @ sol).max() > 1e-9 * max(1.0, np.abs(a0).max()):
+            return None
+        u = np.zeros(m)
+        for v, (k, ia) in zip(sol, unknowns, strict=True):
+            if k >= 0:
+                u[k] = v
+            if ia >= 0:
+                x[2 * nq + ia] = v
+        return x, u
+
+    def _joint_range_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Joint ranges of limited joints for the positions; ±inf elsewhere (velocities, activations)."""
+        lo = np.full(self.state_dim, -np.inf)
+        hi = np.full(self.state_dim, np.inf)
+        for i, j in enumerate(self.tree.joints):
+            if j.limited:
+                lo[i], hi[i] = j.range
+        return lo, hi
 
     def _check_in_range(self, x: np.ndarray, what: str) -> None:
         """Raise InvalidArgument naming every joint of ``x`` outside its range."""
@@ -293,12 +375,15 @@ class MjcfPlant(Plant):
         return self._x0.copy(), self._u0.copy()
 
     def equilibrium_input(self, x: ArrayLike, *, tol: float = 1e-9) -> np.ndarray:
-        r"""The input that makes the accelerations vanish at ``x`` (e.g. gravity compensation).
+        r"""The input that makes the accelerations (and activation rates) vanish at ``x`` (e.g. gravity compensation).
 
-        ``q̈`` is affine in ``u``: ``q̈ = a₀ + B_q u`` with ``a₀ = q̈(x, 0)``
-        and column ``k`` of ``B_q = ∂q̈/∂u`` equal to ``q̈(x, e_k) − a₀``
-        (exact for an affine map, up to rounding). Returns the least-squares
-        solution of ``B_q u = −a₀``.
+        ``q̈`` (and ``ȧ``) is affine in ``u``: ``[q̈; ȧ] = a₀ + B_q u`` with
+        ``a₀`` its value at ``u = 0`` and column ``k`` of ``B_q`` equal to its
+        value at ``e_k`` minus ``a₀`` (exact for an affine map, up to
+        rounding). Returns the least-squares solution of ``B_q u = −a₀``.
+        With activation dynamics the forces come from the activations in
+        ``x``: a filter holds when its input equals its activation, an
+        integrator when its input is 0.
 
         Args:
             x: State ``(2nq,)`` (usually with zero velocities).
@@ -313,7 +398,7 @@ class MjcfPlant(Plant):
         x = as_vector("x", x, self.state_dim)
         nq = self.tree.nq
         u0 = np.zeros(self.input_dim)
-        a0 = self._eval_one(x, u0)[nq:]
+        a0 = self._eval_one(x, u0)[nq:]  # q̈ and ȧ
         Bq = np.column_stack([self._eval_one(x, e)[nq:] - a0 for e in np.eye(self.input_dim)])
         if not (np.isfinite(a0).all() and np.isfinite(Bq).all()):
             raise NonFiniteError(
@@ -355,15 +440,6 @@ class MjcfPlant(Plant):
         ctrl = np.zeros(self.tree.nu)
         ctrl[list(self.active_actuators)] = u
         return model_gap_of_file(self.model_path, x, ctrl, thresholds=thresholds, source=self.source_path)
-
-    def state_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """Joint ranges of limited joints for the positions; ±inf elsewhere."""
-        lo = np.full(self.state_dim, -np.inf)
-        hi = np.full(self.state_dim, np.inf)
-        for i, j in enumerate(self.tree.joints):
-            if j.limited:
-                lo[i], hi[i] = j.range
-        return lo, hi
 
     # -------------------------------------------------------------- dynamics
     def _eval_one(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -437,13 +513,49 @@ class MjcfPlant(Plant):
         return self._symbolic[params]
 
     def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """One semi-implicit Euler step: ``q̇⁺ = q̇ + dt q̈``, ``q⁺ = q + dt q̇⁺`` (MuJoCo's Euler)."""
+        """One step as MuJoCo's Euler: ``q̇⁺ = q̇ + dt q̈``, ``q⁺ = q + dt q̇⁺``, then the joint ranges.
+
+        Activations: ``a⁺ = a + dt ȧ`` (filter, integrator), and the exact
+        ``a⁺ = a + (u − a)(1 − e^{−dt/τ})`` for ``filterexact``, as MuJoCo
+        steps them (MuJoCo's ``actrange`` clamp is its loop's only). The joint
+        ranges act as inelastic stops (:meth:`clip_state`).
+        """
         nq = self.tree.nq
         xd = self._eval_one(x, u)
         new = x.copy()
-        new[nq:] += self.dt * xd[nq:]
-        new[:nq] += self.dt * new[nq:]
-        return new
+        new[nq : 2 * nq] += self.dt * xd[nq : 2 * nq]
+        new[:nq] += self.dt * new[nq : 2 * nq]
+        if self.tree.na:
+            new[2 * nq :] += self._activation_steps * xd[2 * nq :]
+        return self.clip_state(new)
+
+    def symbolic_step(self) -> cs.Function:
+        """The standalone step :meth:`integrate` (before the stops) as a CasADi ``Function`` ``F(x, u, p)``.
+
+        This is the ``discretization="step"`` model (LinearMPC's default): semi-implicit Euler for
+        the joints and MuJoCo's own activation update, exact for ``filterexact`` and Euler for
+        ``filter`` and ``integrator``.
+        """
+        nq, na = self.tree.nq, self.tree.na
+        x = cs.SX.sym("x", self.state_dim)
+        u = cs.SX.sym("u", self.input_dim)
+        p = cs.SX.sym("p", 0)
+        xd = self._fun(x, u)
+        v = x[nq : 2 * nq] + self.dt * xd[nq : 2 * nq]
+        parts = [x[:nq] + self.dt * v, v]
+        if na:
+            parts.append(x[2 * nq :] + cs.DM(self._activation_steps) * xd[2 * nq :])
+        return cs.Function("F", [x, u, p], [cs.vertcat(*parts)], ["x", "u", "p"], ["x_next"])
+
+    @functools.cached_property
+    def _activation_steps(self) -> np.ndarray:
+        """Per activation, ``h`` with ``a⁺ = a + h ȧ``: ``dt``, or ``τ (1 − e^{−dt/τ})`` for filterexact."""
+        h = np.full(self.tree.na, self.dt)
+        for a in self.tree.actuators:
+            if a.dyntype == "filterexact":
+                tau = a.dynprm[0]
+                h[a.act] = tau * -np.expm1(-self.dt / tau)
+        return h
 
     # ---------------------------------------------------------------- engine
     def mjcf_patch(self) -> MjcfPatch:
@@ -456,16 +568,16 @@ class MjcfPlant(Plant):
         return MjcfPatch(asset=self.model_path, timestep=self.dt, gravity=(float(g[0]), float(g[1]), float(g[2])))
 
     def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Identity: the state is MuJoCo's ``[qpos; qvel]`` (see :meth:`Plant.engine_state_map`)."""
+        """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`)."""
         n = self.state_dim
         return np.eye(n), np.arange(n)
 
     def engine_read(self, engine: MujocoEngine) -> np.ndarray:
-        """The state ``[qpos; qvel]`` read from the engine."""
+        """The state ``[qpos; qvel; act]`` read from the engine."""
         return engine.get_state_vector()
 
     def engine_write(self, engine: MujocoEngine, x: np.ndarray) -> None:
-        """Write ``[qpos; qvel]`` into the engine."""
+        """Write ``[qpos; qvel; act]`` into the engine."""
         engine.set_state_vector(x)
 
     def engine_apply(self, engine: MujocoEngine, u: np.ndarray) -> None:
@@ -480,10 +592,10 @@ class MjcfPlant(Plant):
         super()._check_engine(engine)
         if engine is not None:
             m = engine.model
-            if m.nq != self.tree.nq or m.nu != self.tree.nu:
+            if m.nq != self.tree.nq or m.nu != self.tree.nu or m.na != self.tree.na:
                 raise InvalidArgument(
-                    f"{self._label()}: engine model has nq={m.nq}, nu={m.nu}; expected nq={self.tree.nq}, "
-                    f"nu={self.tree.nu} (the same model file)"
+                    f"{self._label()}: engine model has nq={m.nq}, nu={m.nu}, na={m.na}; expected "
+                    f"nq={self.tree.nq}, nu={self.tree.nu}, na={self.tree.na} (the same model file)"
                 )
             if len(self.active_actuators) != self.tree.nu:
                 engine.data.ctrl[:] = 0.0
