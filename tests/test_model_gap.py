@@ -27,6 +27,7 @@ from shinro_ctrl.engine.model_gap import (
 )
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError
 from shinro_ctrl.plants import MjcfPlant
+from shinro_ctrl.resources import asset_path
 
 G = 9.81
 L1, L2 = 0.4, 0.3  # link lengths [m]
@@ -112,9 +113,9 @@ def arm() -> mujoco.MjModel:
 
 @pytest.fixture(scope="module")
 def arm_file(tmp_path_factory) -> str:
-    """The arm without friction loss (MjcfPlant loads it) as a file."""
+    """The arm as a file (MjcfPlant loads it: friction loss stays out of its smooth model)."""
     path = tmp_path_factory.mktemp("gap") / "gap_arm.xml"
-    path.write_text(arm_xml(frictionloss=False))
+    path.write_text(arm_xml())
     return str(path)
 
 
@@ -266,6 +267,9 @@ def test_mjcf_plant_model_gap_at_its_operating_point(arm_file):
     assert gap.model == plant.source_path
     np.testing.assert_allclose([d.actuator for d in gap.dofs], [d.load for d in gap.dofs], rtol=1e-9)
     np.testing.assert_allclose([d.load for d in gap.dofs], hand_load(*x0[:2]), rtol=1e-10)
+    load = hand_load(*x0[:2])
+    assert [d.frictionloss for d in gap.dofs] == [0.3, 0.05]
+    assert [d.friction_ratio for d in gap.dofs] == pytest.approx([0.3 / abs(load[0]), 0.05 / abs(load[1])])
     one = MjcfPlant(arm_file, actuators=["p_elbow"])  # the motor is not an input: its control is 0
     q1 = math.asin((H - 0.025) / (L1 + L2))
     gap = one.model_gap([q1, 0, 0, 0], [0.3])
@@ -276,12 +280,25 @@ def test_mjcf_plant_model_gap_at_its_operating_point(arm_file):
         one.model_gap(x0, [0.0, 0.0])
 
 
+def test_activations_are_part_of_the_state():
+    # a filter actuator's force is its activation (gain 1), not its control: x = [qpos; qvel; act]
+    plant = MjcfPlant(asset_path("gallery/filtered_actuator.xml"))
+    x0, u0 = plant.equilibrium()
+    x = x0.copy()
+    x[6] = 3.0  # the shoulder motor's activation
+    gap = plant.model_gap(x, u0)
+    assert gap.x0.shape == (9,) and gap.actuators[0].force == pytest.approx(3.0)
+    assert gap.actuators[0].ctrl == u0[0] and gap.dofs[0].actuator == pytest.approx(3.0)
+
+
 def test_crosscheck_and_design_print_the_report(arm_file, tmp_path, capsys):
     q1 = math.asin((H - 0.025) / (L1 + L2))
     assert main(["crosscheck", arm_file, "--x0", f"{q1},0,0,0", "--u0", "0.95,0"]) == 0
     out = capsys.readouterr().out
     assert "model gap at the operating point" in out and "floor – tip" in out
     assert "warning: actuator 'm_shoulder': u0 = 0.95" in out
+    elbow = next(line.split() for line in out.splitlines() if line.startswith("    elbow "))
+    assert elbow[-2:] == ["0.05", f"{0.05 / abs(hand_load(q1, 0.0)[1]):.1%}"]  # frictionloss, friction/load
     # design: a one-joint arm (one input keeps the margin analysis cheap) held near its motor's clamp
     model = tmp_path / "pendulum.xml"
     model.write_text(PENDULUM_XML)
