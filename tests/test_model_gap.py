@@ -289,6 +289,13 @@ def test_activations_are_part_of_the_state():
     gap = plant.model_gap(x, u0)
     assert gap.x0.shape == (9,) and gap.actuators[0].force == pytest.approx(3.0)
     assert gap.actuators[0].ctrl == u0[0] and gap.dofs[0].actuator == pytest.approx(3.0)
+    # the wrist's integrator activation (its set-point) is clamped to actrange [-2, 2] in MuJoCo only
+    for act, warns in ((1.9, True), (1.5, False)):
+        x[8] = act
+        wrist = plant.model_gap(x, u0).actuators[2]
+        assert (wrist.act, wrist.actrange) == (act, (-2.0, 2.0))
+        assert wrist.act_margin == pytest.approx(margin(act, -2, 2))
+        assert any("actrange" in w.message for w in plant.model_gap(x, u0).warnings) == warns
 
 
 def test_crosscheck_and_design_print_the_report(arm_file, tmp_path, capsys):

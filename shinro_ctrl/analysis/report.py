@@ -477,6 +477,10 @@ def model_gap_section(gap: ModelGap) -> str:
         for a in gap.actuators
     ]
     head = ["actuator", "u0", "ctrlrange", "margin", "force (smooth)", "forcerange", "margin", "force MuJoCo applies"]
+    if any(a.act is not None for a in gap.actuators):  # activation dynamics: MuJoCo clamps act to actrange
+        head += ["activation", "actrange", "margin"]
+        for r, a in zip(rows, gap.actuators, strict=True):
+            r += [_num(a.act), _range(a.actrange), _pct(a.act_margin)]
     parts.append(_table(head, rows))
     if gap.contacts:
         rows = [[e(c.geom1), e(c.geom2), _num(c.dist)] for c in gap.contacts]

@@ -22,7 +22,9 @@ MuJoCo itself (``mj_forward`` at ``x0``) and says which are not small:
 * **clamps** per actuator: where ``u0`` lies in ``ctrlrange`` and where the
   actuator force of the smooth model at ``u0`` (``gain·u0 + bias``, MuJoCo's
   ``actuator_force`` with clamping switched off) lies in ``forcerange``; per
-  joint, where the total actuator torque lies in ``actuatorfrcrange``. A
+  joint, where the total actuator torque lies in ``actuatorfrcrange``; per
+  actuator with activation dynamics, where its activation lies in
+  ``actrange`` (MuJoCo clamps it; the smooth model does not). A
   margin is the distance to the nearer end as a fraction of the range's width,
 
   .. math::
@@ -178,6 +180,9 @@ class ActuatorGap:
         forcerange: ``(lo, hi)`` when MuJoCo clamps the force, else None.
         force_margin: Margin of ``force`` in ``forcerange``, else None.
         applied_force: The force MuJoCo applies at ``u0`` (after both clamps).
+        act: The activation at ``x0`` of an actuator with activation dynamics, else None.
+        actrange: ``(lo, hi)`` when MuJoCo clamps the activation (``actlimited``), else None.
+        act_margin: Margin of ``act`` in ``actrange``, else None.
     """
 
     name: str
@@ -188,6 +193,9 @@ class ActuatorGap:
     forcerange: tuple[float, float] | None
     force_margin: float | None
     applied_force: float
+    act: float | None = None
+    actrange: tuple[float, float] | None = None
+    act_margin: float | None = None
 
 
 @dataclass(frozen=True)
@@ -375,7 +383,8 @@ def model_gap(
         load[routed] -= d.qfrc_gravcomp[routed]
     warns: list[GapWarning] = []
     dofs = _dofs(m, x, load, tau_act, off, t, warns)
-    actuators = _actuators(m, u, np.asarray(d.actuator_force, dtype=float), np.asarray(applied), off, t, warns)
+    force = np.asarray(d.actuator_force, dtype=float)
+    actuators = _actuators(m, u, force, np.asarray(applied), np.array(d.act), off, t, warns)
     contacts = _contacts(m, d, off, warns)
     warns.sort(key=lambda w: w.level != "error")
     return ModelGap(
@@ -493,6 +502,7 @@ def _actuators(
     u: np.ndarray,
     force: np.ndarray,
     applied: np.ndarray,
+    acts: np.ndarray,
     off: dict[str, bool],
     t: GapThresholds,
     warns: list[GapWarning],
@@ -510,7 +520,15 @@ def _actuators(
             lo, hi = (float(v) for v in m.actuator_forcerange[a])
             fr, fm = (lo, hi), _margin(float(force[a]), lo, hi)
             _clamp_warning(warns, fm, t, f"actuator '{name}': force {force[a]:.4g} at u0", "forcerange", fr)
-        rows.append(ActuatorGap(name, c, cr, cm, float(force[a]), fr, fm, float(applied[a])))
+        act = ar = am = None
+        adr = int(m.actuator_actadr[a])
+        if adr >= 0:  # the activation's last element drives the force (MuJoCo's convention)
+            act = float(acts[adr + int(m.actuator_actnum[a]) - 1])
+            if m.actuator_actlimited[a]:
+                lo, hi = (float(v) for v in m.actuator_actrange[a])
+                ar, am = (lo, hi), _margin(act, lo, hi)
+                _clamp_warning(warns, am, t, f"actuator '{name}': activation {act:.4g} at x0", "actrange", ar)
+        rows.append(ActuatorGap(name, c, cr, cm, float(force[a]), fr, fm, float(applied[a]), act, ar, am))
     return rows
 
 
@@ -677,4 +695,8 @@ def _actuator_table(actuators: tuple[ActuatorGap, ...]) -> list[str]:
         for a in actuators
     ]
     head = ["actuator", "u0", "ctrlrange", "margin", "force", "forcerange", "margin"]
+    if any(a.act is not None for a in actuators):
+        head += ["act", "actrange", "margin"]
+        for r, a in zip(rows, actuators, strict=True):
+            r += [_f(a.act), _rng(a.actrange), _pct(a.act_margin)]
     return ["  actuators (force at u0, smooth model: MuJoCo clamps to the ranges):", *_columns(head, rows)]
