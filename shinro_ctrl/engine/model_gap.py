@@ -50,7 +50,8 @@ not reported: the MuJoCo loop does not have them either.
 
 This is the MuJoCo side of the report (only the engine package imports
 ``mujoco``); :meth:`MjcfPlant.model_gap <shinro_ctrl.plants.mjcf.MjcfPlant.model_gap>`
-calls :func:`model_gap_of_file` for its own file, state layout and inputs.
+calls :func:`plant_model_gap` for its own file, state layout and inputs; the
+``design`` command calls :func:`engine_model_gap` on the scenario's MuJoCo loop.
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:
     from shinro_ctrl.engine.core import MujocoEngine
+    from shinro_ctrl.plants.base import Plant
 
 from shinro_ctrl.engine.model_tree import ModelWarning, load_model
 from shinro_ctrl.errors import InvalidArgument
@@ -88,6 +90,7 @@ __all__ = [
     "engine_model_gap",
     "model_gap",
     "model_gap_of_file",
+    "plant_model_gap",
 ]
 
 #: Warn when a joint's friction loss exceeds this fraction of its load torque ``|τ_load|``.
@@ -615,6 +618,35 @@ def engine_model_gap(engine: MujocoEngine, *, thresholds: GapThresholds | None =
     d = engine.data
     x = np.concatenate([d.qpos, d.qvel, d.act])
     return model_gap(engine.model, x, np.array(d.ctrl), thresholds=thresholds, source=engine.source)
+
+
+def plant_model_gap(
+    plant: Plant,
+    path: str | os.PathLike[str],
+    x0: ArrayLike,
+    u0: ArrayLike,
+    *,
+    thresholds: GapThresholds | None = None,
+    source: str | None = None,
+) -> ModelGap:
+    """:func:`model_gap` of a model file as it is (no patch), at a plant's operating point.
+
+    The state and controls MuJoCo sees are the ones the plant's own engine hooks write
+    (``plant.engine_write(engine, x0)``, ``plant.engine_apply(engine, u0)`` on a fresh engine of the
+    file), so every state layout a plant has (activations, independent coordinates of a constrained
+    model, unselected actuators at 0) maps onto MuJoCo's ``[qpos; qvel; act]`` and ``ctrl`` as in its loop.
+
+    Raises:
+        FileNotFoundError: no such file.
+        InvalidArgument: MuJoCo cannot load it; a state or input the plant's hooks refuse.
+    """
+    from shinro_ctrl.engine.core import MujocoEngine
+
+    p = Path(path).resolve()
+    engine = MujocoEngine.from_model(_load(str(p), p.stat().st_mtime_ns), source=source or str(p))
+    plant.engine_write(engine, np.asarray(x0, dtype=float))
+    plant.engine_apply(engine, np.asarray(u0, dtype=float))
+    return engine_model_gap(engine, thresholds=thresholds)
 
 
 # ----------------------------------------------------------------- format

@@ -433,13 +433,11 @@ class MjcfPlant(Plant):
             NonFiniteError: NaN or inf in ``x0`` or ``u0``.
         """
         # the model file's reader family (agreed exception to the layering, like engine.model_tree)
-        from shinro_ctrl.engine.model_gap import model_gap_of_file
+        from shinro_ctrl.engine.model_gap import plant_model_gap
 
         x = as_vector("x0", self._x0 if x0 is None else x0, self.state_dim)
         u = as_vector("u0", self._u0 if u0 is None else u0, self.input_dim)
-        ctrl = np.zeros(self.tree.nu)
-        ctrl[list(self.active_actuators)] = u
-        return model_gap_of_file(self.model_path, x, ctrl, thresholds=thresholds, source=self.source_path)
+        return plant_model_gap(self, self.model_path, x, u, thresholds=thresholds, source=self.source_path)
 
     # -------------------------------------------------------------- dynamics
     def _eval_one(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
