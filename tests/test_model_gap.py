@@ -19,6 +19,7 @@ from shinro_ctrl.cli import main
 from shinro_ctrl.engine import MujocoEngine
 from shinro_ctrl.engine.model_gap import (
     CLAMP_WARN,
+    EQUALITY_WARN,
     FRICTION_WARN,
     LIMIT_WARN,
     GapThresholds,
@@ -194,6 +195,58 @@ def test_effects_the_model_switches_off_are_not_reported():
     assert gap.contacts == () and set(gap.disabled) == {"contact", "frictionloss", "limit"}
     assert all(d.frictionloss == 0.0 and d.range is None for d in gap.dofs)
     assert not {"contact", "friction", "limit"} & set(effects(gap))
+
+
+LOCKED_XML = """
+<mujoco><compiler angle="radian"/><option timestep="0.001"/>
+  <worldbody>
+    <body pos="0 0 1"><joint name="hinge" axis="0 1 0" damping="0.5"/>
+      <inertial pos="0.3 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body>
+  </worldbody>
+  <equality>
+    <joint name="lock" joint1="hinge" polycoef="0 0 0 0 0" solimp="0.95 0.95 0.001" solref="{tc} 1"/>
+  </equality>
+</mujoco>
+"""
+PINNED_XML = """
+<mujoco><compiler angle="radian"/><option timestep="0.001"/>
+  <worldbody>
+    <body name="a" pos="0 0 1"><joint axis="0 1 0" damping="0.3"/>
+      <inertial pos="0.2 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>
+      <body name="b" pos="0.4 0 0"><joint axis="0 1 0" damping="0.3"/>
+        <inertial pos="0.15 0 -0.1" mass="0.6" diaginertia="0.005 0.005 0.005"/></body>
+    </body>
+  </worldbody>
+  <equality><connect name="pin" body1="b" body2="world" anchor="0.3 0 0.2" solimp="0.99 0.99 0.001"/></equality>
+</mujoco>
+"""
+
+
+def settled_violation(m: mujoco.MjModel, steps: int) -> float:
+    """MuJoCo's own answer: the equality's violation once the held model has settled."""
+    d = mujoco.MjData(m)
+    for _ in range(steps):
+        mujoco.mj_step(m, d)
+    assert np.abs(d.qvel).max() < 1e-8  # settled
+    return float(np.abs(d.efc_pos[: d.nefc]).max())
+
+
+def test_soft_equality_sag_against_mujocos_settled_state():
+    # a pendulum locked horizontal by a joint equality: exact for a constant impedance
+    m = mujoco.MjModel.from_xml_string(LOCKED_XML.format(tc=0.02))
+    (lock,) = model_gap(m, [0.0, 0.0], []).equalities
+    assert (lock.name, lock.kind, lock.violation) == ("lock", "joint", 0.0)
+    assert lock.sag == pytest.approx(settled_violation(m, 2000), rel=1e-6)
+    # a two-link chain pinned to the world by a connect: first order in the sag (the chain moves by it)
+    m = mujoco.MjModel.from_xml_string(PINNED_XML)
+    (pin,) = model_gap(m, np.zeros(4), []).equalities
+    assert pin.kind == "connect" and pin.sag == pytest.approx(settled_violation(m, 1000), rel=1e-2)
+    # warnings: a softer lock sags above the threshold; x0 off the constraint
+    soft = model_gap(mujoco.MjModel.from_xml_string(LOCKED_XML.format(tc=0.05)), [0.0, 0.0], [])
+    assert soft.equalities[0].sag > EQUALITY_WARN > lock.sag and "equality" in effects(soft)
+    assert "equality" not in effects(model_gap(m, np.zeros(4), []))
+    off = model_gap(mujoco.MjModel.from_xml_string(LOCKED_XML.format(tc=0.02)), [0.01, 0.0], [])
+    assert off.equalities[0].violation == pytest.approx(0.01) and "violates equality 'lock'" in off.format()
 
 
 # --------------------------------------------------------------- thresholds
@@ -376,6 +429,8 @@ def test_the_html_report_section(arm):
     assert page.count("<li>") == len(gap.warnings) and '<span class="flag">error</span>' in page
     quiet = model_gap_section(model_gap(arm, x_at(0.2, 0.0), [0.0, 0.0]))
     assert "No contacts at x0" in quiet and quiet.count("<table>") == 2
+    locked = model_gap_section(model_gap(mujoco.MjModel.from_xml_string(LOCKED_XML.format(tc=0.02)), [0, 0], []))
+    assert "static sag under the load" in locked and ">lock</td>" in locked
 
 
 def test_crosscheck_with_a_bad_x0_is_one_line(arm_file, capsys):

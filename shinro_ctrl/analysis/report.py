@@ -433,7 +433,8 @@ def model_gap_section(gap: ModelGap) -> str:
         "<h2>Model gap: what the smooth design model leaves out</h2>",
         f"<p>Measured by MuJoCo on {e(gap.model)} at the operating point. Warnings: friction loss above "
         f"{t.friction:.0%} of the joint's load torque τ<sub>load</sub> = qfrc_bias − qfrc_passive, u0 or its force "
-        f"within {t.clamp:.0%} of a clamp, any contact, a joint within {t.limit:.0%} of a limit.</p>",
+        f"within {t.clamp:.0%} of a clamp, any contact, a joint within {t.limit:.0%} of a limit, a soft equality "
+        f"sagging by more than {t.equality:g} (m or rad).</p>",
     ]
     if gap.warnings:
         items = "".join(
@@ -491,4 +492,8 @@ def model_gap_section(gap: ModelGap) -> str:
         parts.append(_table(["geom", "geom", "distance [m]"], rows, left=2))
     else:
         parts.append("<p>No contacts at x0.</p>")
+    if gap.equalities:
+        rows = [[e(q.name), e(q.kind), _num(q.violation, ".3g"), _num(q.sag, ".3g")] for q in gap.equalities]
+        parts.append("<p>Equality constraints: exact in the design model, soft in MuJoCo (solref/solimp):</p>")
+        parts.append(_table(["equality", "type", "violation at x0", "static sag under the load"], rows))
     return "\n".join(parts)

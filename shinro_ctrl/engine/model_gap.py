@@ -40,12 +40,18 @@ MuJoCo itself (``mj_forward`` at ``x0``) and says which are not small:
   the same margin fraction; MuJoCo's limit constraint is active already when
   the distance to the limit is below the joint's ``margin`` attribute.
 
+* **soft equality constraints**: MuJoCo's equality is soft (``solref``,
+  ``solimp``); per active equality, ``x0``'s violation of it and the static
+  sag it settles at under the load it carries at ``(x0, u0)``
+  (:class:`EqualityGap`); the design model's constraint is exact.
+
 Thresholds (:class:`GapThresholds`, defaults below): a warning when friction
 loss exceeds :data:`FRICTION_WARN` (10 %) of the load torque, when a margin to
 a clamp is below :data:`CLAMP_WARN` (10 %) of the range, for any contact,
-and when a joint-limit margin is below :data:`LIMIT_WARN` (5 %) of the range
-or inside the joint's MuJoCo ``margin``. Effects switched off by the model's
-own ``<flag>`` (``frictionloss``, ``limit``, ``contact``, ``clampctrl``) are
+when a joint-limit margin is below :data:`LIMIT_WARN` (5 %) of the range
+or inside the joint's MuJoCo ``margin``, and when an equality sags (or ``x0``
+violates it) by more than :data:`EQUALITY_WARN` (1e-3 m or rad). Effects switched off by the model's
+own ``<flag>`` (``frictionloss``, ``limit``, ``contact``, ``clampctrl``, ``equality``) are
 not reported: the MuJoCo loop does not have them either.
 
 This is the MuJoCo side of the report (only the engine package imports
@@ -79,11 +85,13 @@ from shinro_ctrl.validation import as_vector
 
 __all__ = [
     "CLAMP_WARN",
+    "EQUALITY_WARN",
     "FRICTION_WARN",
     "LIMIT_WARN",
     "ActuatorGap",
     "ContactGap",
     "DofGap",
+    "EqualityGap",
     "GapThresholds",
     "GapWarning",
     "ModelGap",
@@ -99,6 +107,8 @@ FRICTION_WARN = 0.10
 CLAMP_WARN = 0.10
 #: Warn when ``x0`` is closer than this fraction of a joint's range to a joint limit.
 LIMIT_WARN = 0.05
+#: Warn when a soft equality sags (or ``x0`` violates it) by more than this [m or rad].
+EQUALITY_WARN = 1e-3
 
 _D = mujoco.mjtDisableBit
 #: Names of a free or ball joint's degrees of freedom (MuJoCo's ``qvel`` order: linear, then angular).
@@ -119,14 +129,16 @@ class GapThresholds:
         friction: Friction loss above this fraction of ``|τ_load|`` warns.
         clamp: A margin to ``ctrlrange``/``forcerange``/``actuatorfrcrange`` below this fraction warns.
         limit: A joint-limit margin below this fraction warns.
+        equality: A soft equality's sag, or ``x0``'s violation of it, above this [m or rad] warns.
     """
 
     friction: float = FRICTION_WARN
     clamp: float = CLAMP_WARN
     limit: float = LIMIT_WARN
+    equality: float = EQUALITY_WARN
 
     def __post_init__(self) -> None:
-        for name in ("friction", "clamp", "limit"):
+        for name in ("friction", "clamp", "limit", "equality"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
                 raise InvalidArgument(f"GapThresholds.{name} must be a finite number >= 0, got {v!r}")
@@ -202,6 +214,36 @@ class ActuatorGap:
 
 
 @dataclass(frozen=True)
+class EqualityGap:
+    r"""One active equality constraint at ``x0``: how far ``x0`` is from it, and how far MuJoCo's soft
+    version of it sags under the load it carries there.
+
+    MuJoCo's equality is soft: its constraint force is ``f = −(A + R)⁻¹ (J a₀ − a_ref)`` with
+    ``A = J M⁻¹ Jᵀ``, the regularizer ``R`` and ``a_ref = −b v − k·d·r`` (``solref``/``solimp``). Held
+    still (``v = 0``, constraint acceleration 0) under the unconstrained smooth acceleration ``a₀`` at
+    ``(x0, u0)``, the violation it settles at is
+
+    .. math::
+
+        r = (k\,d)^{-1}\, R\, A^{-1} J a_0,
+
+    exact for a constant impedance ``d`` (``solimp`` with equal ``dmin``, ``dmax``), the first-order
+    estimate at ``x0``'s impedance otherwise. The design model's constraint is exact (``r = 0``).
+
+    Attributes:
+        name: The equality's name (``equality <i> (<type>)`` for an unnamed one).
+        kind: ``"connect"``, ``"weld"``, ``"joint"``, ``"tendon"`` ...
+        violation: ``max |r|`` of its rows at ``x0`` (MuJoCo's ``efc_pos``) [m or rad].
+        sag: ``max |r|`` of its rows at the soft steady state above [m or rad].
+    """
+
+    name: str
+    kind: str
+    violation: float
+    sag: float
+
+
+@dataclass(frozen=True)
 class ContactGap:
     """One contact MuJoCo finds at ``x0``.
 
@@ -245,6 +287,7 @@ class ModelGap:
         dofs: One :class:`DofGap` per degree of freedom, in MuJoCo's dof order.
         actuators: One :class:`ActuatorGap` per actuator.
         contacts: One :class:`ContactGap` per active contact.
+        equalities: One :class:`EqualityGap` per active equality constraint.
         warnings: Every effect above its threshold, errors first.
         thresholds: The thresholds used.
         disabled: Effects the model's own flags switch off (``"contact"``, ``"frictionloss"`` ...).
@@ -259,6 +302,7 @@ class ModelGap:
     warnings: tuple[GapWarning, ...]
     thresholds: GapThresholds = field(default_factory=GapThresholds)
     disabled: tuple[str, ...] = ()
+    equalities: tuple[EqualityGap, ...] = ()
 
     @property
     def n_contacts(self) -> int:
@@ -288,6 +332,11 @@ class ModelGap:
             )
         else:
             out.append("  contacts at x0: none" + (" (disabled in the model)" if "contact" in self.disabled else ""))
+        if self.equalities:
+            out.append(
+                "  equalities (violation at x0; static sag of MuJoCo's soft constraint under the load): "
+                + ", ".join(f"{q.name} {_f(q.violation, '.3g')} / {_f(q.sag, '.3g')}" for q in self.equalities)
+            )
         if self.disabled:
             out.append(f"  disabled by the model's flags: {', '.join(self.disabled)}")
         t = self.thresholds
@@ -296,7 +345,7 @@ class ModelGap:
         else:
             out.append(
                 f"  no effect above its threshold (friction > {t.friction:.0%} of the load, a clamp within "
-                f"{t.clamp:.0%}, any contact, a limit within {t.limit:.0%})"
+                f"{t.clamp:.0%}, any contact, a limit within {t.limit:.0%}, an equality's sag > {t.equality:g})"
             )
         return "\n".join(line.rstrip() for line in out)
 
@@ -330,6 +379,7 @@ def _free_model(m: mujoco.MjModel) -> mujoco.MjModel:
     free.opt.disableflags |= int(_D.mjDSBL_CLAMPCTRL)
     free.actuator_forcelimited[:] = 0
     free.jnt_actfrclimited[:] = 0
+    free.opt.jacobian = int(mujoco.mjtJacobian.mjJAC_DENSE)  # efc_J dense for the equality rows
     return free
 
 
@@ -375,8 +425,10 @@ def model_gap(
         "frictionloss": bool(flags & int(_D.mjDSBL_FRICTIONLOSS) or flags & int(_D.mjDSBL_CONSTRAINT)),
         "limit": bool(flags & int(_D.mjDSBL_LIMIT) or flags & int(_D.mjDSBL_CONSTRAINT)),
         "clampctrl": bool(flags & int(_D.mjDSBL_CLAMPCTRL)),
+        "equality": bool(flags & int(_D.mjDSBL_EQUALITY) or flags & int(_D.mjDSBL_CONSTRAINT)),
     }
-    d = _forward(_free_model(m), x, u)  # the smooth model's forces: no clamps
+    free = _free_model(m)
+    d = _forward(free, x, u)  # the smooth model's forces: no clamps
     applied = _forward(m, x, u).actuator_force  # what MuJoCo applies: clamped as the model says
     load = d.qfrc_bias - d.qfrc_passive
     tau_act = d.qfrc_actuator.copy()
@@ -389,6 +441,7 @@ def model_gap(
     force = np.asarray(d.actuator_force, dtype=float)
     actuators = _actuators(m, u, force, np.asarray(applied), np.array(d.act), off, t, warns)
     contacts = _contacts(m, d, off, warns)
+    equalities = _equalities(free, d, t, warns)
     warns.sort(key=lambda w: w.level != "error")
     return ModelGap(
         model=source,
@@ -400,6 +453,7 @@ def model_gap(
         warnings=tuple(warns),
         thresholds=t,
         disabled=tuple(k for k, v in off.items() if v),
+        equalities=tuple(equalities),
     )
 
 
@@ -551,6 +605,46 @@ def _forward(m: mujoco.MjModel, x: np.ndarray, u: np.ndarray) -> mujoco.MjData:
     d.ctrl[:] = u
     mujoco.mj_forward(m, d)
     return d
+
+
+def _equalities(m: mujoco.MjModel, d: mujoco.MjData, t: GapThresholds, warns: list[GapWarning]) -> list[EqualityGap]:
+    """The active equality rows of ``d`` (dense ``efc_J``): violation at ``x0``, soft sag (:class:`EqualityGap`)."""
+    rows = np.flatnonzero(d.efc_type[: d.nefc] == int(mujoco.mjtConstraint.mjCNSTR_EQUALITY))
+    if not rows.size:
+        return []
+    J = np.asarray(d.efc_J[: d.nefc * m.nv]).reshape(d.nefc, m.nv)[rows]
+    MinvJt = np.zeros((rows.size, m.nv))
+    mujoco.mj_solveM(m, d, MinvJt, J)  # rows of (M⁻¹ Jᵀ)ᵀ
+    A = J @ MinvJt.T
+    kd = d.efc_KBIP[rows, 0] * d.efc_KBIP[rows, 2]
+    sag = d.efc_R[rows] * np.linalg.lstsq(A, J @ d.qacc_smooth, rcond=None)[0] / kd
+    pos = np.asarray(d.efc_pos)[rows]
+    ids = np.asarray(d.efc_id)[rows]
+    out = []
+    for e in dict.fromkeys(ids.tolist()):
+        mine = ids == e
+        kind = mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix("mjEQ_").lower()
+        name = m.equality(e).name or f"equality {e} ({kind})"
+        gap = EqualityGap(name, kind, float(np.abs(pos[mine]).max()), float(np.abs(sag[mine]).max()))
+        out.append(gap)
+        if gap.violation > t.equality:
+            warns.append(
+                GapWarning(
+                    "warning",
+                    "equality",
+                    f"x0 violates equality '{name}' by {gap.violation:.3g}: MuJoCo's constraint pulls it back",
+                )
+            )
+        if gap.sag > t.equality:
+            warns.append(
+                GapWarning(
+                    "warning",
+                    "equality",
+                    f"MuJoCo's soft equality '{name}' sags by about {gap.sag:.3g} under the load at x0 (its solref/"
+                    "solimp): the design model's constraint is exact",
+                )
+            )
+    return out
 
 
 def _contacts(m: mujoco.MjModel, d: mujoco.MjData, off: dict[str, bool], warns: list[GapWarning]) -> list[ContactGap]:
