@@ -39,7 +39,6 @@ MuJoCo itself (``mj_forward`` at ``x0``) and says which are not small:
 * **joint-limit margins** at ``x0`` for limited hinge and slide joints, with
   the same margin fraction; MuJoCo's limit constraint is active already when
   the distance to the limit is below the joint's ``margin`` attribute.
-
 * **soft equality constraints**: MuJoCo's equality is soft (``solref``,
   ``solimp``); per active equality, ``x0``'s violation of it and the static
   sag it settles at under the load it carries at ``(x0, u0)``
@@ -48,11 +47,12 @@ MuJoCo itself (``mj_forward`` at ``x0``) and says which are not small:
 Thresholds (:class:`GapThresholds`, defaults below): a warning when friction
 loss exceeds :data:`FRICTION_WARN` (10 %) of the load torque, when a margin to
 a clamp is below :data:`CLAMP_WARN` (10 %) of the range, for any contact,
-when a joint-limit margin is below :data:`LIMIT_WARN` (5 %) of the range
-or inside the joint's MuJoCo ``margin``, and when an equality sags (or ``x0``
-violates it) by more than :data:`EQUALITY_WARN` (1e-3 m or rad). Effects switched off by the model's
-own ``<flag>`` (``frictionloss``, ``limit``, ``contact``, ``clampctrl``, ``equality``) are
-not reported: the MuJoCo loop does not have them either.
+when a joint-limit margin is below :data:`LIMIT_WARN` (5 %) of the range or
+inside the joint's MuJoCo ``margin``, and when an equality sags (or ``x0``
+violates it) by more than :data:`EQUALITY_WARN` (1e-3 m or rad). Effects
+switched off by the model's own ``<flag>`` (``frictionloss``, ``limit``,
+``contact``, ``clampctrl``, ``equality``) are not reported: the MuJoCo loop
+does not have them either.
 
 This is the MuJoCo side of the report (only the engine package imports
 ``mujoco``); :meth:`MjcfPlant.model_gap <shinro_ctrl.plants.mjcf.MjcfPlant.model_gap>`
@@ -264,7 +264,7 @@ class GapWarning:
     Attributes:
         level: ``"warning"``, or ``"error"`` where the MuJoCo loop cannot do what the design assumes
             (``u0`` or ``x0`` outside a range MuJoCo clamps or limits).
-        effect: ``"friction"``, ``"clamp"``, ``"contact"`` or ``"limit"``.
+        effect: ``"friction"``, ``"clamp"``, ``"contact"``, ``"limit"`` or ``"equality"``.
         message: One line for the user.
     """
 
@@ -312,7 +312,7 @@ class ModelGap:
     @property
     def max_penetration(self) -> float:
         """The deepest penetration at ``x0`` [m] (0 without contacts or penetration)."""
-        return max((-c.dist for c in self.contacts), default=0.0) if self.contacts else 0.0
+        return max(0.0, *(-c.dist for c in self.contacts))  # contacts within a geom margin have dist > 0
 
     @property
     def errors(self) -> tuple[GapWarning, ...]:
