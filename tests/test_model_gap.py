@@ -184,6 +184,11 @@ def test_contacts_against_mujoco_and_the_tip_height(arm):
     assert "contact" in effects(gap) and "floor – tip" in gap.format()
     free = model_gap(arm, x_at(0.2, 0.0), [0.0, 0.0])  # tip 0.36 m over the floor
     assert free.n_contacts == 0 and "contact" not in effects(free)
+    near = copy.copy(arm)
+    near.geom_margin[:] = 0.05  # a contact 2 cm away is active within the margin: no penetration
+    q1 = math.asin((H - R - 0.02) / (L1 + L2))
+    gap = model_gap(near, x_at(q1, 0.0), [0.0, 0.0])
+    assert gap.n_contacts == 1 and gap.contacts[0].dist == pytest.approx(0.02) and gap.max_penetration == 0.0
 
 
 def test_effects_the_model_switches_off_are_not_reported():
