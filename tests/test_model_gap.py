@@ -144,6 +144,7 @@ def test_joint_rows_match_the_closed_form(arm):
         assert shoulder.frictionloss == 0.3 and elbow.frictionloss == 0.05
         load = hand_load(q1, q2)
         assert shoulder.friction_ratio == pytest.approx(0.3 / abs(load[0]), rel=1e-9)
+        assert elbow.friction_to_actuator == pytest.approx(0.05 / abs(KP * (u[1] - q2)), rel=1e-9)
         assert elbow.friction_holds == (abs(load[1]) <= 0.05)
         assert shoulder.actfrc_range == (-8.0, 8.0)
         assert shoulder.actfrc_margin == pytest.approx(margin(GEAR * u[0], -8, 8), rel=1e-12)

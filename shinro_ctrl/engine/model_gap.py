@@ -162,6 +162,7 @@ class DofGap:
         frictionloss: ``f_loss`` [N m or N] (0 without friction loss or with it disabled).
         friction_ratio: ``f_loss / |τ_load|`` (inf for a zero load), None without friction loss.
         friction_holds: ``|τ_load| ≤ f_loss``: friction alone holds the joint (a static dead band).
+        friction_to_actuator: ``f_loss / |τ_act|`` (inf for a zero torque), None without friction loss.
         actfrc_range: ``actuatorfrcrange`` of the joint when limited, else None.
         actfrc_margin: Margin of ``τ_act`` in ``actfrc_range``, else None.
     """
@@ -180,6 +181,7 @@ class DofGap:
     friction_holds: bool
     actfrc_range: tuple[float, float] | None = None
     actfrc_margin: float | None = None
+    friction_to_actuator: float | None = None
 
 
 @dataclass(frozen=True)
@@ -507,6 +509,8 @@ def _dofs(
             fl = 0.0 if off["frictionloss"] else float(m.dof_frictionloss[dof])
             ld = float(load[dof])
             ratio = None if fl == 0.0 else (fl / abs(ld) if ld != 0.0 else math.inf)
+            ta = float(tau_act[dof])
+            to_act = None if fl == 0.0 else (fl / abs(ta) if ta != 0.0 else math.inf)
             holds = fl > 0.0 and abs(ld) <= fl
             label = name if scalar else f"{name}.{_DOF_SUFFIXES[kind][k]}"
             if ratio is not None and ratio > t.friction:
@@ -537,6 +541,7 @@ def _dofs(
                     friction_holds=holds,
                     actfrc_range=afr if k == 0 else None,
                     actfrc_margin=afm if k == 0 else None,
+                    friction_to_actuator=to_act,
                 )
             )
     return rows
