@@ -309,3 +309,13 @@ def test_refused_features_name_the_element_and_the_reason(tmp_path, parts, match
     path.write_text(BASE.format(**{"option": "", "tendon": "", "actuator": MOTOR, **parts}))
     with pytest.raises(InvalidArgument, match=match):
         MjcfPlant(path)
+
+
+def test_crosscheck_compares_the_activation_rows_with_mujocos_transition_jacobians():
+    """mjd_transitionFD's act rows (MuJoCo's exact filterexact update) give the continuous rows back."""
+    from shinro_ctrl.crosscheck import crosscheck
+
+    plant = MjcfPlant("gallery/filtered_actuator.xml")
+    x = np.array([0.3, -0.5, 0.2, 0.1, 0.2, -0.3, 1.0, 0.5, -0.2])
+    result = crosscheck(plant, x, [1.0, 2.0, 0.5])
+    assert result.A_mujoco.shape == (9, 9) and result.mujoco_max_rel_error < 1e-6
