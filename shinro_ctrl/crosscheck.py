@@ -14,8 +14,9 @@ MuJoCo differentiates one discrete step. With its Euler integrator
 damping (``mjDSBL_EULERDAMP``), the velocity rows of the transition Jacobians
 are exactly ``[h ∂a/∂q, I + h ∂a/∂v]`` and ``h ∂a/∂u``, so the continuous
 acceleration Jacobians are recovered without discretization error; the
-position rows of the continuous model are ``q̇ = v``. The result, in MuJoCo's
-order ``z = [qpos, qvel]``, is converted to the plant's state with the plant's
+position rows of the continuous model are ``q̇ = v``; actuator activations
+(``act⁺ = act + h_a ȧct``) likewise give their rows exactly. The result, in
+MuJoCo's order ``z = [qpos, qvel, act]``, is converted to the plant's state with the plant's
 ``engine_state_map()``: ``x = T z`` gives ``A_x = T A_z T⁻¹``, ``B_x = T B_z``.
 """
 
@@ -92,33 +93,32 @@ class CrosscheckResult:
 def mujoco_continuous_jacobians(
     engine: MujocoEngine, z0: Any, u0: Any, *, eps: float = 1e-6
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Continuous Jacobians of a MuJoCo model in its own state order ``z = [qpos, qvel]``.
+    """Continuous Jacobians of a MuJoCo model in its own state order ``z = [qpos, qvel, act]``.
 
     Sets the engine's state to ``z0`` and control to ``u0`` (they stay set),
     differentiates one Euler step with ``mjd_transitionFD`` and recovers the
-    continuous rows (see the module docstring).
+    continuous rows (see the module docstring). Activations (``na > 0``) step
+    as ``act⁺ = act + h_a ȧct`` with ``h_a = h`` (filter, integrator) or
+    ``τ (1 − e^{−h/τ})`` (filterexact: MuJoCo's exact update), so their rows
+    are recovered exactly too, away from an ``actrange`` clamp.
 
     Args:
         engine: An engine using the Euler integrator with explicit damping
-            (as built by :meth:`MujocoEngine.for_plant`), ``nq == nv``, no
-            actuator activations.
-        z0: State ``(2 nv,)``.
+            (as built by :meth:`MujocoEngine.for_plant`), ``nq == nv``.
+        z0: State ``(2 nv + na,)``.
         u0: Control ``(nu,)``.
         eps: Finite-difference step.
 
     Returns:
-        ``(A_z (2nv, 2nv), B_z (2nv, nu))``.
+        ``(A_z (2nv+na, 2nv+na), B_z (2nv+na, nu))``.
 
     Raises:
         ValueError: the model does not meet the conditions above.
     """
     m = engine.model
-    nv, nu = m.nv, m.nu
-    if m.na != 0 or (z0 is not None and m.nq != nv):
-        raise InvalidArgument(
-            f"crosscheck needs no activations, and nq == nv when z0 is given; "
-            f"the model has nq={m.nq}, nv={nv}, na={m.na}"
-        )
+    nv, nu, na = m.nv, m.nu, m.na
+    if z0 is not None and m.nq != nv:
+        raise InvalidArgument(f"crosscheck needs nq == nv when z0 is given; the model has nq={m.nq}, nv={nv}")
     if engine.integrator != "mjINT_EULER" or not engine.explicit_damping:
         raise InvalidArgument(
             f"crosscheck needs the Euler integrator with mjDSBL_EULERDAMP (as MujocoEngine.for_plant sets); "
@@ -129,14 +129,29 @@ def mujoco_continuous_jacobians(
     engine.set_ctrl(u0)
     A_d, B_d = engine.transition_jacobians(eps)
     h = float(m.opt.timestep)
-    eye = np.eye(nv)
-    A = np.zeros((2 * nv, 2 * nv))
-    A[:nv, nv:] = eye
-    A[nv:, :nv] = A_d[nv:, :nv] / h
-    A[nv:, nv:] = (A_d[nv:, nv:] - eye) / h
-    B = np.zeros((2 * nv, nu))
-    B[nv:] = B_d[nv:] / h
+    n = 2 * nv + na
+    A = np.zeros((n, n))
+    A[:nv, nv : 2 * nv] = np.eye(nv)
+    A[nv : 2 * nv] = A_d[nv : 2 * nv] / h
+    A[nv : 2 * nv, nv : 2 * nv] -= np.eye(nv) / h
+    B = np.zeros((n, nu))
+    B[nv : 2 * nv] = B_d[nv : 2 * nv] / h
+    if na:
+        h_a = _activation_steps(m, h)[:, None]
+        A[2 * nv :] = (A_d[2 * nv :] - np.eye(n)[2 * nv :]) / h_a
+        B[2 * nv :] = B_d[2 * nv :] / h_a
     return A, B
+
+
+def _activation_steps(m: Any, h: float) -> np.ndarray:
+    """Per activation, ``h_a`` with MuJoCo's Euler ``act⁺ = act + h_a ȧct``."""
+    out = np.full(m.na, h)
+    filterexact = 3  # mjtDyn.mjDYN_FILTEREXACT (only the engine package imports mujoco)
+    for a in range(m.nu):
+        if int(m.actuator_dyntype[a]) == filterexact and int(m.actuator_actnum[a]):
+            tau = max(float(m.actuator_dynprm[a, 0]), 1e-15)
+            out[int(m.actuator_actadr[a])] = tau * -np.expm1(-h / tau)
+    return out
 
 
 def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6) -> CrosscheckResult:

@@ -309,3 +309,29 @@ def test_refused_features_name_the_element_and_the_reason(tmp_path, parts, match
     path.write_text(BASE.format(**{"option": "", "tendon": "", "actuator": MOTOR, **parts}))
     with pytest.raises(InvalidArgument, match=match):
         MjcfPlant(path)
+
+
+def test_crosscheck_compares_the_activation_rows_with_mujocos_transition_jacobians():
+    """mjd_transitionFD's act rows (MuJoCo's exact filterexact update) give the continuous rows back."""
+    from shinro_ctrl.crosscheck import crosscheck
+
+    plant = MjcfPlant("gallery/filtered_actuator.xml")
+    x = np.array([0.3, -0.5, 0.2, 0.1, 0.2, -0.3, 1.0, 0.5, -0.2])
+    result = crosscheck(plant, x, [1.0, 2.0, 0.5])
+    assert result.A_mujoco.shape == (9, 9) and result.mujoco_max_rel_error < 1e-6
+
+
+def test_nonlinear_mpc_steps_the_activations_with_the_semi_implicit_integrator():
+    """States that are neither positions nor velocities step by explicit Euler (they were held constant)."""
+    from shinro_ctrl.controllers import NonlinearMPC
+
+    plant = MjcfPlant("gallery/filtered_actuator.xml")
+    x0, _ = plant.equilibrium()
+    mpc = NonlinearMPC.from_plant(plant, np.ones(9), np.ones(3), horizon=3, integrator="semi_implicit", solver="ipopt")
+    x = x0 + np.r_[np.zeros(6), 1.0, 0.2, -0.1]
+    mpc(x)
+    S, U = mpc.last.states, mpc.last.inputs
+    assert mpc.last.status == "solved"
+    act_next = S[0, 6:] + plant.dt * plant.dynamics(S[0], U[0])[6:]
+    np.testing.assert_allclose(S[1, 6:], act_next, rtol=0, atol=1e-9)
+    assert np.abs(S[1, 6:] - S[0, 6:]).max() > 1e-3

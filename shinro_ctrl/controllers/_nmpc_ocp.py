@@ -75,7 +75,8 @@ class NMPCOptions:
             sparse multiple-shooting QP, OSQP with in-place value updates) or
             ``"ipopt"`` (the OCP to convergence at every call).
         osqp_settings: Overrides of the sparse QP's OSQP settings (``"osqp"`` only).
-        integrator: ``"rk4"`` or ``"semi_implicit"`` (needs ``position_indices``).
+        integrator: ``"rk4"`` or ``"semi_implicit"`` (needs ``position_indices``; the states that
+            are neither positions nor velocities step by explicit Euler).
         position_indices: Position components of the state, for ``"semi_implicit"``.
         velocity_indices: Their velocities, in the same order.
         init_iterations: SQP iterations allowed on a cold start with ``cold_start="sqp"``.
@@ -315,7 +316,8 @@ def _discrete_step(f: cs.Function, n: int, m: int, h: float, o: NMPCOptions) -> 
         if not pos or len(pos) != len(vel):
             raise InvalidArgument("integrator 'semi_implicit' needs the plant's position and velocity indices")
         xd = f(xs, us)
-        new = [xs[i] for i in range(n)]
+        # the other states (e.g. actuator activations) by explicit Euler
+        new = [xs[i] if i in pos or i in vel else xs[i] + h * xd[i] for i in range(n)]
         for q, v in zip(pos, vel, strict=True):
             new[v] = xs[v] + h * xd[v]
             new[q] = xs[q] + h * new[v]

@@ -14,13 +14,18 @@ MuJoCo's own warnings while loading are collected and reported as a
 :class:`~shinro_ctrl.engine.warnings.ModelWarning`, never printed by MuJoCo.
 
 Supported by :func:`read_robot` / :func:`read_model_tree`: fixed-base trees
-of hinge and slide joints; actuators with a joint transmission, no activation
-dynamics, ``fixed``/``affine`` gain and ``none``/``affine`` bias (``motor``,
-``position``, ``velocity`` and equivalent ``general`` actuators). Everything
-else in a file is refused in one error that lists every unsupported feature
-by the name of its element (for a URDF, by the URDF element: ``<mimic>``,
-``<dynamics friction>``), with the fix where one exists; so is every
-non-finite or invalid number (a ``NaN`` gravity, an infinite mass).
+of hinge and slide joints; fixed tendons (springs, dampers); gravity
+compensation; actuators with a joint, fixed-tendon or site transmission,
+``none``/``filter``/``filterexact``/``integrator`` activation dynamics,
+``fixed``/``affine`` gain and ``none``/``affine`` bias (``motor``,
+``position``, ``velocity``, ``intvelocity`` and equivalent ``general``
+actuators). Joint and tendon friction loss and ranges, and the control,
+force and activation clamps, are read and recorded (they act in MuJoCo's
+loop only). Everything else in a file is refused in one error that lists
+every unsupported feature by the name of its element (for a URDF, by the
+URDF element: ``<mimic>``), with the reason and the fix where one exists;
+so is every non-finite or invalid number (a ``NaN`` gravity, an infinite
+mass).
 """
 
 from __future__ import annotations
@@ -510,11 +515,10 @@ def read_model_tree(model: str | os.PathLike[str] | mujoco.MjModel, *, path: str
     Raises:
         FileNotFoundError: no such file.
         InvalidArgument: every unsupported feature (free or ball joints, no
-            joints, no actuators, an actuator other than a joint transmission
-            without activation dynamics with fixed/affine gain and none/affine
-            bias, equality constraints, tendons that exert force, gravity
-            compensation, frictionloss, fluid forces ...) and every non-finite
-            or invalid number, listed at once by element name.
+            joints, no actuators, an actuator with another transmission,
+            other activation dynamics or another gain or bias, equality
+            constraints, spatial tendons that act, fluid forces ...) and every
+            non-finite or invalid number, listed at once by element name.
     """
     if isinstance(model, mujoco.MjModel):
         m = model

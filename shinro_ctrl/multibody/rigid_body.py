@@ -6,13 +6,21 @@ URDF file). :class:`RigidBodyTree` turns it into the equations of motion
 
 .. math::
 
-    (M(q) + \operatorname{diag}(a))\,\ddot q + c(q, \dot q)
-        = \tau_{act}(q, \dot q, u) - b \odot \dot q - k \odot (q - q_{spring})
+    (M(q) + \operatorname{diag}(a))\,\ddot q + c(q, \dot q) = \tau(q, \dot q, u, a_{act}),
+
+    \tau = \tau_{act}(q, \dot q, u, a_{act}) - b \odot \dot q - k \odot (q - q_{spring})
+        + \sum_t c_t f_t(c_t^\top q, c_t^\top \dot q) + \sum_b J_b(q)^\top (-s_b m_b g)
 
 with ``M`` the joint-space mass matrix, ``c`` the Coriolis, centrifugal and
-gravity terms, ``a`` the armature, ``b`` the joint damping and ``k`` the
-joint stiffness, exactly as MuJoCo's ``mj_forward`` computes ``qacc`` for a
-model without contacts, limits or equality constraints.
+gravity terms, ``a`` the armature, ``b`` the joint damping, ``k`` the joint
+stiffness, ``f_t`` the spring-damper force of fixed tendon ``t`` (coefficients
+``c_t``), and the last sum MuJoCo's gravity compensation (factor ``s_b`` at
+body ``b``'s centre of mass, ``J_b`` its point Jacobian), exactly as MuJoCo's
+``mj_forward`` computes ``qacc_smooth`` (everything but the constraint forces:
+contacts, limits, friction loss). :meth:`RigidBodyTree.generalized_forces`
+computes ``τ`` in one place, apart from the forward-dynamics algorithm.
+``τ_act`` and the activation rates ``ȧ_act`` are in
+:mod:`~shinro_ctrl.multibody.transmission`.
 
 The algorithms are the textbook ones, written on scalars so that the same
 code builds a CasADi ``SX`` expression, evaluates floats or evaluates
@@ -33,14 +41,11 @@ inertia on the last one, and a body without joints is welded to its parent
 node (its inertia is merged there). Joint coordinates are measured from the
 model's ``qpos0`` as in MuJoCo.
 
-Actuators with a joint transmission map controls to joint forces as MuJoCo
-defines them: with actuator length ``l = g q`` and velocity ``l̇ = g q̇``
-(``g`` the gear), force ``F = gain(l, l̇)·u + bias(l, l̇)``, where
-``gain = p₀`` (fixed) or ``p₀ + p₁ l + p₂ l̇`` (affine) and
-``bias = 0`` (none) or ``b₀ + b₁ l + b₂ l̇`` (affine), and generalized force
-``g F``. A ``position`` servo is ``gain = k_p``, ``bias = (0, −k_p, −k_v)``;
-a ``velocity`` servo ``gain = k_v``, ``bias = (0, 0, −k_v)``; a ``motor``
-``gain = 1``, no bias.
+Kinematics for transmissions at points (and later contacts):
+:meth:`RigidBodyTree.world_frames` (forward kinematics of every node),
+:meth:`RigidBodyTree.body_frame` (a frame fixed on a body),
+:meth:`RigidBodyTree.point_jacobian` (point and angular Jacobian columns) and
+:meth:`RigidBodyTree.frame_jacobian` (the dense form).
 """
 
 from __future__ import annotations
