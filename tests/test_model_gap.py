@@ -255,6 +255,40 @@ def test_soft_equality_sag_against_mujocos_settled_state():
     assert off.equalities[0].violation == pytest.approx(0.01) and "violates equality 'lock'" in off.format()
 
 
+TENDON_XML = """
+<mujoco><compiler angle="radian"/>
+  <worldbody>
+    <body name="a"><joint name="za" type="slide" axis="0 0 1"/>
+      <inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/></body>
+    <body name="b" pos="1 0 0"><joint name="zb" type="slide" axis="0 0 1"/>
+      <inertial pos="0 0 0" mass="2" diaginertia="0.01 0.01 0.01"/></body>
+  </worldbody>
+  <tendon>
+    <fixed name="sum" frictionloss="{fl}" range="-0.1 0.5">
+      <joint joint="za" coef="1"/><joint joint="zb" coef="1"/>
+    </fixed>
+  </tendon>
+</mujoco>
+"""
+
+
+def test_tendon_friction_and_range_against_the_hand_load():
+    # the tendon force that holds L = za + zb still under gravity: both masses would fall at g, so
+    # L'' = −2g + f (1/1 + 1/2) = 0 gives f = 4g/3
+    f_load = 4 * G / 3
+    for fl, warns, holds in ((0.07 * f_load, False, False), (0.15 * f_load, True, False), (1.1 * f_load, True, True)):
+        m = mujoco.MjModel.from_xml_string(TENDON_XML.format(fl=fl))
+        (tendon,) = model_gap(m, [0.2, 0.1, 0.0, 0.0], []).tendons
+        assert tendon.load == pytest.approx(f_load, rel=1e-12) and tendon.length == pytest.approx(0.3)
+        assert tendon.friction_ratio == pytest.approx(fl / f_load) and tendon.friction_holds == holds
+        assert tendon.limit_margin == pytest.approx(margin(0.3, -0.1, 0.5))
+        gap = model_gap(m, [0.2, 0.1, 0.0, 0.0], [])
+        assert ("friction" in effects(gap)) == warns and "limit" not in effects(gap)
+    near = model_gap(m, [0.2, 0.28, 0.0, 0.0], [])  # L = 0.48: 3.3 % of the range from its top
+    assert next(w.message for w in near.warnings if w.effect == "limit").startswith("tendon 'sum' at 0.48")
+    assert model_gap(m, [0.3, 0.3, 0.0, 0.0], []).errors  # L = 0.6: outside
+
+
 # --------------------------------------------------------------- thresholds
 def test_friction_warns_above_its_threshold_only(arm):
     m = copy.copy(arm)  # a copy: the module's model keeps its friction loss
@@ -437,6 +471,8 @@ def test_the_html_report_section(arm):
     assert "No contacts at x0" in quiet and quiet.count("<table>") == 2
     locked = model_gap_section(model_gap(mujoco.MjModel.from_xml_string(LOCKED_XML.format(tc=0.02)), [0, 0], []))
     assert "static sag under the load" in locked and ">lock</td>" in locked
+    tendon = model_gap_section(model_gap(mujoco.MjModel.from_xml_string(TENDON_XML.format(fl=2)), [0, 0, 0, 0], []))
+    assert ">sum</td>" in tendon and "Tendons with friction loss" in tendon
 
 
 def test_crosscheck_with_a_bad_x0_is_one_line(arm_file, capsys):

@@ -492,6 +492,23 @@ def model_gap_section(gap: ModelGap) -> str:
         parts.append(_table(["geom", "geom", "distance [m]"], rows, left=2))
     else:
         parts.append("<p>No contacts at x0.</p>")
+    if gap.tendons:
+        rows = [
+            [
+                e(g.name),
+                _num(g.length),
+                _range(g.range),
+                _pct(g.limit_margin),
+                _num(g.load),
+                _num(g.frictionloss) if g.frictionloss else "—",
+                "—" if g.friction_ratio is None else _pct(g.friction_ratio),
+            ]
+            for g in gap.tendons
+        ]
+        parts.append("<p>Tendons with friction loss or a range (MuJoCo only):</p>")
+        parts.append(
+            _table(["tendon", "length", "range", "limit margin", "load", "frictionloss", "friction / load"], rows)
+        )
     if gap.equalities:
         rows = [[e(q.name), e(q.kind), _num(q.violation, ".3g"), _num(q.sag, ".3g")] for q in gap.equalities]
         parts.append("<p>Equality constraints: exact in the design model, soft in MuJoCo (solref/solimp):</p>")

@@ -33,6 +33,8 @@ MuJoCo itself (``mj_forward`` at ``x0``) and says which are not small:
 
   so 0.5 is the middle, 0 the edge and a negative margin lies outside, where
   MuJoCo clamps (an error-level warning: the loop cannot apply ``u0``).
+* **tendons** with friction loss or a range (:class:`TendonGap`): the friction
+  loss against the tendon's load force, the length's margin in the range.
 * **contacts** active at ``x0`` (MuJoCo's ``d.contact`` rows that become
   constraints: count, geom pairs, distance; a negative distance is a
   penetration): the smooth model has no contacts.
@@ -95,6 +97,7 @@ __all__ = [
     "GapThresholds",
     "GapWarning",
     "ModelGap",
+    "TendonGap",
     "engine_model_gap",
     "model_gap",
     "model_gap_of_file",
@@ -216,6 +219,44 @@ class ActuatorGap:
 
 
 @dataclass(frozen=True)
+class TendonGap:
+    r"""A tendon with friction loss or a range (MuJoCo-loop only) at ``x0``.
+
+    The tendon's load is the tendon force that keeps its length still under the load torque
+    (no actuation): with ``J`` the tendon's Jacobian and ``Λ = (J M⁻¹ Jᵀ)⁻¹``,
+
+    .. math::
+
+        f_{load} = \Lambda\, J M^{-1} 	au_{load},
+
+    so its friction loss holds the tendon by itself when ``|f_load| ≤ f_loss``.
+
+    Attributes:
+        name: The tendon's name (``tendon <i>`` for an unnamed one).
+        length: Its length at ``x0`` [m or rad].
+        range: ``(lo, hi)`` when limited, else None.
+        limit_margin: ``min(L − lo, hi − L) / (hi − lo)``, None without a range.
+        limit_distance: ``min(L − lo, hi − L)``, None without a range.
+        mujoco_margin: The tendon's MuJoCo ``margin``.
+        load: ``f_load`` above [N].
+        frictionloss: ``f_loss`` (0 without or disabled).
+        friction_ratio: ``f_loss / |f_load|`` (inf for a zero load), None without friction loss.
+        friction_holds: ``|f_load| ≤ f_loss``.
+    """
+
+    name: str
+    length: float
+    range: tuple[float, float] | None
+    limit_margin: float | None
+    limit_distance: float | None
+    mujoco_margin: float
+    load: float
+    frictionloss: float
+    friction_ratio: float | None
+    friction_holds: bool
+
+
+@dataclass(frozen=True)
 class EqualityGap:
     r"""One active equality constraint at ``x0``: how far ``x0`` is from it, and how far MuJoCo's soft
     version of it sags under the load it carries there.
@@ -290,6 +331,7 @@ class ModelGap:
         actuators: One :class:`ActuatorGap` per actuator.
         contacts: One :class:`ContactGap` per active contact.
         equalities: One :class:`EqualityGap` per active equality constraint.
+        tendons: One :class:`TendonGap` per tendon with friction loss or a range.
         warnings: Every effect above its threshold, errors first.
         thresholds: The thresholds used.
         disabled: Effects the model's own flags switch off (``"contact"``, ``"frictionloss"`` ...).
@@ -305,6 +347,7 @@ class ModelGap:
     thresholds: GapThresholds = field(default_factory=GapThresholds)
     disabled: tuple[str, ...] = ()
     equalities: tuple[EqualityGap, ...] = ()
+    tendons: tuple[TendonGap, ...] = ()
 
     @property
     def n_contacts(self) -> int:
@@ -334,6 +377,15 @@ class ModelGap:
             )
         else:
             out.append("  contacts at x0: none" + (" (disabled in the model)" if "contact" in self.disabled else ""))
+        if self.tendons:
+            out.append(
+                "  tendons (friction loss and range: MuJoCo only): "
+                + ", ".join(
+                    f"{g.name} length {_f(g.length)} range {_rng(g.range)} margin {_pct(g.limit_margin)} "
+                    f"load {_f(g.load)} frictionloss {_f(g.frictionloss)}"
+                    for g in self.tendons
+                )
+            )
         if self.equalities:
             out.append(
                 "  equalities (violation at x0; static sag of MuJoCo's soft constraint under the load): "
@@ -444,6 +496,7 @@ def model_gap(
     actuators = _actuators(m, u, force, np.asarray(applied), np.array(d.act), off, t, warns)
     contacts = _contacts(m, d, off, warns)
     equalities = _equalities(free, d, t, warns)
+    tendons = _tendons(free, d, load, off, t, warns)
     warns.sort(key=lambda w: w.level != "error")
     return ModelGap(
         model=source,
@@ -456,6 +509,7 @@ def model_gap(
         thresholds=t,
         disabled=tuple(k for k, v in off.items() if v),
         equalities=tuple(equalities),
+        tendons=tuple(tendons),
     )
 
 
@@ -481,20 +535,7 @@ def _dofs(
             lo, hi = (float(v) for v in m.jnt_range[j])
             rng = (lo, hi)
             lim_margin, lim_dist = _margin(q, lo, hi), min(q - lo, hi - q)
-            unit = "rad" if kind == "hinge" else "m"
-            where = f"joint '{name}' at {q:.4g} {unit} (range [{lo:.4g}, {hi:.4g}])"
-            if lim_dist < 0:
-                warns.append(GapWarning("error", "limit", f"{where} is outside its range: MuJoCo's limit pushes back"))
-            elif lim_margin < t.limit or lim_dist < mj_margin:
-                active = " (MuJoCo's limit constraint is active)" if lim_dist < mj_margin else ""
-                warns.append(
-                    GapWarning(
-                        "warning",
-                        "limit",
-                        f"{where} is {lim_margin:.1%} of its range from a limit (< {t.limit:.0%}){active}: the design "
-                        "model has no joint limits",
-                    )
-                )
+            _limit_warning(warns, f"joint '{name}'", q, rng, lim_dist, lim_margin, mj_margin, t)
         afr = afm = None
         if scalar and m.jnt_actfrclimited[j]:
             lo, hi = (float(v) for v in m.jnt_actfrcrange[j])
@@ -514,17 +555,7 @@ def _dofs(
             holds = fl > 0.0 and abs(ld) <= fl
             label = name if scalar else f"{name}.{_DOF_SUFFIXES[kind][k]}"
             if ratio is not None and ratio > t.friction:
-                if holds:
-                    msg = (
-                        f"joint '{label}': friction loss {fl:.4g} ≥ its load torque |{ld:.4g}|: friction alone holds "
-                        f"it, a static dead band of ±{fl:.4g} the design ignores"
-                    )
-                else:
-                    msg = (
-                        f"joint '{label}': friction loss {fl:.4g} is {ratio:.0%} of its load torque {ld:.4g} "
-                        f"(> {t.friction:.0%}): the design model has no friction loss"
-                    )
-                warns.append(GapWarning("warning", "friction", msg))
+                _friction_warning(warns, f"joint '{label}'", "load torque", fl, ld, ratio, holds, t)
             rows.append(
                 DofGap(
                     name=label,
@@ -610,6 +641,86 @@ def _forward(m: mujoco.MjModel, x: np.ndarray, u: np.ndarray) -> mujoco.MjData:
     d.ctrl[:] = u
     mujoco.mj_forward(m, d)
     return d
+
+
+def _limit_warning(
+    warns: list[GapWarning],
+    what: str,
+    v: float,
+    rng: tuple[float, float],
+    dist: float,
+    frac: float,
+    mj: float,
+    t: GapThresholds,
+) -> None:
+    """The joint- or tendon-limit warning of ``what`` at ``v`` (see the module docstring)."""
+    where = f"{what} at {v:.4g} (range [{rng[0]:.4g}, {rng[1]:.4g}])"
+    if dist < 0:
+        warns.append(GapWarning("error", "limit", f"{where} is outside its range: MuJoCo's limit pushes back"))
+    elif frac < t.limit or dist < mj:
+        active = " (MuJoCo's limit constraint is active)" if dist < mj else ""
+        warns.append(
+            GapWarning(
+                "warning",
+                "limit",
+                f"{where} is {frac:.1%} of its range from a limit (< {t.limit:.0%}){active}: the design model has "
+                "no limits",
+            )
+        )
+
+
+def _friction_warning(
+    warns: list[GapWarning], what: str, load: str, fl: float, ld: float, ratio: float, holds: bool, t: GapThresholds
+) -> None:
+    """The friction-loss warning of ``what`` (a joint or tendon) against its ``load`` ``ld``."""
+    if holds:
+        msg = (
+            f"{what}: friction loss {fl:.4g} ≥ its {load} |{ld:.4g}|: friction alone holds it, a static dead band "
+            f"of ±{fl:.4g} the design ignores"
+        )
+    else:
+        msg = (
+            f"{what}: friction loss {fl:.4g} is {ratio:.0%} of its {load} {ld:.4g} (> {t.friction:.0%}): the design "
+            "model has no friction loss"
+        )
+    warns.append(GapWarning("warning", "friction", msg))
+
+
+def _tendons(
+    m: mujoco.MjModel,
+    d: mujoco.MjData,
+    load: np.ndarray,
+    off: dict[str, bool],
+    t: GapThresholds,
+    warns: list[GapWarning],
+) -> list[TendonGap]:
+    """Tendons with friction loss or a range (:class:`TendonGap`); ``d`` of the model ``m``."""
+    out = []
+    for i in range(m.ntendon):
+        fl = 0.0 if off["frictionloss"] else float(m.tendon_frictionloss[i])
+        limited = bool(m.tendon_limited[i]) and not off["limit"]
+        if fl == 0.0 and not limited:
+            continue
+        name = m.tendon(i).name or f"tendon {i}"
+        J = np.zeros((1, m.nv))
+        adr, nnz = int(m.ten_J_rowadr[i]), int(m.ten_J_rownnz[i])
+        J[0, m.ten_J_colind[adr : adr + nnz]] = d.ten_J[adr : adr + nnz]
+        MinvJt = np.zeros((1, m.nv))
+        mujoco.mj_solveM(m, d, MinvJt, J)
+        a = float(J[0] @ MinvJt[0])
+        f_load = float(MinvJt[0] @ load) / a if a > 0.0 else 0.0
+        L = float(d.ten_length[i])
+        rng = margin = dist = None
+        if limited:
+            lo, hi = (float(v) for v in m.tendon_range[i])
+            rng, margin, dist = (lo, hi), _margin(L, lo, hi), min(L - lo, hi - L)
+            _limit_warning(warns, f"tendon '{name}'", L, rng, dist, margin, float(m.tendon_margin[i]), t)
+        ratio = None if fl == 0.0 else (fl / abs(f_load) if f_load != 0.0 else math.inf)
+        holds = fl > 0.0 and abs(f_load) <= fl
+        if ratio is not None and ratio > t.friction:
+            _friction_warning(warns, f"tendon '{name}'", "load force", fl, f_load, ratio, holds, t)
+        out.append(TendonGap(name, L, rng, margin, dist, float(m.tendon_margin[i]), f_load, fl, ratio, holds))
+    return out
 
 
 def _equalities(m: mujoco.MjModel, d: mujoco.MjData, t: GapThresholds, warns: list[GapWarning]) -> list[EqualityGap]:
