@@ -144,7 +144,7 @@ class RobotSim:
             engine = MujocoEngine.for_plant(
                 plant, substeps=ecfg.substeps if ecfg else 1, model=ecfg.model if ecfg else None
             )
-        except FileNotFoundError as exc:  # a scenario's model that does not exist is a scenario error
+        except (FileNotFoundError, InvalidArgument) as exc:  # a model that does not exist or does not fit the plant
             src = str(self.scenario.path) if self.scenario.path else self.scenario.name
             raise ConfigError(f"{src}: [engine] model: {exc}") from exc
         plant.physics_engine(engine)
