@@ -202,11 +202,11 @@ def _parse_controller(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> Controll
 
 def _parse_regression(ctx: _Ctx, doc: Mapping[str, Any]) -> dict[str, dict[str, float]]:
     """``[regression]``: metric → ``{"rel": r, "abs": a}`` tolerances."""
-    from shinro_ctrl.sim.metrics import METRICS, OUTPUT_FEEDBACK_METRICS
+    from shinro_ctrl.sim.metrics import METRICS, OUTPUT_FEEDBACK_METRICS, PER_INPUT_METRICS
 
     regression: dict[str, dict[str, float]] = {}
     for metric, tol in dict(doc.get("regression", {})).items():
-        if metric not in METRICS and not metric.startswith(OUTPUT_FEEDBACK_METRICS):
+        if metric not in METRICS and not metric.startswith((*OUTPUT_FEEDBACK_METRICS, *PER_INPUT_METRICS)):
             raise ctx.error("regression", f"unknown metric '{metric}'{did_you_mean(metric, METRICS)}")
         if not isinstance(tol, Mapping):
             raise ctx.error("regression", f"'{metric}' must be a table such as {{ rel = 0.05 }}, got {tol!r}")

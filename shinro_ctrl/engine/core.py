@@ -44,7 +44,7 @@ if TYPE_CHECKING:
 
     from shinro_ctrl.plants.base import Plant
 
-__all__ = ["MujocoEngine"]
+__all__ = ["ForceClamps", "MujocoEngine"]
 
 _HINGE = int(mujoco.mjtJoint.mjJNT_HINGE)
 _SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
@@ -523,6 +523,70 @@ class MujocoEngine:
         self._qvel[:] = z[nq:]
         self.forward()
 
+    # ------------------------------------------------------- the model's input ranges
+    def input_actuators(self, plant: Plant) -> list[tuple[int, float] | None]:
+        """Which actuator each plant input drives: ``(actuator id, ctrl per unit of u)`` or None, per input ``(m,)``.
+
+        Found by probing the plant's ``engine_apply`` (``ctrl = G u``, one column per unit input; ``data.ctrl``
+        is restored). An input that drives no actuator or several (a kinematic plant, a mixer), or an actuator
+        driven by several inputs, maps to None.
+        """
+        m = int(plant.input_dim)
+        ctrl = self._ctrl
+        saved = ctrl.copy()
+        try:
+            plant.engine_apply(self, np.zeros(m))
+            base = ctrl.copy()
+            cols = []
+            for i in range(m):
+                e = np.zeros(m)
+                e[i] = 1.0
+                plant.engine_apply(self, e)
+                cols.append(ctrl - base)
+        except NotImplementedError:
+            return [None] * m
+        finally:
+            ctrl[:] = saved
+        G = np.array(cols).T.reshape(self.model.nu, m)
+        out: list[tuple[int, float] | None] = []
+        for i in range(m):
+            acts = np.flatnonzero(G[:, i])
+            if acts.size == 1 and np.count_nonzero(G[acts[0]]) == 1:
+                out.append((int(acts[0]), float(G[acts[0], i])))
+            else:
+                out.append(None)
+        return out
+
+    def input_ranges(self, plant: Plant) -> tuple[np.ndarray, np.ndarray]:
+        """The model's ``ctrlrange`` clamps as bounds on the plant's inputs: ``(u_min (m,), u_max (m,))``, ±inf: none.
+
+        An input maps to an actuator through :meth:`input_actuators`; the actuator's range counts when MuJoCo
+        clamps it (``ctrllimited``, and ``clampctrl`` not disabled), divided by the input's scale.
+        """
+        m = self.model
+        lo, hi = np.full(plant.input_dim, -np.inf), np.full(plant.input_dim, np.inf)
+        if m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL):
+            return lo, hi
+        for i, link in enumerate(self.input_actuators(plant)):
+            if link is None or not m.actuator_ctrllimited[link[0]]:
+                continue
+            a, scale = link
+            ends = sorted(float(v) / scale for v in m.actuator_ctrlrange[a])
+            lo[i], hi[i] = ends
+        return lo, hi
+
+    def force_clamp_monitor(self, plant: Plant) -> ForceClamps | None:
+        """A reader of the inputs clamped at an actuator's ``forcerange`` in the last step (None: no input can be).
+
+        See :class:`ForceClamps`; None when no input drives an actuator with a force range.
+        """
+        links = [
+            (i, link[0], link[1] > 0)
+            for i, link in enumerate(self.input_actuators(plant))
+            if link is not None and self.model.actuator_forcelimited[link[0]]
+        ]
+        return ForceClamps(self, plant.input_dim, links) if links else None
+
     # ---------------------------------------------------------- bodies, sites
     def get_body_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """World pose of a body frame.
@@ -697,3 +761,33 @@ class MujocoEngine:
             raise NonFiniteError(f"joint '{name}' {what} must be finite, got {np.array2string(v, precision=4)}")
         a = int(adr[j])
         arr[a : a + k] = v
+
+
+class ForceClamps:
+    """Which plant inputs MuJoCo clamped at an actuator's ``forcerange`` in the engine's last step.
+
+    ``d.actuator_force`` (the force of the last ``mj_step``'s ``mj_forward``, so of the last substep) lying
+    on an end of its ``forcerange`` (within 1e-9 relative) counts as a clamp at that end. Calling the object
+    gives flags ``(m,)``: ``-1`` at the lower bound of the input (the force end it maps to, through the sign
+    of the input's scale), ``+1`` at the upper, ``0`` otherwise. Made by :meth:`MujocoEngine.force_clamp_monitor`.
+    """
+
+    def __init__(self, engine: MujocoEngine, m: int, links: list[tuple[int, int, bool]]):
+        self._force = engine.data.actuator_force
+        rng = engine.model.actuator_forcerange
+        self._links = [(i, a, float(rng[a, 0]), float(rng[a, 1]), positive) for i, a, positive in links]
+        self._flags = np.zeros(m, dtype=np.int8)
+
+    @property
+    def inputs(self) -> tuple[int, ...]:
+        """The plant inputs that drive a force-limited actuator."""
+        return tuple(i for i, *_ in self._links)
+
+    def __call__(self) -> np.ndarray:
+        flags = self._flags
+        force = self._force
+        for i, a, lo, hi, positive in self._links:
+            f = force[a]
+            end = -1 if f <= lo + 1e-9 * max(1.0, abs(lo)) else 1 if f >= hi - 1e-9 * max(1.0, abs(hi)) else 0
+            flags[i] = end if positive else -end
+        return flags

@@ -694,8 +694,13 @@ class Plant:
         What the actuators can deliver (a motor's torque limit, MuJoCo's ``ctrlrange``), not a design
         choice: the controllers' ``from_plant`` take these as their input bounds when the user gives none
         (see :func:`~shinro_ctrl.controllers.base.default_input_bounds`), and the runs count the steps spent
-        at them (``saturation_fraction``).
+        at them (``saturation_fraction``). With a MuJoCo engine attached, the default is the engine
+        model's ``ctrlrange`` mapped onto the inputs (``engine.input_ranges``: a realistic variant's motor
+        limits); standalone, none.
         """
+        ranges = getattr(self._engine, "input_ranges", None)
+        if callable(ranges):
+            return ranges(self)
         return np.full(self.input_dim, -np.inf), np.full(self.input_dim, np.inf)
 
     def body_force_map(self, body: str) -> np.ndarray:
