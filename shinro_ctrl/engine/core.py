@@ -26,6 +26,7 @@ from shinro_ctrl.engine.mjcf import (
     _real,
     _unknown,
     check_default_parameters,
+    check_realistic_geometry,
     realistic_asset,
 )
 from shinro_ctrl.engine.render import OffscreenRenderer
@@ -162,6 +163,7 @@ class MujocoEngine:
                     'use model = "matched" or an MJCF file of your own'
                 ) from None
             check_default_parameters(plant, asset)
+            check_realistic_geometry(spec, patch, asset, type(plant).__name__)
         else:
             spec, source = _load_spec(model)
             if not own_file:

@@ -18,7 +18,13 @@ from shinro_ctrl.errors import InvalidArgument, UnknownName
 from shinro_ctrl.resources import list_assets
 from shinro_ctrl.validation import closest
 
-__all__ = ["MODEL_CHOICES", "TINY_INERTIA", "check_default_parameters", "realistic_asset"]
+__all__ = [
+    "MODEL_CHOICES",
+    "TINY_INERTIA",
+    "check_default_parameters",
+    "check_realistic_geometry",
+    "realistic_asset",
+]
 
 #: Diagonal inertia [kg m²] given to the point masses of an ``MjcfPatch``:
 #: MuJoCo needs a positive inertia; this one is negligible against ``m l²``.
@@ -223,6 +229,27 @@ def _check_names(spec: mujoco.MjSpec, patch: Any) -> None:
         _find(spec, "body", name)
     for name in (*patch.joint_damping, *getattr(patch, "joint_range", {})):
         _find(spec, "joint", name)
+
+
+def check_realistic_geometry(spec: mujoco.MjSpec, patch: Any, asset: str, plant_name: str) -> None:
+    """Refuse a realistic variant whose body positions differ from those the plant's patch gives (its geometry).
+
+    A plant without float parameters (the arm: its joint offsets) must still have the variant's geometry (to
+    10 µm, the precision the variants are written with).
+
+    Raises:
+        KeyError: the variant lacks a body the patch names.
+        InvalidArgument: naming the first body whose position differs.
+    """
+    for name, pos in patch.body_pos.items():
+        have = np.asarray(_find(spec, "body", name).pos, dtype=float)
+        want = np.asarray(pos, dtype=float)
+        if have.shape != want.shape or not np.allclose(have, want, rtol=0.0, atol=1e-5):
+            raise InvalidArgument(
+                f"{plant_name}: the realistic MuJoCo model '{asset}' is built for the default geometry, but body "
+                f"'{name}' is at {want.tolist()} in the plant and at {have.tolist()} in the model; use "
+                'model = "matched" or an MJCF file of your own'
+            )
 
 
 def realistic_asset(asset: str) -> str:
