@@ -10,10 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shinro_ctrl.controllers import LQR, LinearMPC
+from shinro_ctrl.controllers import LQR, TVLQR, LinearMPC, NonlinearMPC
 from shinro_ctrl.crosscheck import crosscheck
 from shinro_ctrl.engine import MujocoEngine
 from shinro_ctrl.errors import ConfigError, InvalidArgument
+from shinro_ctrl.planning import Trajectory
 from shinro_ctrl.plants import CartPole, MjcfPlant
 from shinro_ctrl.sim import RobotSim
 from shinro_ctrl.sim.metrics import saturation_metrics
@@ -149,7 +150,10 @@ def test_from_plant_takes_its_input_bounds_from_the_ctrlrange(pendulum):
     np.testing.assert_array_equal(hi, [0.3])
     lqr = LQR.from_plant(pendulum, [10, 1], [0.1])
     mpc = LinearMPC.from_plant(pendulum, [10, 1], [0.1], horizon=5)
-    for ctrl in (lqr, mpc):
+    nmpc = NonlinearMPC.from_plant(pendulum, [10, 1], [0.1], horizon=3)
+    hold = Trajectory(t=[0.0, 0.05], x=np.zeros((2, 2)), u=np.zeros((2, 1)), xdot=np.zeros((2, 2)))
+    tvlqr = TVLQR.from_trajectory(pendulum, hold, [10, 1], [0.1])
+    for ctrl in (lqr, mpc, nmpc, tvlqr):
         np.testing.assert_array_equal(ctrl.u_min, [-0.3])
         np.testing.assert_array_equal(ctrl.u_max, [0.3])
     assert np.abs(lqr(np.array([0.5, 0.0]))).max() == pytest.approx(0.3)  # saturates at the motor's range
