@@ -165,8 +165,8 @@ def _parse_engine(ctx: _Ctx, doc: Mapping[str, Any], plant: PlantConfig, probe: 
         if isinstance(model, str) and model not in MODEL_CHOICES and not any(c in model for c in "./\\"):
             raise ctx.error(
                 "engine",
-                f'\'model\' must be "matched", "realistic", an MJCF path or a shipped asset name (*.xml), got '
-                f"{model!r}{did_you_mean(model, MODEL_CHOICES)}",
+                f'model: {model!r} is neither "matched" nor "realistic" nor an MJCF path or shipped asset name '
+                f"(*.xml){did_you_mean(model, MODEL_CHOICES)}",
             )
         if etype == "mujoco":
             if probe.asset is None and model is None:
