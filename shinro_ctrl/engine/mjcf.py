@@ -210,7 +210,8 @@ def _idealize_model_file(spec: mujoco.MjSpec) -> None:
     """Make a user's model file the exact twin of its smooth design model (``MjcfPlant``, ``model="matched"``).
 
     :func:`_exact_match_options`, and off: contacts, joint-limit forces, friction loss, the ``ctrlrange`` clamp
-    (``mjDSBL_CLAMPCTRL``) and every actuator's ``forcerange`` clamp. What :func:`crosscheck` compares.
+    (``mjDSBL_CLAMPCTRL``), every actuator's ``forcerange`` clamp and every joint's ``actuatorfrcrange``. What
+    ``crosscheck`` compares.
     """
     _exact_match_options(spec)
     opt = spec.option
@@ -218,6 +219,8 @@ def _idealize_model_file(spec: mujoco.MjSpec) -> None:
         opt.disableflags = int(opt.disableflags) | int(bit)
     for act in spec.actuators:
         act.forcelimited = int(mujoco.mjtLimited.mjLIMITED_FALSE)
+    for joint in spec.joints:
+        joint.actfrclimited = int(mujoco.mjtLimited.mjLIMITED_FALSE)
 
 
 def _check_names(spec: mujoco.MjSpec, patch: Any) -> None:
