@@ -7,7 +7,9 @@ three ways:
 * **exact**: CasADi's symbolic Jacobian of the plant's dynamics;
 * **fd**: central finite differences of the plant's numeric dynamics;
 * **mujoco**: MuJoCo's ``mjd_transitionFD`` on the matched MJCF model
-  (built by :meth:`MujocoEngine.for_plant`).
+  (built by ``MujocoEngine.for_plant(plant, model="matched")``: the plant's exact
+  twin; for a user's model file, a copy with Euler, explicit damping and contacts,
+  limits, friction loss and clamps off, whatever the MuJoCo loop runs).
 
 MuJoCo differentiates one discrete step. With its Euler integrator
 (semi-implicit: ``v⁺ = v + h a(q, v, u)``, ``q⁺ = q + h v⁺``) and explicit
@@ -104,7 +106,7 @@ def mujoco_continuous_jacobians(
 
     Args:
         engine: An engine using the Euler integrator with explicit damping
-            (as built by :meth:`MujocoEngine.for_plant`), ``nq == nv``.
+            (as ``MujocoEngine.for_plant(plant, model="matched")`` builds), ``nq == nv``.
         z0: State ``(2 nv + na,)``.
         u0: Control ``(nu,)``.
         eps: Finite-difference step.
@@ -121,7 +123,8 @@ def mujoco_continuous_jacobians(
         raise InvalidArgument(f"crosscheck needs nq == nv when z0 is given; the model has nq={m.nq}, nv={nv}")
     if engine.integrator != "mjINT_EULER" or not engine.explicit_damping:
         raise InvalidArgument(
-            f"crosscheck needs the Euler integrator with mjDSBL_EULERDAMP (as MujocoEngine.for_plant sets); "
+            "crosscheck needs the Euler integrator with mjDSBL_EULERDAMP "
+            '(as MujocoEngine.for_plant(plant, model="matched") sets); '
             f"the model uses {engine.integrator} with explicit damping {engine.explicit_damping}"
         )
     if z0 is not None:
@@ -184,7 +187,7 @@ def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6)
     t_fd = _median_time(lambda: plant.linearize(x0, u0, method="fd", eps=eps))
 
     t0 = time.perf_counter()
-    engine = MujocoEngine.for_plant(plant)
+    engine = MujocoEngine.for_plant(plant, model="matched")  # the exact twin, never the realistic loop
     t_build = time.perf_counter() - t0
     plant.engine_write(engine, x0)  # the plant's own conversion (quaternions, relative hinges)
     T_inv = np.linalg.inv(T)

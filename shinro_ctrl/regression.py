@@ -27,7 +27,13 @@ from pathlib import Path
 from typing import Any
 
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
-from shinro_ctrl.sim.metrics import FLAG_METRICS, NEVER_METRICS, RESPONSE_METRICS, WALL_CLOCK_METRICS, format_metric
+from shinro_ctrl.sim.metrics import (
+    FLAG_METRICS,
+    NEVER_METRICS,
+    WALL_CLOCK_METRICS,
+    format_metric,
+    is_newer_metric,
+)
 
 __all__ = [
     "DEFAULT_TOLERANCES",
@@ -215,7 +221,8 @@ def compare_metrics(
     An undefined value (None) matches only an undefined one; ``stable``
     must be equal (a baseline with ``stable = true`` fails a run that is not,
     with one line). A metric the baseline does not hold fails, except those
-    older baselines predate (the step-response metrics and ``stable``).
+    older baselines predate (:data:`~shinro_ctrl.sim.metrics.NEWER_METRICS`: the step-response
+    metrics, ``stable``, ``saturation_fraction`` and the per-input times at a bound).
 
     Args:
         scenario: Name used in the checks.
@@ -231,7 +238,7 @@ def compare_metrics(
         tol = {**DEFAULT_TOLERANCES.get(metric, {"rel": 1e-3, "abs": 1e-9}), **tolerances.get(metric, {})}
         rel, ab = float(tol.get("rel", 0.0)), float(tol.get("abs", 0.0))
         if metric not in baseline:
-            if metric in RESPONSE_METRICS or metric in FLAG_METRICS:
+            if is_newer_metric(metric):
                 continue  # metrics newer than the baseline: `regress --update` stores them
             why = "not in the baseline: record it with --update"
             checks.append(MetricCheck(scenario, metric, None, value, rel, ab, False, why))

@@ -346,7 +346,9 @@ def test_every_metric_of_a_run_is_in_the_one_registry_and_every_list_reads_it():
     result = RobotSim.from_config(regression_dir() / "cartpole_lqg.toml").run(progress=False)
     for name, value in result.metrics.items():
         base = (
-            name if name in reg.METRIC_REGISTRY else next(m for m in reg.OUTPUT_FEEDBACK_METRICS if name.startswith(m))
+            name
+            if name in reg.METRIC_REGISTRY
+            else next(m for m in (*reg.OUTPUT_FEEDBACK_METRICS, *reg.PER_INPUT_METRICS) if name.startswith(m))
         )
         kind = reg.METRIC_REGISTRY[base].kind
         if kind == "flag":
@@ -357,7 +359,7 @@ def test_every_metric_of_a_run_is_in_the_one_registry_and_every_list_reads_it():
             assert value is None or (isinstance(value, float) and math.isfinite(value)), (name, value)
     assert set(reg.METRICS) | set(reg.RESPONSE_METRICS) | set(reg.FLAG_METRICS) | set(
         reg.OUTPUT_FEEDBACK_METRICS
-    ) == set(reg.METRIC_REGISTRY)
+    ) | set(reg.PER_INPUT_METRICS) == set(reg.METRIC_REGISTRY)
     assert not hasattr(config, "METRICS")  # one registry: the scenario layer does not re-export it
     assert sweep.WALL_CLOCK_METRICS is reg.WALL_CLOCK_METRICS
     assert set(sweep.TABLE_METRICS) == set(reg.METRICS) - set(reg.WALL_CLOCK_METRICS)

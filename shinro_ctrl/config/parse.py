@@ -139,9 +139,15 @@ def _parse_plant(ctx: _Ctx, doc: Mapping[str, Any], path: Path | None) -> tuple[
 
 
 def _parse_engine(ctx: _Ctx, doc: Mapping[str, Any], plant: PlantConfig, probe: Any) -> EngineConfig | None:
-    """``[engine]`` (optional; absent or ``type = "standalone"``: None)."""
+    """``[engine]`` (optional; absent or ``type = "standalone"``: None).
+
+    ``model``: ``"matched"``, ``"realistic"`` (:data:`MODEL_CHOICES`), an MJCF path or a shipped asset name (a
+    word that is neither, such as a misspelt choice, is refused here with the nearest choice).
+    """
     engine_cfg = None
     if "engine" in doc:
+        from shinro_ctrl.engine.mjcf import MODEL_CHOICES  # a MuJoCo loop imports the engine anyway
+
         et = dict(doc["engine"])
         ctx.check_keys("engine", et, ENGINE_KEYS)
         ctx.check_types("engine", et, table_annotations(EngineConfig))
@@ -153,7 +159,15 @@ def _parse_engine(ctx: _Ctx, doc: Mapping[str, Any], plant: PlantConfig, probe: 
             raise ctx.error("engine", f"'substeps' must be a positive integer, got {substeps!r}")
         model = et.get("model")
         if model is not None and not isinstance(model, str):
-            raise ctx.error("engine", f"'model' must be a path or an asset name, got {model!r}")
+            raise ctx.error(
+                "engine", f'\'model\' must be "matched", "realistic", a path or an asset name, got {model!r}'
+            )
+        if isinstance(model, str) and model not in MODEL_CHOICES and not any(c in model for c in "./\\"):
+            raise ctx.error(
+                "engine",
+                f'model: {model!r} is neither "matched" nor "realistic" nor an MJCF path or shipped asset name '
+                f"(*.xml){did_you_mean(model, MODEL_CHOICES)}",
+            )
         if etype == "mujoco":
             if probe.asset is None and model is None:
                 raise ctx.error("engine", f"{plant.type} has no MuJoCo model; remove [engine] or give 'model'")
@@ -188,11 +202,11 @@ def _parse_controller(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> Controll
 
 def _parse_regression(ctx: _Ctx, doc: Mapping[str, Any]) -> dict[str, dict[str, float]]:
     """``[regression]``: metric → ``{"rel": r, "abs": a}`` tolerances."""
-    from shinro_ctrl.sim.metrics import METRICS, OUTPUT_FEEDBACK_METRICS
+    from shinro_ctrl.sim.metrics import METRICS, OUTPUT_FEEDBACK_METRICS, PER_INPUT_METRICS
 
     regression: dict[str, dict[str, float]] = {}
     for metric, tol in dict(doc.get("regression", {})).items():
-        if metric not in METRICS and not metric.startswith(OUTPUT_FEEDBACK_METRICS):
+        if metric not in METRICS and not metric.startswith((*OUTPUT_FEEDBACK_METRICS, *PER_INPUT_METRICS)):
             raise ctx.error("regression", f"unknown metric '{metric}'{did_you_mean(metric, METRICS)}")
         if not isinstance(tol, Mapping):
             raise ctx.error("regression", f"'{metric}' must be a table such as {{ rel = 0.05 }}, got {tol!r}")

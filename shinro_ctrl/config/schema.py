@@ -58,7 +58,16 @@ class PlantConfig:
 
 @dataclass
 class EngineConfig:
-    """``[engine]``: MuJoCo with an optional model (path or asset name) and substeps."""
+    """``[engine]``: MuJoCo with an optional model and substeps.
+
+    Attributes:
+        type: ``"mujoco"``.
+        model: ``"matched"`` (the plant's exact twin), ``"realistic"`` (a built-in plant's realistic variant;
+            a model file as written), an MJCF path or a shipped asset name; None: the plant's default
+            (``matched`` for the built-in plants, the file as written for ``MjcfPlant``). See
+            ``MujocoEngine.for_plant``.
+        substeps: ``mj_step`` calls per control step.
+    """
 
     type: str = "mujoco"
     model: str | None = None

@@ -52,7 +52,15 @@ from shinro_ctrl.types import Matrix, Vector
 if TYPE_CHECKING:
     from shinro_ctrl.plants.base import Plant
 
-__all__ = ["CONTROLLER_REGISTRY", "CallGuard", "Controller", "check_operating_point", "check_plant", "checks_plant"]
+__all__ = [
+    "CONTROLLER_REGISTRY",
+    "CallGuard",
+    "Controller",
+    "check_operating_point",
+    "check_plant",
+    "checks_plant",
+    "default_input_bounds",
+]
 
 
 T = TypeVar("T")
@@ -181,6 +189,32 @@ EQUILIBRIUM_TOL = 1e-6
 def _names(names: Any, size: int, letter: str) -> list[str]:
     given = list(names) if names is not None else []
     return [str(given[i]) if i < len(given) else f"{letter}[{i}]" for i in range(size)]
+
+
+def default_input_bounds(plant: Plant, u_min: Any, u_max: Any) -> tuple[Any, Any]:
+    """The input bounds a ``from_plant`` designs with: the user's, else the plant's physical range.
+
+    Each side the user leaves None is taken from ``plant.input_bounds()`` (MuJoCo's ``ctrlrange`` for a
+    model file, a motor's limit) when that side has a finite entry; it stays None (unbounded) when the
+    plant declares none. A side the user gives is kept as given (even wider than the plant's range).
+
+    Args:
+        plant: The plant designed on.
+        u_min, u_max: The user's bounds ``(m,)`` (a scalar broadcasts) or None.
+
+    Returns:
+        ``(u_min, u_max)``: arrays ``(m,)`` with ±inf where unbounded, or None per side.
+    """
+    hook = getattr(plant, "input_bounds", None)
+    if (u_min is not None and u_max is not None) or not callable(hook):
+        return u_min, u_max
+    lo, hi = hook()
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    if u_min is None and np.isfinite(lo).any():
+        u_min = lo
+    if u_max is None and np.isfinite(hi).any():
+        u_max = hi
+    return u_min, u_max
 
 
 def check_operating_point(plant: Plant, x0: np.ndarray, u0: np.ndarray, who: str) -> None:

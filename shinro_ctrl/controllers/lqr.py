@@ -10,7 +10,7 @@ import numpy as np
 import scipy.linalg
 
 from shinro_ctrl.analysis.structure import check_detectable, check_stabilizable
-from shinro_ctrl.controllers.base import CallGuard, Controller, check_operating_point
+from shinro_ctrl.controllers.base import CallGuard, Controller, check_operating_point, default_input_bounds
 from shinro_ctrl.controllers.lqi import integral_action
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, NotStabilizable
 from shinro_ctrl.types import Bound, Matrix, Vector, Weight
@@ -299,7 +299,8 @@ class LQR(Controller):
             discretization: ``step`` (default: the exact linearization of the
                 plant's own discrete step), ``euler``, ``zoh`` or ``rk4``.
             method: Linearization method, ``exact`` or ``fd``.
-            u_min, u_max: Optional saturation bounds.
+            u_min, u_max: Optional saturation bounds; a side left None takes the plant's
+                physical range (``plant.input_bounds()``, e.g. a model file's ``ctrlrange``).
             feedforward: Use reference feed-forward (see the class docstring).
             integral: State names whose tracking error is integrated (LQI;
                 ``Q`` then has ``n + q`` entries; see ``controllers/lqi.py``).
@@ -311,6 +312,7 @@ class LQR(Controller):
         """
         lm = plant.linear_model(x0, u0, method=method, discretization=discretization)
         check_operating_point(plant, lm.x0, lm.u0, cls.__name__)
+        u_min, u_max = default_input_bounds(plant, u_min, u_max)
         A, B = (lm.A, lm.B) if discrete else (lm.A_c, lm.B_c)
         ctrl = cls(
             A,

@@ -41,7 +41,7 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.concurrency import CallGuard
-from shinro_ctrl.controllers.base import Controller
+from shinro_ctrl.controllers.base import Controller, default_input_bounds
 from shinro_ctrl.controllers.lqr import LQR
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, discretize
@@ -219,7 +219,7 @@ class TVLQR(Controller):
             dt: Control step [s]; default ``plant.dt``.
             discretization: ``step`` (default, as LQR: the exact Jacobians of the plant's own
                 discrete step at each knot; needs ``dt == plant.dt``), ``euler``, ``zoh`` or ``rk4``.
-            u_min, u_max: Optional saturation ``(m,)``.
+            u_min, u_max: Optional saturation ``(m,)``; a side left None takes ``plant.input_bounds()``.
 
         Raises:
             InvalidArgument: wrong shapes or values.
@@ -241,6 +241,7 @@ class TVLQR(Controller):
                 f"discretization 'step' is the plant's own step at dt = {plant.dt:g} s, not dt = {dt:g} s; "
                 "use discretization 'zoh' or 'rk4' for another control rate"
             )
+        u_min, u_max = default_input_bounds(plant, u_min, u_max)
         Qm = weight_matrix("Q", Q, n)
         Rm = weight_matrix("R", R, m, definite=True)
         steps = max(1, int(np.ceil(traj.duration / dt - 1e-9)))

@@ -26,12 +26,20 @@ text only the first time a warning fires for an ``MjData``; the counters, and
 so the exception, fire every time.) Code that installs its own handler
 afterwards replaces ours; :func:`install_warning_handler` puts ours back.
 
-:meth:`MujocoEngine.for_plant` loads a plant's MJCF asset and rewrites it
+:meth:`MujocoEngine.for_plant` builds the model of a plant's MuJoCo loop
+(``model=``, :data:`~shinro_ctrl.engine.mjcf.MODEL_CHOICES`). ``"matched"``
+(the built-in plants' default) loads the plant's MJCF asset and rewrites it
 through ``MjSpec`` with the plant's parameters (point masses, lengths,
 damping, gravity, timestep), so the simulated and the analytic models match
-for any parameter values. It also selects MuJoCo's (semi-implicit) Euler
+for any parameter values, and selects MuJoCo's (semi-implicit) Euler
 integrator with ``mjDSBL_EULERDAMP``, so that joint damping is explicit, as in
-the analytic models.
+the analytic models: the exact twin ``crosscheck`` compares. ``"realistic"``
+loads a built-in plant's realistic variant, or a user's model file
+(``MjcfPlant``'s default) as written: its integrator, contacts, limits,
+friction loss and ``ctrlrange`` / ``forcerange`` clamps are kept, only the
+timestep is the plant's. :meth:`MujocoEngine.input_ranges` maps the model's
+``ctrlrange`` onto the plant's inputs and :class:`~shinro_ctrl.engine.core.ForceClamps`
+reads the ``forcerange`` clamps of each step (the ``saturation_fraction`` metric).
 
 Name lookups are resolved to addresses once, at construction: a scalar
 joint read such as :meth:`MujocoEngine.get_joint_qpos` costs one dict lookup
@@ -52,15 +60,17 @@ Asset paths come from the plant's ``MjcfPatch`` or the caller, resolved by
 the core :mod:`shinro_ctrl.resources` (which imports nothing else from the package).
 """
 
-from shinro_ctrl.engine.core import MujocoEngine
-from shinro_ctrl.engine.mjcf import TINY_INERTIA
+from shinro_ctrl.engine.core import ForceClamps, MujocoEngine
+from shinro_ctrl.engine.mjcf import MODEL_CHOICES, TINY_INERTIA
 from shinro_ctrl.engine.render import OffscreenRenderer
 from shinro_ctrl.engine.warnings import _record_warning, install_warning_handler, take_warning_messages  # noqa: F401
 from shinro_ctrl.plants.standalone import Engine, StandaloneEngine
 
 __all__ = [
+    "MODEL_CHOICES",
     "TINY_INERTIA",
     "Engine",
+    "ForceClamps",
     "MujocoEngine",
     "OffscreenRenderer",
     "StandaloneEngine",

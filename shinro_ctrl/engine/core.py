@@ -15,13 +15,19 @@ import mujoco
 import numpy as np
 
 from shinro_ctrl.engine.mjcf import (
+    MODEL_CHOICES,
     _apply_patch,
+    _check_names,
     _check_substeps,
     _compile,
     _euler_zyx_from_quat,
+    _idealize_model_file,
     _load_spec,
     _real,
     _unknown,
+    check_default_parameters,
+    check_realistic_geometry,
+    realistic_asset,
 )
 from shinro_ctrl.engine.render import OffscreenRenderer
 from shinro_ctrl.engine.warnings import (
@@ -39,7 +45,7 @@ if TYPE_CHECKING:
 
     from shinro_ctrl.plants.base import Plant
 
-__all__ = ["MujocoEngine"]
+__all__ = ["ForceClamps", "MujocoEngine"]
 
 _HINGE = int(mujoco.mjtJoint.mjJNT_HINGE)
 _SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
@@ -88,30 +94,43 @@ class MujocoEngine:
 
     @classmethod
     def for_plant(cls, plant: Plant, *, substeps: int = 1, model: str | Path | None = None) -> MujocoEngine:
-        """Load a plant's MJCF asset and match it to the plant's parameters.
+        """The MuJoCo model of a plant's MuJoCo loop: its matched twin, its realistic variant, or a file.
 
-        Every field of ``plant.mjcf_patch()`` is written through ``MjSpec``:
-        point masses (``inertials``, with a :data:`TINY_INERTIA` diagonal),
-        body positions and inertias, joint damping, visual geom ``fromto`` /
-        ``size``, gravity and the timestep ``patch.timestep / substeps``. The
-        integrator is set to Euler with ``mjDSBL_EULERDAMP`` (explicit
-        damping, like the analytic model). The engine is not attached to the
-        plant: call ``plant.physics_engine(engine)`` for that.
+        ``model`` chooses (see :data:`~shinro_ctrl.engine.mjcf.MODEL_CHOICES`); the engine's
+        :attr:`variant` says which was built:
+
+        * ``"matched"`` (default for the built-in plants): the plant's own asset with every field of
+          ``plant.mjcf_patch()`` written through ``MjSpec`` (point masses with a :data:`TINY_INERTIA`
+          diagonal, body positions and inertias, joint damping and ranges, visual geom ``fromto`` / ``size``,
+          gravity, the timestep ``patch.timestep / substeps``) and MuJoCo's Euler integrator with
+          ``mjDSBL_EULERDAMP`` (explicit damping, like the analytic model): the exact twin ``crosscheck``
+          compares. For a model file (``MjcfPlant``), a copy of the file made the twin of its smooth design
+          model: Euler with explicit damping, and contacts, joint limits, friction loss and the
+          ``ctrlrange`` / ``forcerange`` clamps off.
+        * ``"realistic"`` (default for a model file): the real thing. A built-in plant loads its shipped
+          ``<asset>_realistic.xml`` (distributed masses, motor limits, joint friction, the default
+          integrator; written for the plant's default parameters, which it requires but ``damping``); a model
+          file is loaded as written. Only the timestep is set (``plant.dt / substeps``).
+        * a path or a shipped asset name: that file as written but the timestep, with its own integrator,
+          contacts, limits, friction and clamps; for a built-in plant it must name the bodies and joints the
+          plant reads (a ``KeyError`` names the first missing one). Relative paths are tried first, then
+          the shipped assets.
+
+        The engine is not attached to the plant: call ``plant.physics_engine(engine)`` for that.
 
         Args:
             plant: A plant with ``mjcf_patch()`` (see ``plants.base.MjcfPatch``).
-            substeps: ``mj_step`` calls per :meth:`step`; the engine's
-                :attr:`dt` equals ``plant.dt`` whatever this value.
-            model: Optional MJCF path or shipped asset name replacing the
-                plant's own asset (it must use the same names); a path is
-                tried first, then the shipped assets. Without it the plant's
-                own asset is taken from the package's assets folder only, so
-                a same-named file in the current directory never shadows it.
+            substeps: ``mj_step`` calls per :meth:`step`; the engine's :attr:`dt` equals ``plant.dt``
+                whatever this value.
+            model: ``"matched"``, ``"realistic"``, an MJCF path or a shipped asset name; None: the default
+                above. Without a path the plant's asset is taken from the package's assets folder only, so a
+                same-named file in the current directory never shadows it.
 
         Raises:
-            KeyError: the patch names a body, joint or geom the model lacks.
-            FileNotFoundError: the asset does not exist.
-            ValueError: the asset is invalid or the patched model does not compile.
+            KeyError: the patch (or the plant) names a body, joint or geom the model lacks.
+            FileNotFoundError: the asset does not exist (a built-in plant without a realistic variant).
+            ValueError: the asset is invalid, the patched model does not compile, or the realistic variant
+                is asked for with parameters other than the defaults.
         """
         substeps = _check_substeps(substeps)
         if not callable(getattr(plant, "mjcf_patch", None)):
@@ -120,14 +139,46 @@ class MujocoEngine:
                 f"{plant!r}"
             )
         patch = plant.mjcf_patch()
-        spec, source = _load_spec(patch.asset, shipped=True) if model is None else _load_spec(model)
-        _apply_patch(spec, patch, substeps)
+        own_file = bool(getattr(patch, "model_file", False))
+        if model is None:
+            variant = "realistic" if own_file else "matched"
+        elif isinstance(model, str) and model in MODEL_CHOICES:
+            variant = model
+        else:
+            variant = "file"
+        if own_file and variant != "file":
+            spec, source = _load_spec(patch.asset)
+            if variant == "matched":
+                _idealize_model_file(spec)
+        elif variant == "matched":
+            spec, source = _load_spec(patch.asset, shipped=True)
+            _apply_patch(spec, patch, substeps)
+        elif variant == "realistic":
+            asset = realistic_asset(patch.asset)
+            try:
+                spec, source = _load_spec(asset, shipped=True)
+            except FileNotFoundError:
+                raise FileNotFoundError(
+                    f"{type(plant).__name__} has no realistic MuJoCo model ('{asset}' is not shipped); "
+                    'use model = "matched" or an MJCF file of your own'
+                ) from None
+            check_default_parameters(plant, asset)
+            check_realistic_geometry(spec, patch, asset, type(plant).__name__)
+        else:
+            spec, source = _load_spec(model)
+            if not own_file:
+                _check_names(spec, patch)
+        spec.option.timestep = float(patch.timestep) / substeps
         engine = cls.from_model(_compile(spec, source), substeps=substeps, source=source)
         engine.plant_type = type(plant).__name__  # physics_engine refuses an engine built for another plant type
+        engine.variant = variant
         return engine
 
     # ------------------------------------------------------------------ set-up
     plant_type: str | None = None  # the plant class for_plant built this engine for (None: any model)
+    #: Which model :meth:`for_plant` built: ``"matched"`` (the plant's exact twin), ``"realistic"`` or
+    #: ``"file"`` (a model file as written); ``"file"`` for an engine made from a path, XML or ``MjModel``.
+    variant: str = "file"
 
     def _setup(self, model: mujoco.MjModel, substeps: int, source: str) -> None:
         if not _HANDLER["installed"]:
@@ -480,6 +531,70 @@ class MujocoEngine:
             self.data.act[:] = z[nq + nv :]
         self.forward()
 
+    # ------------------------------------------------------- the model's input ranges
+    def input_actuators(self, plant: Plant) -> list[tuple[int, float] | None]:
+        """Which actuator each plant input drives: ``(actuator id, ctrl per unit of u)`` or None, per input ``(m,)``.
+
+        Found by probing the plant's ``engine_apply`` (``ctrl = G u``, one column per unit input; ``data.ctrl``
+        is restored). An input that drives no actuator or several (a kinematic plant, a mixer), or an actuator
+        driven by several inputs, maps to None.
+        """
+        m = int(plant.input_dim)
+        ctrl = self._ctrl
+        saved = ctrl.copy()
+        try:
+            plant.engine_apply(self, np.zeros(m))
+            base = ctrl.copy()
+            cols = []
+            for i in range(m):
+                e = np.zeros(m)
+                e[i] = 1.0
+                plant.engine_apply(self, e)
+                cols.append(ctrl - base)
+        except NotImplementedError:
+            return [None] * m
+        finally:
+            ctrl[:] = saved
+        G = np.array(cols).T.reshape(self.model.nu, m)
+        out: list[tuple[int, float] | None] = []
+        for i in range(m):
+            acts = np.flatnonzero(G[:, i])
+            if acts.size == 1 and np.count_nonzero(G[acts[0]]) == 1:
+                out.append((int(acts[0]), float(G[acts[0], i])))
+            else:
+                out.append(None)
+        return out
+
+    def input_ranges(self, plant: Plant) -> tuple[np.ndarray, np.ndarray]:
+        """The model's ``ctrlrange`` clamps as bounds on the plant's inputs: ``(u_min (m,), u_max (m,))``, ±inf: none.
+
+        An input maps to an actuator through :meth:`input_actuators`; the actuator's range counts when MuJoCo
+        clamps it (``ctrllimited``, and ``clampctrl`` not disabled), divided by the input's scale.
+        """
+        m = self.model
+        lo, hi = np.full(plant.input_dim, -np.inf), np.full(plant.input_dim, np.inf)
+        if m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL):
+            return lo, hi
+        for i, link in enumerate(self.input_actuators(plant)):
+            if link is None or not m.actuator_ctrllimited[link[0]]:
+                continue
+            a, scale = link
+            ends = sorted(float(v) / scale for v in m.actuator_ctrlrange[a])
+            lo[i], hi[i] = ends
+        return lo, hi
+
+    def force_clamp_monitor(self, plant: Plant) -> ForceClamps | None:
+        """A reader of the inputs clamped at an actuator's ``forcerange`` in the last step (None: no input can be).
+
+        See :class:`ForceClamps`; None when no input drives an actuator with a force range.
+        """
+        links = [
+            (i, link[0], link[1] > 0)
+            for i, link in enumerate(self.input_actuators(plant))
+            if link is not None and self.model.actuator_forcelimited[link[0]]
+        ]
+        return ForceClamps(self, plant.input_dim, links) if links else None
+
     # ---------------------------------------------------------- bodies, sites
     def get_body_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """World pose of a body frame.
@@ -654,3 +769,33 @@ class MujocoEngine:
             raise NonFiniteError(f"joint '{name}' {what} must be finite, got {np.array2string(v, precision=4)}")
         a = int(adr[j])
         arr[a : a + k] = v
+
+
+class ForceClamps:
+    """Which plant inputs MuJoCo clamped at an actuator's ``forcerange`` in the engine's last step.
+
+    ``d.actuator_force`` (the force of the last ``mj_step``'s ``mj_forward``, so of the last substep) lying
+    on an end of its ``forcerange`` (within 1e-9 relative) counts as a clamp at that end. Calling the object
+    gives flags ``(m,)``: ``-1`` at the lower bound of the input (the force end it maps to, through the sign
+    of the input's scale), ``+1`` at the upper, ``0`` otherwise. Made by :meth:`MujocoEngine.force_clamp_monitor`.
+    """
+
+    def __init__(self, engine: MujocoEngine, m: int, links: list[tuple[int, int, bool]]):
+        self._force = engine.data.actuator_force
+        rng = engine.model.actuator_forcerange
+        self._links = [(i, a, float(rng[a, 0]), float(rng[a, 1]), positive) for i, a, positive in links]
+        self._flags = np.zeros(m, dtype=np.int8)
+
+    @property
+    def inputs(self) -> tuple[int, ...]:
+        """The plant inputs that drive a force-limited actuator."""
+        return tuple(i for i, *_ in self._links)
+
+    def __call__(self) -> np.ndarray:
+        flags = self._flags
+        force = self._force
+        for i, a, lo, hi, positive in self._links:
+            f = force[a]
+            end = -1 if f <= lo + 1e-9 * max(1.0, abs(lo)) else 1 if f >= hi - 1e-9 * max(1.0, abs(hi)) else 0
+            flags[i] = end if positive else -end
+        return flags

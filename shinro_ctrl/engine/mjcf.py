@@ -18,11 +18,23 @@ from shinro_ctrl.errors import InvalidArgument, UnknownName
 from shinro_ctrl.resources import list_assets
 from shinro_ctrl.validation import closest
 
-__all__ = ["TINY_INERTIA"]
+__all__ = [
+    "MODEL_CHOICES",
+    "TINY_INERTIA",
+    "check_default_parameters",
+    "check_realistic_geometry",
+    "realistic_asset",
+]
 
 #: Diagonal inertia [kg m²] given to the point masses of an ``MjcfPatch``:
 #: MuJoCo needs a positive inertia; this one is negligible against ``m l²``.
 TINY_INERTIA = 1e-8
+
+#: The MuJoCo models ``MujocoEngine.for_plant(model=...)`` and a scenario's ``[engine] model`` name by a word
+#: (anything else is an MJCF path or a shipped asset name): ``matched``, the plant's exact twin (its parameters
+#: written in, Euler with explicit damping; for a model file, everything non-smooth off); ``realistic``, the
+#: real thing (a built-in plant's ``<asset>_realistic.xml``; a model file as written).
+MODEL_CHOICES = ("matched", "realistic")
 
 
 # ------------------------------------------------------------------- loading
@@ -125,12 +137,15 @@ def _find(spec: mujoco.MjSpec, kind: str, name: str) -> Any:
 
 
 def _apply_patch(spec: mujoco.MjSpec, patch: Any, substeps: int) -> None:
-    """Write every field of an ``MjcfPatch`` into ``spec`` (see :meth:`MujocoEngine.for_plant`)."""
+    """Write every field of an ``MjcfPatch`` into ``spec`` and set the exact-match options (the ``matched`` twin).
+
+    See :meth:`MujocoEngine.for_plant`: the plant's parameters (point masses, positions, damping, ranges,
+    visual geoms, gravity, timestep) and :func:`_exact_match_options`.
+    """
     opt = spec.option
     opt.timestep = float(patch.timestep) / substeps
     opt.gravity = np.asarray(patch.gravity, dtype=float)
-    opt.integrator = int(mujoco.mjtIntegrator.mjINT_EULER)
-    opt.disableflags = int(opt.disableflags) | int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    _exact_match_options(spec)
     for name, (mass, ipos) in patch.inertials.items():
         body = _find(spec, "body", name)
         body.explicitinertial = True
@@ -170,6 +185,109 @@ def _apply_patch(spec: mujoco.MjSpec, patch: Any, substeps: int) -> None:
         full = np.array(geom.size, dtype=float)
         full[: size.shape[0]] = size
         geom.size = full
+
+
+def _exact_match_options(spec: mujoco.MjSpec) -> None:
+    """MuJoCo's (semi-implicit) Euler with ``mjDSBL_EULERDAMP``: joint damping explicit, as in the analytic models.
+
+    The one place the integrator is chosen for a model: only the ``matched`` twins get it.
+    """
+    opt = spec.option
+    opt.integrator = int(mujoco.mjtIntegrator.mjINT_EULER)
+    opt.disableflags = int(opt.disableflags) | int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+
+
+#: What the ``matched`` copy of a user's model file switches off: everything the smooth design model leaves out.
+_NOT_SMOOTH = (
+    mujoco.mjtDisableBit.mjDSBL_CONTACT,
+    mujoco.mjtDisableBit.mjDSBL_LIMIT,
+    mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS,
+    mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL,
+)
+
+
+def _idealize_model_file(spec: mujoco.MjSpec) -> None:
+    """Make a user's model file the exact twin of its smooth design model (``MjcfPlant``, ``model="matched"``).
+
+    :func:`_exact_match_options`, and off: contacts, joint-limit forces, friction loss, the ``ctrlrange`` clamp
+    (``mjDSBL_CLAMPCTRL``), every actuator's ``forcerange`` clamp and every joint's ``actuatorfrcrange``. What
+    ``crosscheck`` compares.
+    """
+    _exact_match_options(spec)
+    opt = spec.option
+    for bit in _NOT_SMOOTH:
+        opt.disableflags = int(opt.disableflags) | int(bit)
+    for act in spec.actuators:
+        act.forcelimited = int(mujoco.mjtLimited.mjLIMITED_FALSE)
+    for joint in spec.joints:
+        joint.actfrclimited = int(mujoco.mjtLimited.mjLIMITED_FALSE)
+
+
+def _check_names(spec: mujoco.MjSpec, patch: Any) -> None:
+    """Raise ``UnknownName`` (a ``KeyError``) for the first body or joint the plant's patch names that ``spec`` lacks.
+
+    A model file given for a built-in plant is loaded as written, but it must describe the same mechanism.
+    """
+    for name in (*patch.inertials, *patch.body_pos, *patch.body_inertia):
+        _find(spec, "body", name)
+    for name in (*patch.joint_damping, *getattr(patch, "joint_range", {})):
+        _find(spec, "joint", name)
+
+
+def check_realistic_geometry(spec: mujoco.MjSpec, patch: Any, asset: str, plant_name: str) -> None:
+    """Refuse a realistic variant whose body positions differ from those the plant's patch gives (its geometry).
+
+    A plant without float parameters (the arm: its joint offsets) must still have the variant's geometry (to
+    10 µm, the precision the variants are written with).
+
+    Raises:
+        KeyError: the variant lacks a body the patch names.
+        InvalidArgument: naming the first body whose position differs.
+    """
+    for name, pos in patch.body_pos.items():
+        have = np.asarray(_find(spec, "body", name).pos, dtype=float)
+        want = np.asarray(pos, dtype=float)
+        if have.shape != want.shape or not np.allclose(have, want, rtol=0.0, atol=1e-5):
+            raise InvalidArgument(
+                f"{plant_name}: the realistic MuJoCo model '{asset}' is built for the default geometry, but body "
+                f"'{name}' is at {want.tolist()} in the plant and at {have.tolist()} in the model; use "
+                'model = "matched" or an MJCF file of your own'
+            )
+
+
+def realistic_asset(asset: str) -> str:
+    """A built-in plant's realistic variant of its matched asset: ``"cartpole.xml"`` -> ``"cartpole_realistic.xml"``."""
+    path = Path(asset)
+    return f"{path.stem}_realistic{path.suffix or '.xml'}"
+
+
+def check_default_parameters(plant: Any, asset: str) -> None:
+    """Refuse a plant whose physical parameters differ from its class defaults (a realistic variant is built for them).
+
+    The realistic variants are written for the defaults (their masses are distributed over real geoms, so no
+    point mass can be rewritten); ``damping`` may differ (the variant carries its own joint friction, and the gap
+    is the point). ``dt`` is written into the model.
+
+    Raises:
+        InvalidArgument: naming the first parameter that differs, its default, and the way out.
+    """
+    import inspect
+
+    sig = inspect.signature(type(plant).__init__).parameters
+    for name, value in plant.params().items():
+        if name == "damping" or name not in sig or sig[name].default is inspect.Parameter.empty:
+            continue
+        default = sig[name].default
+        try:
+            same = np.allclose(np.asarray(value, dtype=float), np.asarray(default, dtype=float), rtol=1e-12, atol=0.0)
+        except (TypeError, ValueError):
+            same = value == default
+        if not same:
+            raise InvalidArgument(
+                f"{type(plant).__name__}: the realistic MuJoCo model '{asset}' is built for the default parameters, "
+                f'but {name} = {value!r} (default {default!r}); use model = "matched" (the plant\'s own parameters, '
+                "idealized) or an MJCF file of your own"
+            )
 
 
 def _euler_zyx_from_quat(q: np.ndarray) -> np.ndarray:

@@ -82,6 +82,10 @@ class MjcfPatch:
         joint_range: Joint name → ``(min, max)``: the joint becomes limited
             (``limited="true"``) with this range, the stop the standalone
             :meth:`Plant.clip_state` models (e.g. the cart-pole's track).
+        model_file: True when ``asset`` is the user's own model file (``MjcfPlant``) rather than a built-in
+            plant's matched twin: the MuJoCo loop then keeps the file's own options (integrator, contacts,
+            limits, friction loss, clamps) and only ``model="matched"`` idealizes a copy (see
+            ``MujocoEngine.for_plant``).
     """
 
     asset: str
@@ -94,6 +98,7 @@ class MjcfPatch:
     geom_fromto: dict[str, tuple[float, ...]] = field(default_factory=dict)
     geom_size: dict[str, tuple[float, ...]] = field(default_factory=dict)
     joint_range: dict[str, tuple[float, float]] = field(default_factory=dict)
+    model_file: bool = False
 
 
 class Plant:
@@ -119,6 +124,7 @@ class Plant:
       one state ``(n,)`` and a batch ``(N, n)`` (the batch rollout calls it on batches).
     * :meth:`equilibrium` ``() -> (x0, u0)``: the default operating point.
     * :meth:`state_limits` ``() -> (lo, hi)``: the declared limits of the state.
+    * :meth:`input_bounds` ``() -> (u_min, u_max)``: the inputs' physical range (±inf: none).
     * :meth:`body_force_map` ``(body) -> G (n, 3)``: world body forces in the standalone loop.
     * :meth:`mjcf_patch` ``() -> MjcfPatch``: how the MJCF asset is matched to
       the parameters (engine mode).
@@ -682,6 +688,21 @@ class Plant:
             return self.state_bounds[0].copy(), self.state_bounds[1].copy()
         return np.full(self.state_dim, -np.inf), np.full(self.state_dim, np.inf)
 
+    def input_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Hook: the inputs' physical range ``(u_min (m,), u_max (m,))``, ±inf where none (the default: none).
+
+        What the actuators can deliver (a motor's torque limit, MuJoCo's ``ctrlrange``), not a design
+        choice: the controllers' ``from_plant`` take these as their input bounds when the user gives none
+        (see :func:`~shinro_ctrl.controllers.base.default_input_bounds`), and the runs count the steps spent
+        at them (``saturation_fraction``). With a MuJoCo engine attached, the default is the engine
+        model's ``ctrlrange`` mapped onto the inputs (``engine.input_ranges``: a realistic variant's motor
+        limits); standalone, none.
+        """
+        ranges = getattr(self._engine, "input_ranges", None)
+        if callable(ranges):
+            return ranges(self)
+        return np.full(self.input_dim, -np.inf), np.full(self.input_dim, np.inf)
+
     def body_force_map(self, body: str) -> np.ndarray:
         """``G (n, 3)``: how a world-frame force ``F`` [N] at ``body``'s centre of mass changes ``ẋ`` (``ẋ += G F``).
 
@@ -786,7 +807,9 @@ class Plant:
         The engine's compiled model is compared with what :meth:`mjcf_patch` would
         write into it (see ``MujocoEngine.for_plant``): step, gravity, body masses
         and positions, joint damping and ranges; a body or joint the patch names but the
-        model lacks means another plant type. The first mismatch is named.
+        model lacks means another plant type. The first mismatch is named. Masses,
+        positions, damping and ranges are compared only for a ``matched`` engine (a
+        realistic variant or a model file carries its own).
         """
         try:
             patch = self.mjcf_patch()
@@ -828,6 +851,8 @@ class Plant:
                         f"{name}.physics_engine: the engine was built for another plant type: its model "
                         f"({engine.source}) has no {kind} '{item}', which {name} needs"
                     ) from None
+        if getattr(engine, "variant", "matched") != "matched":
+            return  # a realistic variant or the user's own file: its physics are its own, not the parameters'
         for body, (mass, ipos) in patch.inertials.items():
             if differs(m.body(body).mass[0], mass):
                 raise mismatch(f"the mass of body '{body}'", f"{m.body(body).mass[0]:g} kg", f"{mass:g} kg")

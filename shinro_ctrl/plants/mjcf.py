@@ -281,6 +281,22 @@ class MjcfPlant(Plant):
         self._u0 = as_vector("u0", u0, self.input_dim).copy() if u0 is not None else self._default_u0()
         self.state = self._x0.copy()
 
+    # ------------------------------------------------------------ limits
+    def input_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(u_min (m,), u_max (m,))``: the ``ctrlrange`` of each selected actuator that clamps its control.
+
+        ±inf for an actuator without one (``ctrllimited`` false, or clamping disabled by
+        ``<flag clampctrl="disable"/>``). A ``forcerange`` limits the force, not the control: it is not a
+        bound on ``u`` (the MuJoCo loop counts it as saturation where it binds).
+        """
+        m = self.input_dim
+        lo, hi = np.full(m, -np.inf), np.full(m, np.inf)
+        for k, a in enumerate(self.active_actuators):
+            rng = self.tree.actuators[a].ctrlrange
+            if rng is not None:
+                lo[k], hi[k] = rng
+        return lo, hi
+
     # ------------------------------------------------------------ operating
     def _default_x0(self, keyframe: tuple[str, np.ndarray] | None) -> np.ndarray:
         """The first keyframe, else ``[qpos0; 0]`` moved inside the joint ranges (see the class docstring)."""
@@ -559,11 +575,17 @@ class MjcfPlant(Plant):
     def mjcf_patch(self) -> MjcfPatch:
         """The model file itself (absolute path), unedited but for ``timestep = dt``.
 
-        The gravity written is the model's own; the engine sets MuJoCo's Euler
-        integrator with explicit damping, as for every plant.
+        The gravity is the model's own. ``model_file``: the MuJoCo loop keeps the file's own options
+        (integrator, contacts, limits, friction loss, clamps); ``model="matched"`` builds the idealized
+        copy ``crosscheck`` compares (see ``MujocoEngine.for_plant``).
         """
         g = self.tree.gravity  # the model's own (its disable flag stays in the file)
-        return MjcfPatch(asset=self.model_path, timestep=self.dt, gravity=(float(g[0]), float(g[1]), float(g[2])))
+        return MjcfPatch(
+            asset=self.model_path,
+            timestep=self.dt,
+            gravity=(float(g[0]), float(g[1]), float(g[2])),
+            model_file=True,
+        )
 
     def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`)."""

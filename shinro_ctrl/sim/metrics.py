@@ -21,18 +21,23 @@ __all__ = [
     "METRIC_KINDS",
     "METRIC_REGISTRY",
     "NEVER_METRICS",
+    "NEWER_METRICS",
     "OUTPUT_FEEDBACK_METRICS",
+    "PER_INPUT_METRICS",
     "RESPONSE_METRICS",
     "WALL_CLOCK_METRICS",
     "MetricInfo",
     "StreamingMetrics",
+    "at_bounds",
     "bound_excess",
     "compute_metrics",
     "format_metric",
     "format_metrics",
+    "is_newer_metric",
     "metric_unit",
     "plan_tracking_rms",
     "response_metrics",
+    "saturation_metrics",
     "settling_time",
 ]
 
@@ -40,7 +45,7 @@ __all__ = [
 #: a clock reading (varies from run to run), a count, or a yes/no flag.
 METRIC_KINDS = ("response", "timing", "wall-clock", "count", "flag")
 #: Which runs report a metric.
-REPORTED_BY = ("every run", "step response", "output feedback")
+REPORTED_BY = ("every run", "step response", "output feedback", "bounded input")
 
 
 @dataclass(frozen=True)
@@ -52,7 +57,8 @@ class MetricInfo:
         unit: Unit as printed (``""``: the units of the tracked states or inputs, or none).
         kind: One of :data:`METRIC_KINDS`.
         description: One line.
-        reported: One of :data:`REPORTED_BY` (``output feedback``: also ``NAME_<state>`` per state).
+        reported: One of :data:`REPORTED_BY` (``output feedback``: also ``NAME_<state>`` per state;
+            ``bounded input``: only ``NAME_<input>``, for each input with a bound on that side).
     """
 
     name: str
@@ -79,6 +85,15 @@ METRIC_REGISTRY: dict[str, MetricInfo] = {
         MetricInfo("constraint_violations", "steps", "count", "steps at which a bound or plant limit is exceeded"),
         MetricInfo("max_violation", "", "response", "largest excess over a bound or plant limit"),
         MetricInfo("solve_time_median_s", "s", "wall-clock", "median controller call (None: no call)"),
+        MetricInfo(
+            "saturation_fraction",
+            "",
+            "response",
+            "fraction of steps with an input at a bound: the controller's, the plant's range or a MuJoCo "
+            "ctrlrange/forcerange clamp (None: no bounds)",
+        ),
+        MetricInfo("time_at_min", "s", "response", "time an input spent at its lower bound", "bounded input"),
+        MetricInfo("time_at_max", "s", "response", "time an input spent at its upper bound", "bounded input"),
         MetricInfo("overshoot", "%", "response", "swing past the reference of the step response", "step response"),
         MetricInfo("rise_time", "s", "timing", "10-90 % rise time of the step response (None: never)", "step response"),
         MetricInfo(
@@ -110,13 +125,23 @@ FLAG_METRICS = _names("flag")
 RESPONSE_METRICS = _names(reported="step response")
 #: Metrics only output-feedback runs report (``estimation_rms`` and ``estimation_rms_<state>``).
 OUTPUT_FEEDBACK_METRICS = _names(reported="output feedback")
+#: Per-input metrics (``time_at_min_<input>``, ``time_at_max_<input>``) of the inputs with a bound on that side.
+PER_INPUT_METRICS = _names(reported="bounded input")
+#: Metrics newer than some stored baselines: a baseline without them passes (``regress --update`` stores them).
+NEWER_METRICS = (*RESPONSE_METRICS, *FLAG_METRICS, "saturation_fraction", *PER_INPUT_METRICS)
+
+
+def is_newer_metric(name: str) -> bool:
+    """True for a metric (or a per-input one, ``time_at_min_<input>``) that older baselines may lack."""
+    return name in NEWER_METRICS or name.startswith(tuple(f"{m}_" for m in PER_INPUT_METRICS))
 
 
 def metric_unit(name: str) -> str:
-    """The unit of a metric (``estimation_rms_<state>`` as ``estimation_rms``), ``""`` when unknown or none."""
+    """The unit of a metric (``estimation_rms_<state>`` as ``estimation_rms``, ``time_at_min_<input>`` as
+    ``time_at_min``), ``""`` when unknown or none."""
     info = METRIC_REGISTRY.get(name)
-    if info is None and name.startswith(OUTPUT_FEEDBACK_METRICS):
-        info = METRIC_REGISTRY[next(m for m in OUTPUT_FEEDBACK_METRICS if name.startswith(m))]
+    if info is None and name.startswith((*OUTPUT_FEEDBACK_METRICS, *PER_INPUT_METRICS)):
+        info = METRIC_REGISTRY[next(m for m in (*OUTPUT_FEEDBACK_METRICS, *PER_INPUT_METRICS) if name.startswith(m))]
     return info.unit if info is not None and info.unit != "steps" else ""
 
 
@@ -135,6 +160,82 @@ def bound_excess(values: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | Non
             continue
         over = sign * (values[:, finite] - b[finite]) - 1e-9 * (1.0 + np.abs(b[finite]))
         out = np.maximum(out, np.maximum(over, 0.0).max(axis=1))
+    return out
+
+
+#: An input within this relative distance of a bound (``tol · max(1, |bound|)``) is at it: an MPC's solution at an
+#: active bound lies within its solver tolerance of it when it is not clipped exactly.
+AT_BOUND_TOL = 1e-6
+
+
+def at_bounds(
+    u: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None, clamped: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which inputs are at (or beyond) a bound: ``(at_lo (T, m), at_hi (T, m))`` booleans.
+
+    ``u[k, i] <= lo[i] + tol`` or ``u[k, i] >= hi[i] − tol`` with ``tol = AT_BOUND_TOL · max(1, |bound|)``
+    (a command beyond a bound is at it: the actuator delivers the bound); ``clamped (T, m)`` adds the
+    clamps measured in MuJoCo (``-1`` lower, ``+1`` upper; see ``engine.ForceClamps``).
+    """
+    shape = u.shape
+    out = []
+    for bound, sign in ((lo, -1.0), (hi, 1.0)):
+        at = np.zeros(shape, dtype=bool)
+        if bound is not None:
+            b = np.broadcast_to(np.asarray(bound, dtype=float), shape[1:])
+            finite = np.isfinite(b)
+            if finite.any():
+                tol = AT_BOUND_TOL * np.maximum(1.0, np.abs(b[finite]))
+                at[:, finite] = sign * (u[:, finite] - b[finite]) >= -tol
+        if clamped is not None:
+            at |= clamped == int(sign)
+        out.append(at)
+    return out[0], out[1]
+
+
+def saturation_metrics(
+    t: np.ndarray,
+    u: np.ndarray,
+    lo: np.ndarray | None,
+    hi: np.ndarray | None,
+    input_names: tuple[str, ...] | list[str],
+    *,
+    clamped: np.ndarray | None = None,
+    clamp_inputs: tuple[int, ...] = (),
+) -> dict[str, float | None]:
+    """``saturation_fraction`` and the per-input ``time_at_min_<input>`` / ``time_at_max_<input>`` [s] of a run.
+
+    ``saturation_fraction`` is the fraction of the ``T`` steps at which any input is at a bound
+    (:func:`at_bounds`; None when no input has a bound and none can be clamped). Input ``k`` is held for
+    ``t[k+1] − t[k]``, so ``time_at_min_<input>`` sums those steps' durations. Per-input times are reported
+    for the inputs with a finite bound on that side, and for the inputs in ``clamp_inputs`` (driving an
+    actuator with a ``forcerange``) on both sides.
+
+    Args:
+        t: Sample times ``(T + 1,)`` [s].
+        u: Inputs ``(T, m)`` (the controller's commands).
+        lo, hi: Bounds ``(m,)`` (±inf or None: none).
+        input_names: The ``m`` input names.
+        clamped: Flags ``(T, m)`` of the clamps measured in MuJoCo (-1, 0, +1), or None.
+        clamp_inputs: The inputs ``clamped`` can flag.
+    """
+    m = u.shape[1]
+    bounded = [np.zeros(m, dtype=bool), np.zeros(m, dtype=bool)]
+    for side, bound in enumerate((lo, hi)):
+        if bound is not None:
+            bounded[side] |= np.isfinite(np.broadcast_to(np.asarray(bound, dtype=float), (m,)))
+        bounded[side][list(clamp_inputs)] = True
+    if not (bounded[0].any() or bounded[1].any()):
+        return {"saturation_fraction": None}
+    at_lo, at_hi = at_bounds(u, lo, hi, clamped)
+    steps = u.shape[0]
+    out: dict[str, float | None] = {
+        "saturation_fraction": float(np.count_nonzero((at_lo | at_hi).any(axis=1))) / steps if steps else None
+    }
+    held = np.diff(t)[:steps]
+    for side, (name, at) in enumerate((("time_at_min", at_lo), ("time_at_max", at_hi))):
+        for i in np.flatnonzero(bounded[side]).tolist():
+            out[f"{name}_{input_names[i]}"] = float(held[at[:, i]].sum())
     return out
 
 
@@ -178,6 +279,7 @@ def compute_metrics(
     x_max: np.ndarray | None = None,
     plant_violation: np.ndarray | None = None,
     solve_times: np.ndarray | None = None,
+    saturation: dict[str, float | None] | None = None,
 ) -> dict[str, float | int | bool | None]:
     """Metrics of a closed-loop run (an undefined one is None, never NaN or inf).
 
@@ -194,7 +296,9 @@ def compute_metrics(
         ``constraint_violations`` (steps at which an input or state bound, or
         a plant limit, is exceeded by more than 1e-9 relative),
         ``max_violation`` (the largest such excess),
-        ``solve_time_median_s`` (median controller call; None without one), and for a step or
+        ``solve_time_median_s`` (median controller call; None without one),
+        ``saturation_fraction`` and the per-input times at a bound (``saturation`` as
+        :func:`saturation_metrics` gives them; None: from ``u_min`` / ``u_max`` alone), and for a step or
         initial-condition response ``overshoot`` and ``rise_time`` (see
         :func:`response_metrics`).
     """
@@ -230,7 +334,19 @@ def compute_metrics(
         "constraint_violations": int(np.count_nonzero(viol > 0)),
         "max_violation": float(viol.max()),
         "solve_time_median_s": float(np.median(solve_times)) if solve_times is not None and solve_times.size else None,
+        **(saturation if saturation is not None else _bound_saturation(t, u, u_min, u_max)),
         **response_metrics(t, x[:, tracked], ref[:, tracked], settle_tol),
+    }
+
+
+def _bound_saturation(
+    t: np.ndarray, u: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None
+) -> dict[str, float | None]:
+    """``saturation_fraction`` of :func:`saturation_metrics` for bounds alone (no names: no per-input times)."""
+    return {
+        "saturation_fraction": saturation_metrics(t, u, lo, hi, [f"u{i}" for i in range(u.shape[1])])[
+            "saturation_fraction"
+        ]
     }
 
 
@@ -288,10 +404,18 @@ class StreamingMetrics:
     definitions: ``e_k = ‖x_k[tracked] − r[tracked]‖₂``; rms over the ``T + 1``
     samples; :func:`settling_time` after the last sample outside
     ``settle_tol``; a violation counted at index ``k`` from input ``k`` and
-    state ``k``.
+    state ``k``; ``saturation_fraction`` from the input bounds ``u_min`` / ``u_max`` (NaN without any).
     """
 
-    def __init__(self, N: int, tracked: list[int], r: np.ndarray, settle_tol: float):
+    def __init__(
+        self,
+        N: int,
+        tracked: list[int],
+        r: np.ndarray,
+        settle_tol: float,
+        u_min: np.ndarray | None = None,
+        u_max: np.ndarray | None = None,
+    ):
         self.tr = np.asarray(tracked, dtype=int)
         self.r_tr = r[self.tr]
         self.settle_tol = settle_tol
@@ -302,6 +426,10 @@ class StreamingMetrics:
         self.u_abs_max = np.zeros(N)
         self.viol_count = np.zeros(N, dtype=int)
         self.viol_max = np.zeros(N)
+        bounded = any(b is not None and np.isfinite(np.asarray(b, dtype=float)).any() for b in (u_min, u_max))
+        self.u_bounds = (u_min, u_max) if bounded else None
+        self.sat_count = np.zeros(N, dtype=int)
+        self.steps = 0
 
     def track(self, X: np.ndarray, k: int) -> None:
         """The tracking error of sample ``k``."""
@@ -313,6 +441,10 @@ class StreamingMetrics:
     def inputs(self, U: np.ndarray, viol: np.ndarray) -> None:
         """The inputs of one step and the violation at its index."""
         np.maximum(self.u_abs_max, np.abs(U).max(axis=1), out=self.u_abs_max)
+        self.steps += 1
+        if self.u_bounds is not None:
+            at_lo, at_hi = at_bounds(U, *self.u_bounds)
+            self.sat_count += (at_lo | at_hi).any(axis=1)
         self.violation(viol)
 
     def violation(self, viol: np.ndarray) -> None:
@@ -333,6 +465,9 @@ class StreamingMetrics:
             "constraint_violations": self.viol_count.astype(float),
             "max_violation": self.viol_max,
             "solve_time_median_s": np.full(N, float(np.median(call_times)) / max(N, 1)),
+            "saturation_fraction": (
+                self.sat_count / max(self.steps, 1) if self.u_bounds is not None else np.full(N, math.nan)
+            ),
         }
         for k, v in metrics.items():
             if k != "stable":

@@ -14,7 +14,7 @@ import numpy as np
 from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
 from shinro_ctrl.progress import Progress
-from shinro_ctrl.sim.metrics import compute_metrics, plan_tracking_rms
+from shinro_ctrl.sim.metrics import compute_metrics, plan_tracking_rms, saturation_metrics
 from shinro_ctrl.sim.output_feedback import estimation_metrics, loop_signals, uses_estimation
 from shinro_ctrl.sim.reference import Reference
 from shinro_ctrl.sim.result import SimResult
@@ -34,7 +34,7 @@ class _LoopState:
     """The buffers and signals of one run, shared by :meth:`RobotSim.run`'s set-up, loop and result steps.
 
     ``t (T+1,)``; ``X, R, X_hat (T+1, n)``; ``U (T, m)``; ``Y (T+1, p)``; ``solve (T,)``; ``pviol (T+1,)``;
-    ``x`` and ``u_prev`` are the state and input the loop ended with.
+    ``x`` and ``u_prev`` are the state and input the loop ended with; ``clamped (T, m)`` the force clamps.
     """
 
     t: np.ndarray
@@ -52,6 +52,8 @@ class _LoopState:
     sig: Any
     x: np.ndarray
     u_prev: np.ndarray
+    clamps: Any = None  # the engine's ForceClamps (MuJoCo loop with force-limited actuators), else None
+    clamped: np.ndarray | None = None  # (T, m) int8: the inputs MuJoCo clamped at a forcerange in each step
 
 
 class RobotSim:
@@ -144,7 +146,7 @@ class RobotSim:
             engine = MujocoEngine.for_plant(
                 plant, substeps=ecfg.substeps if ecfg else 1, model=ecfg.model if ecfg else None
             )
-        except FileNotFoundError as exc:  # a scenario's model that does not exist is a scenario error
+        except (FileNotFoundError, InvalidArgument) as exc:  # a model that does not exist or does not fit the plant
             src = str(self.scenario.path) if self.scenario.path else self.scenario.name
             raise ConfigError(f"{src}: [engine] model: {exc}") from exc
         plant.physics_engine(engine)
@@ -267,6 +269,7 @@ class RobotSim:
         # Output feedback (output_feedback.py): sensor/process noise and disturbances drawn once, before the loop.
         p = n if measured is None else measured.shape[0]
         sig = loop_signals(self.scenario, plant, t, p)
+        clamps = self.engine.force_clamp_monitor(plant) if self.engine is not None else None
         return _LoopState(
             t,
             X,
@@ -283,6 +286,8 @@ class RobotSim:
             sig,
             x,
             u_prev,
+            clamps,
+            np.zeros((steps, m), dtype=np.int8) if clamps is not None else None,
         )
 
     def _loop(self, s: _LoopState, progress: bool | None) -> None:
@@ -295,6 +300,7 @@ class RobotSim:
         sensor, extra, forces = s.sig.sensor, s.sig.extra_input, s.sig.forces
         n, dt, steps = plant.state_dim, plant.dt, U.shape[0]
         x, u_prev = s.x, s.u_prev
+        clamps, clamped = s.clamps, s.clamped
         estimate = self.estimator.update
         bar = Progress(steps, f"{self.scenario.name} ({self.loop})", progress, unit="steps")
         clock = time.perf_counter
@@ -325,6 +331,8 @@ class RobotSim:
                 plant.step(u if extra is None else u + extra[k])  # the plant feels noise and disturbances
                 x = plant.get_state()
                 X[k + 1] = x
+                if clamps is not None:
+                    clamped[k] = clamps()
                 if limit is not None:
                     pviol[k + 1] = limit()
                 if k % 256 == 0:
@@ -368,6 +376,7 @@ class RobotSim:
             settle_tol=self.scenario.sim.settle_tol,
             plant_violation=s.pviol if s.limit is not None else None,
             solve_times=s.solve,
+            saturation=self._saturation(s, bounds["u_min"], bounds["u_max"]),
             **bounds,
         )
         plan_states = getattr(ctrl, "plan_states", None)  # a plan-tracking controller (TVLQR)
@@ -397,6 +406,26 @@ class RobotSim:
             disturbance_labels=list(s.sig.disturbance.labels),
             plan=plan,
             **bounds,
+        )
+
+    def _saturation(self, s: _LoopState, u_min: np.ndarray | None, u_max: np.ndarray | None) -> dict[str, Any]:
+        """``saturation_fraction`` and the per-input times at a bound (see ``metrics.saturation_metrics``).
+
+        The bounds are the tighter of the controller's and the plant's physical range (``plant.input_bounds()``:
+        in the MuJoCo loop the model's ``ctrlrange``), plus the ``forcerange`` clamps MuJoCo applied.
+        """
+        plant = self.plant
+        p_lo, p_hi = plant.input_bounds()
+        lo = p_lo if u_min is None else np.maximum(u_min, p_lo)
+        hi = p_hi if u_max is None else np.minimum(u_max, p_hi)
+        return saturation_metrics(
+            s.t,
+            s.U,
+            lo,
+            hi,
+            tuple(plant.input_names),
+            clamped=s.clamped,
+            clamp_inputs=s.clamps.inputs if s.clamps is not None else (),
         )
 
     def resolved_config(self, duration: float | None = None) -> dict[str, Any]:

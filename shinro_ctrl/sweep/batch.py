@@ -151,7 +151,7 @@ def lqr_batch_rollout(
     t = np.arange(steps + 1) * dt
     alive = np.ones(N, dtype=bool)
     died = np.full(N, -1, dtype=int)
-    acc = StreamingMetrics(N, tracked, r, settle_tol)
+    acc = StreamingMetrics(N, tracked, r, settle_tol, *((u_min, u_max) if saturate else (None, None)))
     x_excess = np.zeros(N)  # bound excess of the current state (index k); none at k = 0
     call_times = np.empty(steps)
     clock = time.perf_counter
