@@ -80,12 +80,12 @@ def _explicit_condensing(G, W, R, e, du, dx0):
 
 
 @pytest.mark.parametrize("bounded", [False, True], ids=["inputs-only", "soft-state-bound"])
-def test_condensing_equals_the_explicit_construction(bounded):
+@pytest.mark.parametrize(("N", "n", "m", "direct"), [(7, 5, 2, True), (20, 6, 3, False)], ids=["direct", "recursive"])
+def test_condensing_equals_the_explicit_construction(bounded, N, n, m, direct):
     rng = np.random.default_rng(11)
-    N, n, m = 7, 5, 2
     G = rng.standard_normal((N, n, n + m + 1))
-    G[:, :, :n] *= 0.5
-    G[:, :, :n] += np.eye(n)  # a mildly unstable prediction
+    G[:, :, :n] *= 0.3
+    G[:, :, :n] += np.eye(n)  # an unstable prediction
     L = rng.standard_normal((N, n, n))
     W = L @ np.swapaxes(L, 1, 2) + 0.1 * np.eye(n)
     R = np.diag(rng.uniform(0.5, 2.0, m))
@@ -93,13 +93,15 @@ def test_condensing_equals_the_explicit_construction(bounded):
     if bounded:
         x_min[1], x_max[1] = -0.5, 0.5
     qp = CondensedLTV(G, W, R, np.full(m, -1.0), np.full(m, 1.0), x_min, x_max, soft=bounded)
+    assert qp.direct == direct  # the algorithm chosen by size: one product Γᵀ Q̄ Γ, or the backward recursion
     e, du, dx0 = rng.standard_normal(N * n), rng.standard_normal(N * m), rng.standard_normal(n)
     qp.build(e, du)
     H, g0, Gx, Gam, Phi, c = _explicit_condensing(G, W, R, e, du, dx0)
     nu = N * m
     scale = np.max(np.abs(H))
     np.testing.assert_allclose(qp.H[:nu, :nu], H, rtol=0, atol=1e-12 * scale)
-    np.testing.assert_array_equal(qp.H, qp.H.T)
+    if not direct:  # symmetric by construction (U + Uᵀ)
+        np.testing.assert_array_equal(qp.H, qp.H.T)
     np.testing.assert_allclose(qp.g0[:nu], g0, rtol=0, atol=1e-12 * np.max(np.abs(g0)))
     np.testing.assert_allclose(qp.Gx[:nu], Gx, rtol=0, atol=1e-12 * np.max(np.abs(Gx)))
     X = rng.standard_normal((N + 1, n))

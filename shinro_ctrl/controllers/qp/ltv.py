@@ -46,7 +46,10 @@ import numpy as np
 from shinro_ctrl.controllers.qp.condensed import DAQP_STATUS
 from shinro_ctrl.controllers.qp.ltv_sparse import SPARSE_OSQP_SETTINGS, SparseLTV
 
-__all__ = ["SPARSE_OSQP_SETTINGS", "CondensedLTV", "SparseLTV"]
+__all__ = ["DIRECT_MAX_WORK", "SPARSE_OSQP_SETTINGS", "CondensedLTV", "SparseLTV"]
+
+#: Largest ``(N m)² N n`` (the multiply-adds of ``Γᵀ Q̄ Γ``) condensed by one product; above it, the recursion.
+DIRECT_MAX_WORK = 1 << 18
 
 
 class CondensedLTV:
@@ -146,8 +149,16 @@ class CondensedLTV:
         self._init_recursions(G)
 
     def _init_recursions(self, G: np.ndarray) -> None:
-        """Buffers and views of :meth:`build`'s recursions, made once."""
+        """Choose the condensing algorithm (:attr:`direct`) and make its buffers and views once."""
         n, m, N, nu = self.n, self.m, self.N, self.nu
+        # one product Γᵀ Q̄ Γ while it is small (below OpenBLAS's threading threshold of 2¹⁸
+        # multiply-adds): fewer Python calls than the recursion's 4 N; the recursion above it
+        self.direct = nu * nu * N * n <= DIRECT_MAX_WORK
+        self._ec = np.empty((N, n, 1))
+        if self.direct:
+            self._QG = np.empty((N, n, 1 + n + nu))
+            self._Rbar = np.kron(np.eye(N), self.R)
+            return
         self._A = G[:, :, :n]
         self._At = np.swapaxes(self._A, 1, 2)
         self._B = G[:, :, n : n + m]
@@ -162,7 +173,6 @@ class CondensedLTV:
         self._Buf = np.zeros((N, n, nu + n + 1))
         self._WW = np.empty((N, n, n + 1))  # [W_k | W_k (e_k + c_k)]
         self._WW[:, :, :n] = self.W
-        self._ec = np.empty((N, n, 1))
         self._back = [
             (
                 self._At[k + 1],
@@ -189,22 +199,60 @@ class CondensedLTV:
         self._zv[:, n + m] = 1.0
 
     def build(self, e: np.ndarray, du_ref: np.ndarray) -> None:
-        r"""Build ``H``, ``g_0`` and ``G_x`` (and, with state bounds, ``[c | Φ | Γ]``) for the linearization in ``G``.
+        r"""Build ``H``, ``g_0`` and ``G_x`` (and ``[c | Φ | Γ]`` where it is used) for the linearization in ``G``.
 
-        No product with ``Γ`` is formed. With ``S_{N-1} = W_{N-1}``,
-        ``S_k = W_k + A_{k+1}ᵀ S_{k+1} A_{k+1}`` (stage ``k`` is ``x_{k+1}``; ``S_k`` the weight its
-        free response carries to the end of the horizon), the Hessian's blocks are
-        ``H_{ii} = B_iᵀ S_i B_i + R`` and ``H_{ij} = B_iᵀ A_{i+1}ᵀ ⋯ A_jᵀ S_j B_j`` (``i < j``), so one
-        backward recursion of ``X_k = [S_k B_k | A_{k+1}ᵀ X_{k+1}]`` gives the block rows
-        ``H_{i, j ≥ i} = B_iᵀ X_i`` (the lower triangle by symmetry). Along with it run
-        ``y_k = W_k (e_k + c_k) + A_{k+1}ᵀ y_{k+1}`` for ``g_{0,i} = B_iᵀ y_i + R (ū_i − u_ref)``, and
-        ``G_{x,i} = B_iᵀ S_i Φ_i`` (``[c_k | Φ_k]`` the free response of ``x_{k+1}``, forward).
-        ``O(N² n² m)`` arithmetic in small products: ``Γᵀ Q̄ Γ`` as one product costs several times
-        more and lets a threaded BLAS fight for the cores.
+        Two algorithms, chosen once by size (:attr:`direct`): small problems form ``[c | Φ | Γ]`` stage
+        by stage and ``H = Γᵀ Q̄ Γ + R̄`` as one matrix product (:meth:`_build_direct`); larger ones, where
+        that product costs ``O(N³ n m²)`` and would run on a threaded BLAS, use the backward recursion of
+        :meth:`_build_recursive` (``O(N² n² m)`` in small products, no ``Γ`` unless state bounds need it).
 
         Args:
             e: State errors ``(N n,)``: ``x̄_{k+1} − r_{k+1}`` stacked.
             du_ref: Input errors ``(N m,)``: ``ū_k − u_ref`` stacked.
+        """
+        n, nu = self.n, self.nu
+        if self.direct:
+            self._build_direct(e, du_ref)
+        else:
+            self._build_recursive(e, du_ref)
+        if self.rows.size:
+            rows = self.rows
+            G = self.M[:, 1 + n :]
+            self.A[: rows.size, :nu] = G[rows]
+            if self.soft:
+                self.A[rows.size :, :nu] = G[rows]
+            self.Phi_rows[:] = self.M[rows, 1 : 1 + n]
+
+    def _build_direct(self, e: np.ndarray, du_ref: np.ndarray) -> None:
+        """``[c | Φ | Γ]`` by ``M_{k+1} = G_k Z_k``, then ``Γᵀ Q̄ [c + e | Φ | Γ]`` as one product."""
+        n, N, nu = self.n, self.N, self.nu
+        mm = np.matmul
+        for g, z, out in self._stages:
+            mm(g, z, out=out)
+        M3 = self.M3
+        np.copyto(M3, self.Z[1:, :n])
+        mm(self.W, M3, out=self._QG)
+        QG = self._QG.reshape(N * n, 1 + n + nu)
+        G = self.M[:, 1 + n :]
+        QGu = QG[:, 1 + n :]
+        mm(QGu.T, G, out=self.H[:nu, :nu])
+        self.H[:nu, :nu] += self._Rbar
+        # g0 = Γᵀ Q̄ (e + c) + R̄ (ū − u_ref);  Gx = Γᵀ Q̄ Φ
+        np.add(e, self.M[:, 0], out=self._ec.reshape(-1))
+        mm(QGu.T, self._ec.reshape(-1), out=self.g0[:nu])
+        self.g0[:nu] += self._Rbar @ du_ref
+        mm(QGu.T, self.M[:, 1 : 1 + n], out=self.Gx[:nu])
+
+    def _build_recursive(self, e: np.ndarray, du_ref: np.ndarray) -> None:
+        r"""``H``, ``g_0``, ``G_x`` by one backward recursion, without a product with ``Γ``.
+
+        With ``S_{N-1} = W_{N-1}``, ``S_k = W_k + A_{k+1}ᵀ S_{k+1} A_{k+1}`` (stage ``k`` is ``x_{k+1}``;
+        ``S_k`` the weight its free response carries to the end of the horizon), the Hessian's blocks are
+        ``H_{ii} = B_iᵀ S_i B_i + R`` and ``H_{ij} = B_iᵀ A_{i+1}ᵀ ⋯ A_jᵀ S_j B_j`` (``i < j``), so the
+        recursion ``X_k = [S_k B_k | A_{k+1}ᵀ X_{k+1}]`` gives the block rows ``H_{i, j ≥ i} = B_iᵀ X_i``
+        (the lower triangle by symmetry). Along with it run ``y_k = W_k (e_k + c_k) + A_{k+1}ᵀ y_{k+1}``
+        for ``g_{0,i} = B_iᵀ y_i + R (ū_i − u_ref)``, and ``G_{x,i} = B_iᵀ S_i Φ_i`` (``[c_k | Φ_k]`` the
+        free response of ``x_{k+1}``, forward).
         """
         n, N, nu = self.n, self.N, self.nu
         mm = np.matmul
@@ -238,13 +286,6 @@ class CondensedLTV:
         mm(BY[:, :, nu : nu + n], cP[:, :, 1:], out=self._Gx3)
         mm(du_ref.reshape(N, self.m), self.R.T, out=self._g0u)  # R (ū_i − u_ref), block by block
         self._g0u += BY[:, :, nu + n]
-        if self.rows.size:
-            rows = self.rows
-            G = self.M[:, 1 + n :]
-            self.A[: rows.size, :nu] = G[rows]
-            if self.soft:
-                self.A[rows.size :, :nu] = G[rows]
-            self.Phi_rows[:] = self.M[rows, 1 : 1 + n]
 
     def set_bounds(self, ubar: np.ndarray, xbar_next: np.ndarray) -> None:
         """Input bounds relative to ``ū`` and the state-row offsets ``x̄ + c`` (before ``Δx_0``).
@@ -291,7 +332,7 @@ class CondensedLTV:
         """``(ΔU (N m,), ΔX (N, n))`` of a solution, ``ΔX = Γ ΔU + Φ Δx_0 + c`` (a view of an internal buffer)."""
         n, m = self.n, self.m
         dU = z[: self.nu]
-        if self.rows.size:
+        if self.direct or self.rows.size:
             np.matmul(self.M[:, 1 + n :], dU, out=self.dX)
             self.dX += self.M[:, 1 : 1 + n] @ dx0
             self.dX += self.M[:, 0]
