@@ -48,6 +48,7 @@ from shinro_ctrl.controllers.qp.ltv_sparse import SPARSE_OSQP_SETTINGS, SparseLT
 
 __all__ = ["DIRECT_MAX_WORK", "SPARSE_OSQP_SETTINGS", "CondensedLTV", "SparseLTV"]
 
+_GEMV_SIZE = 9000  # entries of a matrix-vector product below OpenBLAS's threading threshold (2304 × 4)
 #: Largest ``(N m)² N n`` (the multiply-adds of ``Γᵀ Q̄ Γ``) condensed by one product; above it, the recursion.
 DIRECT_MAX_WORK = 1 << 18
 
@@ -144,6 +145,9 @@ class CondensedLTV:
         self.dX = np.empty(N * n)
         self.lam = np.zeros(self.nvar + nrow)
         self.flag = 0
+        self._Hz = np.empty(self.nvar)
+        step = max(1, _GEMV_SIZE // self.nvar)
+        self._H_rows = [(self.H[i : i + step], self._Hz[i : i + step]) for i in range(0, self.nvar, step)]
         self._umax = np.tile(np.broadcast_to(u_max, (m,)), N)
         self._umin = np.tile(np.broadcast_to(u_min, (m,)), N)
         self._init_recursions(G)
@@ -383,7 +387,12 @@ class CondensedLTV:
         """
         nv = self.nvar
         lam = self.lam
-        r = float(np.max(np.abs(self.H @ z)))
+        if nv * nv > _GEMV_SIZE:  # in row blocks: each product stays under OpenBLAS's threading threshold
+            for rows, out in self._H_rows:
+                np.matmul(rows, z, out=out)
+            r = float(np.max(np.abs(self._Hz)))
+        else:
+            r = float(np.max(np.abs(self.H @ z)))
         c = float(np.max(np.abs(lam[:nv] * z)))
         if self.nrow:
             c = max(c, float(np.max(np.abs(lam[nv:] * (self.A @ z)))))
