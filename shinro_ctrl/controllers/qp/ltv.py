@@ -198,9 +198,9 @@ class CondensedLTV:
         self._Hu = self._BY[:, :, :nu].reshape(nu, nu)
         self._Gx3 = self.Gx[:nu].reshape(N, m, n)
         self._g0u = self.g0[:nu].reshape(N, m)
-        self._Gk = [G[k] for k in range(N)]
         self._zv = np.zeros((N + 1, n + m + 1))
         self._zv[:, n + m] = 1.0
+        self._roll = [(G[k], self._zv[k], self._zv[k + 1, :n]) for k in range(N)]
 
     def build(self, e: np.ndarray, du_ref: np.ndarray) -> None:
         r"""Build ``H``, ``g_0`` and ``G_x`` (and ``[c | Φ | Γ]`` where it is used) for the linearization in ``G``.
@@ -346,8 +346,8 @@ class CondensedLTV:
         zv[0, :n] = dx0
         zv[:-1, n : n + m] = dU.reshape(self.N, m)
         mm = np.matmul
-        for k, g in enumerate(self._Gk):
-            mm(g, zv[k], out=zv[k + 1, :n])
+        for g, a, b in self._roll:
+            mm(g, a, out=b)
         dX = self.dX.reshape(self.N, n)
         dX[:] = zv[1:, :n]
         return dU, dX
