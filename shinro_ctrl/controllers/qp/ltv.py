@@ -46,7 +46,11 @@ import numpy as np
 from shinro_ctrl.controllers.qp.condensed import DAQP_STATUS
 from shinro_ctrl.controllers.qp.ltv_sparse import SPARSE_OSQP_SETTINGS, SparseLTV
 
-__all__ = ["SPARSE_OSQP_SETTINGS", "CondensedLTV", "SparseLTV"]
+__all__ = ["DIRECT_MAX_WORK", "SPARSE_OSQP_SETTINGS", "CondensedLTV", "SparseLTV"]
+
+_GEMV_SIZE = 9000  # entries of a matrix-vector product below OpenBLAS's threading threshold (2304 × 4)
+#: Largest ``(N m)² N n`` (the multiply-adds of ``Γᵀ Q̄ Γ``) condensed by one product; above it, the recursion.
+DIRECT_MAX_WORK = 1 << 18
 
 
 class CondensedLTV:
@@ -85,7 +89,6 @@ class CondensedLTV:
         self.n, self.m, self.N = n, m, N
         self.W = np.ascontiguousarray(W, dtype=float)
         self.R = np.asarray(R, dtype=float)
-        self.Rbar = np.kron(np.eye(N), self.R)
         nu = N * m
         self.nu = nu
         self.u_min, self.u_max = u_min, u_max
@@ -110,8 +113,6 @@ class CondensedLTV:
         self._stages = [(G[k], self.Z[k], self.Z[k + 1, :n]) for k in range(N)]
         self.M3 = np.zeros((N, n, C))
         self.M = self.M3.reshape(N * n, 1 + n + nu)
-        self._I = np.eye(n)
-        self.QG = np.empty((N, n, 1 + n + nu))
         self.H = np.empty((self.nvar, self.nvar))
         self.Hu = self.H[:nu, :nu] if self.ns else None
         self.g0 = np.empty(self.nvar)
@@ -141,41 +142,154 @@ class CondensedLTV:
             self.bl[nu : self.nvar] = 0.0
         self.sense = np.zeros(self.nvar + nrow, dtype=np.int32)
         self.settings = dict(daqp_settings or {})
-        self._tmp = np.empty(N * n)
         self.dX = np.empty(N * n)
         self.lam = np.zeros(self.nvar + nrow)
+        self.flag = 0
+        self._Hz = np.empty(self.nvar)
+        step = max(1, _GEMV_SIZE // self.nvar)
+        self._H_rows = [(self.H[i : i + step], self._Hz[i : i + step]) for i in range(0, self.nvar, step)]
+        self._umax = np.tile(np.broadcast_to(u_max, (m,)), N)
+        self._umin = np.tile(np.broadcast_to(u_min, (m,)), N)
+        self._init_recursions(G)
+
+    def _init_recursions(self, G: np.ndarray) -> None:
+        """Choose the condensing algorithm (:attr:`direct`) and make its buffers and views once."""
+        n, m, N, nu = self.n, self.m, self.N, self.nu
+        # one product Γᵀ Q̄ Γ while it is small (below OpenBLAS's threading threshold of 2¹⁸
+        # multiply-adds): fewer Python calls than the recursion's 4 N; the recursion above it
+        self.direct = nu * nu * N * n <= DIRECT_MAX_WORK
+        self._ec = np.empty((N, n, 1))
+        if self.direct:
+            self._QG = np.empty((N, n, 1 + n + nu))
+            self._Rbar = np.kron(np.eye(N), self.R)
+            return
+        self._A = G[:, :, :n]
+        self._At = np.swapaxes(self._A, 1, 2)
+        self._B = G[:, :, n : n + m]
+        self._Bt = np.swapaxes(self._B, 1, 2)
+        # forward free response [c_k | Φ_k] = G_k [c_{k-1} Φ_{k-1}; 0; 1 0] (Φ_{-1} = I): x_{k+1}'s
+        self._Zs = np.zeros((N + 1, n + m + 1, 1 + n))
+        self._Zs[0, :n, 1:] = np.eye(n)
+        self._Zs[:, n + m, 0] = 1.0
+        self._free = [(G[k], self._Zs[k], self._Zs[k + 1, :n]) for k in range(N)]
+        self._cP = self._Zs[1:, :n] if self.rows.size == 0 else self.M3[:, :, : 1 + n]
+        # backward: Buf_k = [X_k | S_k | y_k] (n, N m + n + 1); X_k's block j < k stays 0
+        self._Buf = np.zeros((N, n, nu + n + 1))
+        self._WW = np.empty((N, n, n + 1))  # [W_k | W_k (e_k + c_k)]
+        self._WW[:, :, :n] = self.W
+        self._back = [
+            (
+                self._At[k + 1],
+                self._Buf[k + 1, :, (k + 1) * m :],
+                self._Buf[k, :, (k + 1) * m :],
+                self._Buf[k, :, nu : nu + n],
+                self._A[k + 1],
+                self._Buf[k, :, nu:],
+                self._WW[k],
+                self._B[k],
+                self._Buf[k, :, k * m : (k + 1) * m],
+            )
+            for k in range(N - 2, -1, -1)
+        ]
+        self._BY = np.empty((N, m, nu + n + 1))
+        # the diagonal blocks of Bᵀ X (the Hessian's block upper triangle, as rows of BY)
+        s0, s1, s2 = self._BY.strides
+        self._BYd = np.lib.stride_tricks.as_strided(self._BY, shape=(N, m, m), strides=(s0 + m * s2, s1, s2))
+        self._Hu = self._BY[:, :, :nu].reshape(nu, nu)
+        self._Gx3 = self.Gx[:nu].reshape(N, m, n)
+        self._g0u = self.g0[:nu].reshape(N, m)
+        self._zv = np.zeros((N + 1, n + m + 1))
+        self._zv[:, n + m] = 1.0
+        self._roll = [(G[k], self._zv[k], self._zv[k + 1, :n]) for k in range(N)]
 
     def build(self, e: np.ndarray, du_ref: np.ndarray) -> None:
-        """Build ``[c | Φ | Γ]``, ``H``, ``g_0`` and ``G_x`` for the linearization now in ``G``.
+        r"""Build ``H``, ``g_0`` and ``G_x`` (and ``[c | Φ | Γ]`` where it is used) for the linearization in ``G``.
+
+        Two algorithms, chosen once by size (:attr:`direct`): small problems form ``[c | Φ | Γ]`` stage
+        by stage and ``H = Γᵀ Q̄ Γ + R̄`` as one matrix product (:meth:`_build_direct`); larger ones, where
+        that product costs ``O(N³ n m²)`` and would run on a threaded BLAS, use the backward recursion of
+        :meth:`_build_recursive` (``O(N² n² m)`` in small products, no ``Γ`` unless state bounds need it).
 
         Args:
             e: State errors ``(N n,)``: ``x̄_{k+1} − r_{k+1}`` stacked.
             du_ref: Input errors ``(N m,)``: ``ū_k − u_ref`` stacked.
         """
+        n, nu = self.n, self.nu
+        if self.direct:
+            self._build_direct(e, du_ref)
+        else:
+            self._build_recursive(e, du_ref)
+        if self.rows.size:
+            rows = self.rows
+            G = self.M[:, 1 + n :]
+            self.A[: rows.size, :nu] = G[rows]
+            if self.soft:
+                self.A[rows.size :, :nu] = G[rows]
+            self.Phi_rows[:] = self.M[rows, 1 : 1 + n]
+
+    def _build_direct(self, e: np.ndarray, du_ref: np.ndarray) -> None:
+        """``[c | Φ | Γ]`` by ``M_{k+1} = G_k Z_k``, then ``Γᵀ Q̄ [c + e | Φ | Γ]`` as one product."""
         n, N, nu = self.n, self.N, self.nu
         mm = np.matmul
         for g, z, out in self._stages:
             mm(g, z, out=out)
         M3 = self.M3
         np.copyto(M3, self.Z[1:, :n])
-        np.matmul(self.W, M3, out=self.QG)
-        QG = self.QG.reshape(N * n, 1 + n + nu)
+        mm(self.W, M3, out=self._QG)
+        QG = self._QG.reshape(N * n, 1 + n + nu)
         G = self.M[:, 1 + n :]
         QGu = QG[:, 1 + n :]
-        Hu = self.H[:nu, :nu]
-        np.matmul(QGu.T, G, out=Hu)
-        Hu += self.Rbar
+        mm(QGu.T, G, out=self.H[:nu, :nu])
+        self.H[:nu, :nu] += self._Rbar
         # g0 = Γᵀ Q̄ (e + c) + R̄ (ū − u_ref);  Gx = Γᵀ Q̄ Φ
-        np.add(e, self.M[:, 0], out=self._tmp)
-        np.matmul(QGu.T, self._tmp, out=self.g0[:nu])
-        self.g0[:nu] += self.Rbar @ du_ref
-        np.matmul(QGu.T, self.M[:, 1 : 1 + n], out=self.Gx[:nu])
-        if self.rows.size:
-            rows = self.rows
-            self.A[: rows.size, :nu] = G[rows]
-            if self.soft:
-                self.A[rows.size :, :nu] = G[rows]
-            self.Phi_rows[:] = self.M[rows, 1 : 1 + n]
+        np.add(e, self.M[:, 0], out=self._ec.reshape(-1))
+        mm(QGu.T, self._ec.reshape(-1), out=self.g0[:nu])
+        self.g0[:nu] += self._Rbar @ du_ref
+        mm(QGu.T, self.M[:, 1 : 1 + n], out=self.Gx[:nu])
+
+    def _build_recursive(self, e: np.ndarray, du_ref: np.ndarray) -> None:
+        r"""``H``, ``g_0``, ``G_x`` by one backward recursion, without a product with ``Γ``.
+
+        With ``S_{N-1} = W_{N-1}``, ``S_k = W_k + A_{k+1}ᵀ S_{k+1} A_{k+1}`` (stage ``k`` is ``x_{k+1}``;
+        ``S_k`` the weight its free response carries to the end of the horizon), the Hessian's blocks are
+        ``H_{ii} = B_iᵀ S_i B_i + R`` and ``H_{ij} = B_iᵀ A_{i+1}ᵀ ⋯ A_jᵀ S_j B_j`` (``i < j``), so the
+        recursion ``X_k = [S_k B_k | A_{k+1}ᵀ X_{k+1}]`` gives the block rows ``H_{i, j ≥ i} = B_iᵀ X_i``
+        (the lower triangle by symmetry). Along with it run ``y_k = W_k (e_k + c_k) + A_{k+1}ᵀ y_{k+1}``
+        for ``g_{0,i} = B_iᵀ y_i + R (ū_i − u_ref)``, and ``G_{x,i} = B_iᵀ S_i Φ_i`` (``[c_k | Φ_k]`` the
+        free response of ``x_{k+1}``, forward).
+        """
+        n, N, nu = self.n, self.N, self.nu
+        mm = np.matmul
+        if self.rows.size:  # the bounded rows need Γ
+            for g, z, out in self._stages:
+                mm(g, z, out=out)
+            np.copyto(self.M3, self.Z[1:, :n])
+        else:
+            for g, z, out in self._free:
+                mm(g, z, out=out)
+        cP = self._cP
+        np.add(e.reshape(N, n, 1), cP[:, :, :1], out=self._ec)
+        mm(self.W, self._ec, out=self._WW[:, :, n:])
+        Buf = self._Buf
+        last = Buf[N - 1]
+        last[:, nu:] = self._WW[N - 1]
+        mm(self.W[N - 1], self._B[N - 1], out=last[:, nu - self.m : nu])
+        add = np.add
+        for At, src, dst, S, A, Sy, WW, B, V in self._back:
+            mm(At, src, out=dst)  # A_{k+1}ᵀ [X_{k+1} (blocks > k) | S_{k+1} | y_{k+1}]
+            mm(S, A, out=S)  # (A_{k+1}ᵀ S_{k+1}) A_{k+1} (numpy buffers the overlap)
+            add(Sy, WW, out=Sy)
+            mm(S, B, out=V)
+        BY = self._BY
+        mm(self._Bt, Buf, out=BY)
+        Hd = self._BYd  # halve the diagonal blocks (plus R) so that U + Uᵀ counts them once
+        add(Hd, self.R, out=Hd)
+        Hd *= 0.5
+        Hu = self._Hu
+        add(Hu, Hu.T, out=self.H[:nu, :nu])
+        mm(BY[:, :, nu : nu + n], cP[:, :, 1:], out=self._Gx3)
+        mm(du_ref.reshape(N, self.m), self.R.T, out=self._g0u)  # R (ū_i − u_ref), block by block
+        self._g0u += BY[:, :, nu + n]
 
     def set_bounds(self, ubar: np.ndarray, xbar_next: np.ndarray) -> None:
         """Input bounds relative to ``ū`` and the state-row offsets ``x̄ + c`` (before ``Δx_0``).
@@ -185,8 +299,8 @@ class CondensedLTV:
             xbar_next: States ``(N, n)`` ``x̄_1 … x̄_N`` of the linearization point.
         """
         nu = self.nu
-        np.subtract(np.broadcast_to(self.u_max, ubar.shape).ravel(), ubar.ravel(), out=self.bu[:nu])
-        np.subtract(np.broadcast_to(self.u_min, ubar.shape).ravel(), ubar.ravel(), out=self.bl[:nu])
+        np.subtract(self._umax, ubar.ravel(), out=self.bu[:nu])
+        np.subtract(self._umin, ubar.ravel(), out=self.bl[:nu])
         if self.rows.size:
             np.add(xbar_next.ravel()[self.rows], self.M[self.rows, 0], out=self.xbar_rows)
 
@@ -220,12 +334,23 @@ class CondensedLTV:
 
     def step(self, z: np.ndarray, dx0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(ΔU (N m,), ΔX (N, n))`` of a solution, ``ΔX = Γ ΔU + Φ Δx_0 + c`` (a view of an internal buffer)."""
-        n = self.n
+        n, m = self.n, self.m
         dU = z[: self.nu]
-        np.matmul(self.M[:, 1 + n :], dU, out=self.dX)
-        self.dX += self.M[:, 1 : 1 + n] @ dx0
-        self.dX += self.M[:, 0]
-        return dU, self.dX.reshape(self.N, n)
+        if self.direct or self.rows.size:
+            np.matmul(self.M[:, 1 + n :], dU, out=self.dX)
+            self.dX += self.M[:, 1 : 1 + n] @ dx0
+            self.dX += self.M[:, 0]
+            return dU, self.dX.reshape(self.N, n)
+        # Γ is not formed: Δx_{k+1} = A_k Δx_k + B_k Δu_k + d_k, stage by stage
+        zv = self._zv
+        zv[0, :n] = dx0
+        zv[:-1, n : n + m] = dU.reshape(self.N, m)
+        mm = np.matmul
+        for g, a, b in self._roll:
+            mm(g, a, out=b)
+        dX = self.dX.reshape(self.N, n)
+        dX[:] = zv[1:, :n]
+        return dU, dX
 
     def explain(self) -> str:
         """Why the last solve failed, for the error message (empty when there is nothing to add)."""
@@ -262,7 +387,12 @@ class CondensedLTV:
         """
         nv = self.nvar
         lam = self.lam
-        r = float(np.max(np.abs(self.H @ z)))
+        if nv * nv > _GEMV_SIZE:  # in row blocks: each product stays under OpenBLAS's threading threshold
+            for rows, out in self._H_rows:
+                np.matmul(rows, z, out=out)
+            r = float(np.max(np.abs(self._Hz)))
+        else:
+            r = float(np.max(np.abs(self.H @ z)))
         c = float(np.max(np.abs(lam[:nv] * z)))
         if self.nrow:
             c = max(c, float(np.max(np.abs(lam[nv:] * (self.A @ z)))))

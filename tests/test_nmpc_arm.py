@@ -1,0 +1,127 @@
+"""NonlinearMPC on the 7-DOF arm: the reach scenario in both loops, the condensing and the compiled linearization.
+
+The reach (``configs/panda_nmpc_reach_mujoco.toml``) runs here for 1 s of its 2 s with the stage linearization
+in CasADi's virtual machine (``codegen = false``): the compiled one gives the same numbers (checked below on a
+small plant, whose C code builds in a fraction of a second), and the arm's 20,000-instruction stage function would
+cost the suite a few seconds of compilation on a fresh cache.
+"""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+import pytest
+
+from shinro_ctrl.controllers.nmpc import NonlinearMPC
+from shinro_ctrl.controllers.qp.ltv import CondensedLTV
+from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.plants import InvertedPendulum
+from shinro_ctrl.resources import config_path
+from shinro_ctrl.sim import RobotSim
+
+READY = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+
+
+def _reach(engine: str):
+    with open(config_path("panda_nmpc_reach_mujoco.toml"), "rb") as fh:
+        doc = tomllib.load(fh)
+    doc["controller"]["codegen"] = False
+    doc["sim"]["duration"] = 1.0
+    sim = RobotSim.from_config(doc, engine=engine)
+    return sim, sim.run()
+
+
+@pytest.mark.parametrize("engine", ["standalone", "mujoco"])
+def test_reach_holds_the_torque_limits_at_every_step_and_reaches_the_target(engine):
+    sim, res = _reach(engine)
+    assert (sim.engine is not None) == (engine == "mujoco")
+    c = sim.controller
+    X, U = res.x, res.u
+    target = c.x0[:7]
+    np.testing.assert_allclose(X[0, :7], READY, atol=1e-12)
+    assert np.all(np.abs(target - READY) >= 0.75)  # a large excursion on every joint
+    # the hard input bounds at every step (the returned input is the solver's, clipped)
+    violation = max(float(np.max(U - c.u_max)), float(np.max(c.u_min - U)), 0.0)
+    assert violation <= 1e-12
+    # and they bind: the first steps run at the limits of the big joints
+    assert np.sum(np.isclose(np.abs(U[:10, :4]), 0.87, rtol=0, atol=1e-12)) >= 10
+    # gravity matters: the input that holds the target differs from the one that holds the ready pose
+    assert abs(c.u0[1]) > 0.25
+    # reached: 1e-4 rad after 1 s (measured 1.1e-4 standalone; MuJoCo's Euler is the same step)
+    assert np.max(np.abs(X[-1, :7] - target)) < 5e-4
+    assert np.max(np.abs(X[-1, 7:])) < 5e-3
+    assert c.last.qp_status == "solved" and c.last.status == "rti"
+
+
+def _explicit_condensing(G, W, R, e, du, dx0):
+    """``Γ``, ``Φ``, ``c`` built block by block from their definition, and ``H``, ``g_0``, ``G_x`` from them."""
+    N, n, w = G.shape
+    m = w - n - 1
+    A, B, d = G[:, :, :n], G[:, :, n : n + m], G[:, :, n + m]
+    Gam = np.zeros((N * n, N * m))
+    Phi = np.zeros((N * n, n))
+    c = np.zeros(N * n)
+    P, cc = np.eye(n), np.zeros(n)
+    for k in range(N):
+        P, cc = A[k] @ P, A[k] @ cc + d[k]
+        Phi[k * n : (k + 1) * n], c[k * n : (k + 1) * n] = P, cc
+        for j in range(k + 1):
+            blk = B[j]
+            for i in range(j + 1, k + 1):
+                blk = A[i] @ blk
+            Gam[k * n : (k + 1) * n, j * m : (j + 1) * m] = blk
+    Qbar = np.zeros((N * n, N * n))
+    for k in range(N):
+        Qbar[k * n : (k + 1) * n, k * n : (k + 1) * n] = W[k]
+    Rbar = np.kron(np.eye(N), R)
+    H = Gam.T @ Qbar @ Gam + Rbar
+    return H, Gam.T @ Qbar @ (e + c) + Rbar @ du, Gam.T @ Qbar @ Phi, Gam, Phi, c
+
+
+@pytest.mark.parametrize("bounded", [False, True], ids=["inputs-only", "soft-state-bound"])
+@pytest.mark.parametrize(("N", "n", "m", "direct"), [(7, 5, 2, True), (20, 6, 3, False)], ids=["direct", "recursive"])
+def test_condensing_equals_the_explicit_construction(bounded, N, n, m, direct):
+    rng = np.random.default_rng(11)
+    G = rng.standard_normal((N, n, n + m + 1))
+    G[:, :, :n] *= 0.3
+    G[:, :, :n] += np.eye(n)  # an unstable prediction
+    L = rng.standard_normal((N, n, n))
+    W = L @ np.swapaxes(L, 1, 2) + 0.1 * np.eye(n)
+    R = np.diag(rng.uniform(0.5, 2.0, m))
+    x_min, x_max = np.full(n, -np.inf), np.full(n, np.inf)
+    if bounded:
+        x_min[1], x_max[1] = -0.5, 0.5
+    qp = CondensedLTV(G, W, R, np.full(m, -1.0), np.full(m, 1.0), x_min, x_max, soft=bounded)
+    assert qp.direct == direct  # the algorithm chosen by size: one product Γᵀ Q̄ Γ, or the backward recursion
+    e, du, dx0 = rng.standard_normal(N * n), rng.standard_normal(N * m), rng.standard_normal(n)
+    qp.build(e, du)
+    H, g0, Gx, Gam, Phi, c = _explicit_condensing(G, W, R, e, du, dx0)
+    nu = N * m
+    scale = np.max(np.abs(H))
+    np.testing.assert_allclose(qp.H[:nu, :nu], H, rtol=0, atol=1e-12 * scale)
+    if not direct:  # symmetric by construction (U + Uᵀ)
+        np.testing.assert_array_equal(qp.H, qp.H.T)
+    np.testing.assert_allclose(qp.g0[:nu], g0, rtol=0, atol=1e-12 * np.max(np.abs(g0)))
+    np.testing.assert_allclose(qp.Gx[:nu], Gx, rtol=0, atol=1e-12 * np.max(np.abs(Gx)))
+    X = rng.standard_normal((N + 1, n))
+    qp.set_bounds(rng.uniform(-0.5, 0.5, (N, m)), X[1:])
+    z, ok, _, _ = qp.solve(dx0)
+    assert ok
+    dU, dX = qp.step(z, dx0)
+    ref = Gam @ dU + Phi @ dx0 + c
+    np.testing.assert_allclose(dX.ravel(), ref, rtol=0, atol=1e-12 * np.max(np.abs(ref)))
+
+
+def test_compiled_linearization_equals_the_virtual_machine():
+    plant = InvertedPendulum(dt=0.05)
+    kw = dict(horizon=5, u_min=-1.0, u_max=1.0, cold_start="sqp")
+    vm = NonlinearMPC.from_plant(plant, [10.0, 0.1], [1.0], codegen=False, **kw)
+    cc = NonlinearMPC.from_plant(plant, [10.0, 0.1], [1.0], codegen=True, **kw)
+    assert "SXFunction" in repr(vm.ocp.linearization.find_function("nmpc_stage"))
+    assert "SXFunction" not in repr(cc.ocp.linearization.find_function("nmpc_stage"))  # an external (or the VM)
+    rng = np.random.default_rng(5)
+    X, U = rng.standard_normal((2, 6)), rng.standard_normal((1, 5))
+    np.testing.assert_array_equal(np.array(vm.ocp.linearization(X, U)), np.array(cc.ocp.linearization(X, U)))
+    with pytest.raises(InvalidArgument, match="codegen"):
+        NonlinearMPC.from_plant(plant, [10.0, 0.1], [1.0], codegen="yes", **kw)
