@@ -96,7 +96,7 @@ class DelayLine:
         np.mod(idx, self._len, out=idx)
         idx *= self._cols.shape[0]
         idx += self._cols
-        np.take(self._flat, idx, out=out)
+        np.take(self._flat, idx, out=out, mode="clip")  # "raise" would buffer `out`
         return out
 
 
