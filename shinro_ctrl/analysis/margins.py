@@ -140,7 +140,7 @@ class LoopMargins:
         lines.append("  (gain margins as factors: the loop stays stable for input gains in (GM low, GM high))")
         lines.append(
             "  (DM: delay margin, the largest pure delay at that input the loop tolerates"
-            + (", in s and in samples of dt; any whole number of samples below it is stable)" if self.dt else ")")
+            + (" [s] and [samples of dt])" if self.dt else " [s])")
         )
         if len(self.channels) > 1:
             lines.append(
