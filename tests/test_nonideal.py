@@ -202,3 +202,12 @@ def test_the_cli_says_one_line_and_exits_2(tmp_path, capsys):
     assert main(["run", str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "'delay' = 0.013 s is not a whole number of steps" in err
+
+
+def test_sweeps_give_each_run_its_own_models_and_the_batch_rollout_declines():
+    from shinro_ctrl.sweep.executors import batch_reason
+
+    sim = RobotSim.from_config(_scenario("standalone", actuator={"delay": 0.01}))
+    other = sim.with_plant({"mass": 0.12})
+    assert other.actuator is not sim.actuator and other.actuator.delay_steps.tolist() == [1]
+    assert "non-ideal actuator" in batch_reason(sim, ["mass"])

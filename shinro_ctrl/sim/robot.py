@@ -103,22 +103,7 @@ class RobotSim:
         self.reference = Reference(sim.reference, self.initial_state if _moves(sim.reference) else self.operating_point)
         names = sim.track or list(getattr(self.plant, "tracked_states", None) or self._default_tracked())
         self.tracked = [self.plant.state_names.index(s) for s in names]
-        self.actuator, self.sensor = self._nonideal()
-
-    def _nonideal(self) -> tuple[ActuatorModel | None, SensorModel | None]:
-        """The scenario's actuator and sensor models (None where ``[sim]`` leaves them out)."""
-        from shinro_ctrl.sim.nonideal import ActuatorModel, SensorModel
-
-        sim, plant = self.scenario.sim, self.plant
-        act = ActuatorModel.from_table(sim.actuator, plant.input_dim, plant.dt) if sim.actuator else None
-        measured = self.estimator.measured
-        full = tuple(measured) == tuple(range(plant.state_dim))
-        sen = (
-            SensorModel.from_table(sim.sensor, plant.state_dim, plant.dt, None if full else measured)
-            if sim.sensor
-            else None
-        )
-        return act, sen
+        self.actuator, self.sensor = _nonideal(scenario, self.plant, self.estimator.measured)
 
     def _design(self, plant: Plant) -> Controller:
         """The scenario's controller, built by its class's ``from_plant`` on ``plant``."""
@@ -189,7 +174,8 @@ class RobotSim:
         if ik is not None:  # the arm's IK is its controller: designed on the new arm
             sim.controller = ik
         sim.engine = self._attach_engine(sim.plant) if self.engine is not None else None
-        sim.actuator, sim.sensor = sim._nonideal()  # a run's FIFOs and filter states are its own
+        # its own actuator and sensor: a run's FIFOs and filter states are not shared
+        sim.actuator, sim.sensor = _nonideal(self.scenario, sim.plant, sim.estimator.measured)
         return sim
 
     @classmethod
@@ -470,6 +456,24 @@ class RobotSim:
         if s.regression:
             doc["regression"] = s.regression
         return doc
+
+
+def _nonideal(scenario: Scenario, plant: Plant, measured: Any) -> tuple[ActuatorModel | None, SensorModel | None]:
+    """The scenario's actuator and sensor models for ``plant`` (None where ``[sim]`` leaves them out).
+
+    ``measured``: the estimator's measured state indices (the sensor's values are per state).
+    """
+    from shinro_ctrl.sim.nonideal import ActuatorModel, SensorModel
+
+    sim = scenario.sim
+    act = ActuatorModel.from_table(sim.actuator, plant.input_dim, plant.dt) if sim.actuator else None
+    full = tuple(measured) == tuple(range(plant.state_dim))
+    sen = (
+        SensorModel.from_table(sim.sensor, plant.state_dim, plant.dt, None if full else measured)
+        if sim.sensor
+        else None
+    )
+    return act, sen
 
 
 def _bound(value: Any, size: int) -> np.ndarray | None:
