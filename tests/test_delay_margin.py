@@ -55,6 +55,20 @@ def test_siso_delay_margin_is_python_controls_phase_margin_over_its_crossover(pe
     assert c.delay_margin_samples == pytest.approx(math.radians(pm) / wgc / pendulum.plant.dt, rel=1e-6)
 
 
+def test_with_several_gain_crossovers_the_margin_is_the_least_phase_over_frequency():
+    """A lightly damped resonance gives three crossovers (python-control's ``returnall``): the delay margin is the
+    minimum of ``(PM_c mod 360°) / ω_c`` over them."""
+    import control
+
+    L = control.tf([0.3 * 4, 0.3 * 0.2 * 4], [1, 0.2, 4, 0])  # 1.2 (s + 0.2) / (s (s² + 0.2 s + 4))
+    sys = control.ss(L)
+    _gm, pm, _sm, _wpc, wgc, _wms = control.stability_margins(L, returnall=True)
+    assert len(wgc) == 3
+    expected = min(math.radians(p % 360.0) / w for p, w in zip(pm, wgc, strict=True))
+    c = loop_margins((sys.A, sys.B), sys.C, dt=None).channels[0]
+    assert c.delay_margin == pytest.approx(expected, rel=1e-6)
+
+
 def _delayed_loop_radius(A, B, K, channel, d):
     """Spectral radius of ``x⁺ = A x + B u_applied`` with input ``channel`` applied ``d`` steps late (the others
     on time): the state carries the FIFO ``[u_{k−1}, …, u_{k−d}]`` of that input."""
