@@ -23,6 +23,8 @@ def test_continuous_integrator_loop_has_delay_margin_pi_over_2k(k):
     assert c.delay_margin_samples is None
 
 
+# python-control's disk margin evaluates the integrator's transfer function at its pole z = 1
+@pytest.mark.filterwarnings("ignore:divide by zero:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
 @pytest.mark.parametrize(("k", "dt"), [(10.0, 0.01), (3.0, 0.1)])
 def test_discrete_integrator_loop_matches_its_closed_form_in_samples(k, dt):
     """``L(z) = k dt/(z − 1)``: |e^{jθ} − 1| = 2 sin(θ/2) = k dt at θ = ω dt, and ∠L = −(π + θ)/2, so the
@@ -112,11 +114,11 @@ def test_design_prints_the_delay_margin_in_seconds_and_samples(capsys, pendulum)
 
 
 def _run_with_delay(steps: int, loop: str, where: str):
-    """The pendulum LQR from 0.05 rad for 1.5 s with the input (or the measurement) ``steps`` steps late."""
+    """The pendulum LQR from 0.05 rad for 1 s with the input (or the measurement) ``steps`` steps late."""
     doc = {
         "plant": {"type": "InvertedPendulum", "mass": 0.1, "length": 0.5, "damping": 0.01, "dt": 0.01},
         "controller": {"type": "LQR", "Q": [10, 1], "R": [0.1]},
-        "sim": {"duration": 1.5, "initial_state": [0.05, 0.0], where: {"delay": steps * 0.01}},
+        "sim": {"duration": 1.0, "initial_state": [0.05, 0.0], where: {"delay": steps * 0.01}},
     }
     if loop == "mujoco":
         doc["engine"] = {"type": "mujoco"}
@@ -127,15 +129,15 @@ def _run_with_delay(steps: int, loop: str, where: str):
     ("loop", "where"), [("standalone", "actuator"), ("mujoco", "actuator"), ("standalone", "sensor")]
 )
 def test_a_delay_just_below_the_margin_holds_the_pendulum_and_one_just_above_does_not(loop, where, pendulum):
-    """Margin 1.6 samples: 1 step late settles, 2 steps late falls (or diverges) within 1.5 s."""
+    """Margin 1.6 samples: 1 step late settles (ρ ≈ 0.97 per step), 2 steps late falls (ρ ≈ 1.05) within 1 s."""
     dm = loop_margins((pendulum.controller.A, pendulum.controller.B), pendulum.controller.K, dt=0.01).channels[0]
     below = math.floor(dm.delay_margin_samples)
     assert below == 1
     ok = _run_with_delay(below, loop, where)
-    assert ok.metrics["stable"] and abs(ok.x[-1, 0]) < 1e-3
+    assert ok.metrics["stable"] and abs(ok.x[-1, 0]) < 5e-3
     try:
         bad = _run_with_delay(below + 1, loop, where)
     except SimulationDiverged:
         return
     assert not bad.metrics["stable"]
-    assert np.max(np.abs(bad.x[-20:, 0])) > 0.5  # grew tenfold from 0.05 rad and still growing (ρ ≈ 1.05 per step)
+    assert np.max(np.abs(bad.x[-20:, 0])) > 0.25  # an oscillation grown fivefold from 0.05 rad
