@@ -71,13 +71,15 @@ class DelayLine:
     def __init__(self, steps: np.ndarray):
         self.steps = np.asarray(steps, dtype=np.intp).copy()
         p = self.steps.shape[0]
-        self._len = int(self.steps.max(initial=0)) + 1
-        self._buf = np.zeros((self._len, p))
+        self._len = L = int(self.steps.max(initial=0)) + 1
+        self._buf = np.zeros((L, p))
         self._flat = self._buf.reshape(-1)  # a view: np.take reads the ring through it
-        self._cols = np.arange(p, dtype=np.intp)
-        self._idx = np.zeros(p, dtype=np.intp)
         self._head = 0
         self.delayed = bool(self.steps.any())
+        self._uniform = bool((self.steps == self.steps[0]).all()) if p else True
+        # with per-channel delays: the flat indices of the samples to read, for each position of the head
+        heads = np.arange(L, dtype=np.intp)[:, None]
+        self._table = ((heads - self.steps[None, :]) % L) * p + np.arange(p, dtype=np.intp)[None, :]
 
     def reset(self, value: np.ndarray) -> None:
         """Fill the line with ``value`` ``(p,)``: the output before any input has travelled through."""
@@ -90,22 +92,23 @@ class DelayLine:
         self._buf[h] = value
         if not self.delayed:
             np.copyto(out, value)
-            return out
-        idx = self._idx
-        np.subtract(h, self.steps, out=idx)
-        np.mod(idx, self._len, out=idx)
-        idx *= self._cols.shape[0]
-        idx += self._cols
-        np.take(self._flat, idx, out=out, mode="clip")  # "raise" would buffer `out`
+        elif self._uniform:
+            np.copyto(out, self._buf[(h - int(self.steps[0])) % self._len])
+        else:
+            np.take(self._flat, self._table[h], out=out, mode="clip")  # "raise" would buffer `out`
         return out
 
 
-def _quantize(v: np.ndarray, q: np.ndarray, mask: np.ndarray, tmp: np.ndarray) -> None:
-    """``v ← q round(v / q)`` in place where ``mask`` (q > 0); ``q`` holds 1 where it is 0."""
+def _quantize(v: np.ndarray, q: np.ndarray, mask: np.ndarray | None, tmp: np.ndarray) -> None:
+    """``v ← q rint(v / q)`` in place (ties to even) where ``mask`` (q > 0; None: everywhere); ``q`` holds 1 where
+    it is 0."""
     np.divide(v, q, out=tmp)
-    np.round(tmp, out=tmp)
+    np.rint(tmp, out=tmp)
     tmp *= q
-    np.copyto(v, tmp, where=mask)
+    if mask is None:
+        np.copyto(v, tmp)
+    else:
+        np.copyto(v, tmp, where=mask)
 
 
 class ActuatorModel:
@@ -151,8 +154,8 @@ class ActuatorModel:
         self._rated = bool(np.isfinite(self.rate_limit).any())
         self._step_max = self.rate_limit * dt  # inf where unlimited: the clip is then the identity
         self._quantized = bool((self.quantization > 0).any())
-        self._qmask = self.quantization > 0
-        self._q = np.where(self._qmask, self.quantization, 1.0)
+        self._qmask = None if (self.quantization > 0).all() else self.quantization > 0
+        self._q = np.where(self.quantization > 0, self.quantization, 1.0)
         self._lagged = bool((self.lag > 0).any())
         with np.errstate(divide="ignore", over="ignore"):
             alpha = np.where(self.lag > 0, np.exp(-dt / np.where(self.lag > 0, self.lag, 1.0)), 0.0)
@@ -194,8 +197,9 @@ class ActuatorModel:
             w = self._w
             np.subtract(w, self._step_max, out=self._lo)
             np.add(w, self._step_max, out=self._hi)
-            np.clip(v, self._lo, self._hi, out=w)  # w_k = w_{k−1} + clip(v − w_{k−1}, ±r dt)
-            np.copyto(v, w)
+            np.minimum(v, self._hi, out=v)  # w_k = w_{k−1} + clip(v − w_{k−1}, ±r dt)
+            np.maximum(v, self._lo, out=v)
+            np.copyto(w, v)
         if self._quantized:
             _quantize(v, self._q, self._qmask, self._tmp)
         out = self._out
@@ -241,9 +245,9 @@ class SensorModel:
         self.delay, self.quantization = ch["delay"], ch["quantization"]
         self.delay_steps = np.array([delay_steps(float(d), dt) for d in self.delay], dtype=np.intp)
         self._line = DelayLine(self.delay_steps)
-        self._qmask = self.quantization > 0
-        self._quantized = bool(self._qmask.any())
-        self._q = np.where(self._qmask, self.quantization, 1.0)
+        self._quantized = bool((self.quantization > 0).any())
+        self._qmask = None if (self.quantization > 0).all() else self.quantization > 0
+        self._q = np.where(self.quantization > 0, self.quantization, 1.0)
         self._v = np.zeros(p)
         self._tmp = np.zeros(p)
         self._out = np.zeros(p)
