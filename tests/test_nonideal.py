@@ -243,3 +243,13 @@ def test_sensor_values_per_state_apply_to_the_measured_outputs_in_their_order():
     assert not np.array_equal(res.y[1], res.y[2])
     # the reading is the state a step back, within half a quantum plus the sensor noise (σ = 2 mm / 2 mrad)
     assert np.max(np.abs(res.y[2:, 0] - res.x[1:-1, 2])) < 5e-3 + 5 * 0.002
+
+
+def test_an_estimator_assigned_before_the_run_gets_the_sensor_on_its_own_outputs():
+    from shinro_ctrl.estimators import KalmanFilter
+
+    sim = RobotSim.from_config(_scenario("standalone", sensor={"quantization": [1e-2, 0.0]}))
+    sim.estimator = KalmanFilter.from_plant(sim.plant, Qn=[1e-4], Rn=[1e-6], measured=["theta"])
+    res = sim.run(0.1)
+    assert res.y.shape[1] == 1 and sim.sensor.states == (0,)
+    np.testing.assert_allclose(res.y[:, 0], 1e-2 * np.round(res.x[:, 0] / 1e-2), rtol=0, atol=1e-15)

@@ -224,6 +224,9 @@ class SensorModel:
         delay: Delay [s] per output (scalar or ``(p,)``), whole steps of ``dt``.
         quantization: Quantization step per output (0: none).
 
+    Attributes:
+        states: The state index each output measures when built by :meth:`from_table` (else None).
+
     Raises:
         InvalidArgument: a negative, NaN or infinite value, a wrong length, or a delay that is not a whole
             number of steps.
@@ -252,16 +255,16 @@ class SensorModel:
         self._tmp = np.zeros(p)
         self._out = np.zeros(p)
         self._primed = False
+        self.states: tuple[int, ...] | None = None  # the state each output measures, when built from_table
 
     @classmethod
     def from_table(cls, table: Mapping[str, Any], state_dim: int, dt: float, measured: Any = None) -> SensorModel:
         """From a ``[sim] sensor`` table (values per state ``(n,)``), for the outputs at the ``measured`` indices."""
         ch = nonideal_channels(table, SENSOR_KEYS, state_dim, dt, unit="one per state", what="sensor")
-        if measured is not None:
-            idx = np.asarray(measured, dtype=np.intp)
-            ch = {k: v[idx] for k, v in ch.items()}
-            return cls(idx.shape[0], dt, **ch)
-        return cls(state_dim, dt, **ch)
+        idx = np.arange(state_dim, dtype=np.intp) if measured is None else np.asarray(measured, dtype=np.intp)
+        sensor = cls(idx.shape[0], dt, **{k: v[idx] for k, v in ch.items()})
+        sensor.states = tuple(int(i) for i in idx)
+        return sensor
 
     def reset(self) -> None:
         """Forget the readings: the next one fills the delay line (the sensor repeats it until it arrives)."""

@@ -275,6 +275,9 @@ class RobotSim:
         if self.actuator is not None:
             self.actuator.reset(u_prev)  # at rest at the operating input
         if self.sensor is not None:
+            states = self.sensor.states
+            if states is not None and states != tuple(est.measured):  # another estimator: the scenario's sensor
+                self.sensor = _nonideal(self.scenario, plant, est.measured)[1]  # on the outputs it measures
             self.sensor.reset()
         # Output feedback (output_feedback.py): sensor/process noise and disturbances drawn once, before the loop.
         p = n if measured is None else measured.shape[0]
