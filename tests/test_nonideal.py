@@ -177,6 +177,8 @@ def test_ideal_scenarios_hold_no_models():
         ("actuator", {"delay": -0.01}, "'delay' must be >= 0"),
         ("actuator", {"delay": float("inf")}, "'delay' must be finite"),
         ("actuator", {"rate_limit": 0.0}, "'rate_limit' must be > 0 (inf: none)"),
+        ("actuator", {"delay": 1e308}, "is inf steps of dt = 0.01 s; the limit is 100,000"),
+        ("actuator", {"quantization": 1e-320}, "must be 0 (none) or >= 1e-100"),
         ("actuator", {"delya": 0.01}, "unknown key 'delya'; did you mean 'delay'?"),
         ("actuator", {"lag": [0.1, 0.2]}, "a list of 1 (one per input), got 2 values"),
         ("actuator", {"lag": "0.1"}, "'lag' must be a number"),

@@ -9,7 +9,8 @@ constructors (:mod:`shinro_ctrl.sim.nonideal`), are:
   (a delay between two whole steps is refused naming the two nearest valid
   ones: a rounded delay would silently move a stability boundary);
 * ``lag`` [s] (time constant τ) ``>= 0`` (0: none);
-* ``quantization`` (the step q, in the channel's unit) ``>= 0`` (0: none);
+* ``quantization`` (the step q, in the channel's unit) 0 (none) or
+  ``>= 1e-100`` (:data:`MIN_QUANTUM`);
 * ``rate_limit`` (r, the channel's unit per second) ``> 0``; ``inf`` means none.
 
 Every value must be a finite number (but ``rate_limit = inf``).
@@ -26,12 +27,14 @@ import numpy as np
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.validation import did_you_mean
 
-__all__ = ["ACTUATOR_KEYS", "MAX_DELAY_STEPS", "SENSOR_KEYS", "delay_steps", "nonideal_channels"]
+__all__ = ["ACTUATOR_KEYS", "MAX_DELAY_STEPS", "MIN_QUANTUM", "SENSOR_KEYS", "delay_steps", "nonideal_channels"]
 
 ACTUATOR_KEYS = ("delay", "lag", "quantization", "rate_limit")
 SENSOR_KEYS = ("delay", "quantization")
 #: Longest delay [steps]: the FIFO holds this many samples per channel.
 MAX_DELAY_STEPS = 100_000
+#: Smallest quantization step: ``y / q`` stays finite for any value a loop can hold (|y| < 1e208).
+MIN_QUANTUM = 1e-100
 _STEP_RTOL = 1e-9
 
 
@@ -45,6 +48,10 @@ def delay_steps(delay: float, dt: float, what: str = "delay") -> int:
     if not math.isfinite(delay) or delay < 0:
         raise InvalidArgument(f"{what} must be a finite number of seconds >= 0, got {delay!r}")
     ratio = delay / dt
+    if ratio > MAX_DELAY_STEPS + 0.5:
+        raise InvalidArgument(
+            f"{what} = {delay:g} s is {ratio:.3g} steps of dt = {dt:g} s; the limit is {MAX_DELAY_STEPS:,}"
+        )
     steps = round(ratio)
     if abs(ratio - steps) > _STEP_RTOL * max(1.0, ratio):
         lo, hi = math.floor(ratio) * dt, math.ceil(ratio) * dt
@@ -52,8 +59,6 @@ def delay_steps(delay: float, dt: float, what: str = "delay") -> int:
             f"{what} = {delay:g} s is not a whole number of steps of dt = {dt:g} s ({ratio:.6g} steps): "
             f"use {lo:g} s or {hi:g} s"
         )
-    if steps > MAX_DELAY_STEPS:
-        raise InvalidArgument(f"{what} = {delay:g} s is {steps:,} steps; the limit is {MAX_DELAY_STEPS:,}")
     return int(steps)
 
 
@@ -76,6 +81,8 @@ def _values(key: str, value: Any, size: int, unit: str, what: str) -> np.ndarray
             raise InvalidArgument(f"{what}: '{key}' must be finite, got {value!r}")
         if (arr < 0).any():
             raise InvalidArgument(f"{what}: '{key}' must be >= 0 (0: none), got {value!r}")
+        if key == "quantization" and ((arr > 0) & (arr < MIN_QUANTUM)).any():
+            raise InvalidArgument(f"{what}: 'quantization' must be 0 (none) or >= {MIN_QUANTUM:g}, got {value!r}")
     return arr
 
 

@@ -157,10 +157,11 @@ class ActuatorModel:
         self._qmask = None if (self.quantization > 0).all() else self.quantization > 0
         self._q = np.where(self.quantization > 0, self.quantization, 1.0)
         self._lagged = bool((self.lag > 0).any())
-        with np.errstate(divide="ignore", over="ignore"):
-            alpha = np.where(self.lag > 0, np.exp(-dt / np.where(self.lag > 0, self.lag, 1.0)), 0.0)
-        self._alpha = alpha  # u_a(t_{k+1}) = s + (u_a(t_k) − s) α
-        self._beta = np.where(self.lag > 0, self.lag / dt * (1.0 - alpha), 0.0)  # the step's mean: s + (u_a − s) β
+        with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+            x = np.where(self.lag > 0, dt / np.where(self.lag > 0, self.lag, 1.0), np.inf)  # dt/τ; inf: no lag
+            self._alpha = np.exp(-x)  # u_a(t_{k+1}) = s + (u_a(t_k) − s) α
+            beta = -np.expm1(-x) / x  # (τ/dt)(1 − α), accurate for τ ≫ dt too
+        self._beta = np.where(np.isfinite(x), beta, 0.0)  # the step's mean: s + (u_a − s) β
         self._v = np.zeros(m)
         self._w = np.zeros(m)
         self._a = np.zeros(m)
