@@ -141,3 +141,15 @@ def test_a_delay_just_below_the_margin_holds_the_pendulum_and_one_just_above_doe
         return
     assert not bad.metrics["stable"]
     assert np.max(np.abs(bad.x[-20:, 0])) > 0.25  # an oscillation grown fivefold from 0.05 rad
+
+
+def test_design_compares_the_scenarios_loop_delay_with_the_margin(tmp_path, capsys):
+    path = tmp_path / "late.toml"
+    path.write_text(
+        '[plant]\ntype = "InvertedPendulum"\nmass = 0.1\nlength = 0.5\ndamping = 0.01\ndt = 0.01\n'
+        '[controller]\ntype = "LQR"\nQ = [10, 1]\nR = [0.1]\n'
+        "[sim]\nactuator = { delay = 0.01 }\nsensor = { delay = [0.01, 0.0] }\n"
+    )
+    assert main(["design", "lqr", str(path)]) == 0
+    line = capsys.readouterr().out.splitlines()[-1]
+    assert line.startswith("  tau: at most 0.02 s (2 steps) of 0.01599 s (OUTSIDE")
