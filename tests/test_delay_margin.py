@@ -104,15 +104,6 @@ def test_whole_samples_below_the_margin_are_stable_and_the_next_is_not(which, re
         assert _delayed_loop_radius(A, B, K, i, below + 1) > 1.0
 
 
-def test_design_prints_the_delay_margin_in_seconds_and_samples(capsys, pendulum):
-    c = loop_margins((pendulum.controller.A, pendulum.controller.B), pendulum.controller.K, dt=0.01).channels[0]
-    assert main(["design", "lqr", "pendulum_lqr.toml"]) == 0
-    out = capsys.readouterr().out
-    row = next(line for line in out.splitlines() if line.strip().startswith("tau "))
-    assert "DM [s]" in out and "DM [smp]" in out
-    assert row.split()[-2:] == [f"{c.delay_margin:.4g}", f"{c.delay_margin_samples:.4g}"]
-
-
 def _run_with_delay(steps: int, loop: str, where: str):
     """The pendulum LQR from 0.05 rad for 1 s with the input (or the measurement) ``steps`` steps late."""
     doc = {
@@ -143,7 +134,8 @@ def test_a_delay_just_below_the_margin_holds_the_pendulum_and_one_just_above_doe
     assert np.max(np.abs(bad.x[-20:, 0])) > 0.25  # an oscillation grown fivefold from 0.05 rad
 
 
-def test_design_compares_the_scenarios_loop_delay_with_the_margin(tmp_path, capsys):
+def test_design_prints_the_margin_and_the_scenarios_loop_delay_against_it(tmp_path, capsys, pendulum):
+    c = loop_margins((pendulum.controller.A, pendulum.controller.B), pendulum.controller.K, dt=0.01).channels[0]
     path = tmp_path / "late.toml"
     path.write_text(
         '[plant]\ntype = "InvertedPendulum"\nmass = 0.1\nlength = 0.5\ndamping = 0.01\ndt = 0.01\n'
@@ -151,5 +143,8 @@ def test_design_compares_the_scenarios_loop_delay_with_the_margin(tmp_path, caps
         "[sim]\nactuator = { delay = 0.01 }\nsensor = { delay = [0.01, 0.0] }\n"
     )
     assert main(["design", "lqr", str(path)]) == 0
-    line = capsys.readouterr().out.splitlines()[-1]
-    assert line.startswith("  tau: at most 0.02 s (2 steps) of 0.01599 s (OUTSIDE")
+    lines = capsys.readouterr().out.splitlines()
+    assert any("DM [s] DM [smp]" in line for line in lines)
+    row = next(line for line in lines if line.strip().startswith("tau "))
+    assert row.split()[-2:] == [f"{c.delay_margin:.4g}", f"{c.delay_margin_samples:.4g}"]
+    assert lines[-1].startswith("  tau: at most 0.02 s (2 steps) of 0.01599 s (OUTSIDE")

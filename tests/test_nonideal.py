@@ -80,7 +80,7 @@ def test_sensor_quantizes_then_delays_and_repeats_its_first_reading():
 
 
 def _step_peak_bytes(m: int) -> int:
-    """Peak memory traced while stepping an actuator and a sensor of ``m`` channels (every stage on) 50 times."""
+    """Peak memory traced while stepping an actuator and a sensor of ``m`` channels (every stage on) 20 times."""
     act = ActuatorModel(m, 0.01, delay=np.arange(m) % 3 * 0.01, lag=0.02, quantization=1e-3, rate_limit=5.0)
     sen = SensorModel(m, 0.01, delay=0.02, quantization=np.arange(m) % 2 * 1e-3)
     u = np.linspace(-1, 1, m)
@@ -92,7 +92,7 @@ def _step_peak_bytes(m: int) -> int:
     try:
         before = tracemalloc.get_traced_memory()[0]
         tracemalloc.reset_peak()
-        for _ in range(50):
+        for _ in range(20):
             act(u)
             sen(u)
         return tracemalloc.get_traced_memory()[1] - before
