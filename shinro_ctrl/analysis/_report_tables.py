@@ -137,6 +137,8 @@ def _margin_table(a: DesignAnalysis) -> list[str]:
                 f"{c.disk_margin:.3f}",
                 f"[{_num(c.disk_gain_margin[0], '.3g')}, {_num(c.disk_gain_margin[1], '.3g')}]",
                 f"±{c.disk_phase_margin:.1f}",
+                _num(c.delay_margin, ".4g")
+                + ("" if c.delay_margin_samples is None else f" ({_num(c.delay_margin_samples, '.3g')} samples)"),
             ]
         )
     parts.append(
@@ -151,13 +153,16 @@ def _margin_table(a: DesignAnalysis) -> list[str]:
                 "disk α",
                 "disk gains",
                 "disk phase [°]",
+                "delay margin [s]",
             ],
             crow,
         )
     )
     parts.append(
         "<p>Gain margins are factors on the input: the loop stays stable for gains in (GM low, GM high), "
-        "one loop at a time. "
+        "one loop at a time. The delay margin is the largest pure delay at that input the loop tolerates "
+        "(min over the gain crossovers of the phase to −1 over the crossover frequency; MATLAB's allmargin "
+        "DelayMargin); in samples of dt for a discrete design. "
         + (
             f"Simultaneous disk margin α = {mg.disk_margin:.3f} (gains [{_num(mg.disk_gain_margin[0], '.3g')}, "
             f"{_num(mg.disk_gain_margin[1], '.3g')}], phase ±{mg.disk_phase_margin:.1f}° on all inputs at once). "

@@ -17,6 +17,18 @@ loop seen at that input (loop-at-a-time). This module reports, per channel,
   ``|(f − 1)/(f + 1)| < α/2``, i.e. gains in ``[(2 − α)/(2 + α), (2 + α)/(2 − α)]``
   and phases up to ``2 atan(α/2)``;
 
+* the delay margin: the largest pure delay ``τ`` the loop tolerates,
+  ``L_i → L_i e^{−jωτ}`` (``L_i z^{−d}`` when discrete, ``d = τ/dt`` samples).
+  A delay rotates ``L_i(jω)`` clockwise by ``ωτ`` and leaves ``|L_i|`` alone,
+  so the loop first reaches ``−1`` at a gain crossover ``ω_c`` (``|L_i| = 1``)
+  once ``ω_c τ`` equals the clockwise rotation from ``L_i(jω_c)`` to ``−1``,
+  ``θ_c = (∠L_i(jω_c) + 180°) mod 360°``. Hence, as MATLAB's ``allmargin``
+  ``DelayMargin`` (the reference), ``τ_max = min_c θ_c / ω_c`` [s], and
+  ``τ_max / dt`` in samples for a discrete loop: every delay ``< τ_max``
+  (every whole number of samples ``< τ_max/dt``) keeps the loop stable.
+  With one crossover ``θ_c`` is the phase margin; for ``L(s) = k/s``,
+  ``τ_max = (π/2)/k``;
+
 and for the whole MIMO loop the simultaneous disk margin (all channels at
 once), the sensitivity peak ``Ms = ‖S‖∞ = max_ω σ̄((I + L(e^{jω dt}))⁻¹)`` and
 the complementary peak ``Mt = ‖T‖∞``, ``T = I − S``. Frequencies are in rad/s
@@ -37,6 +49,7 @@ from shinro_ctrl.validation import as_matrix, state_space
 __all__ = [
     "ChannelMargins",
     "LoopMargins",
+    "delay_margin",
     "frequency_grid",
     "loop_margins",
     "loop_statespace",
@@ -59,6 +72,9 @@ class ChannelMargins:
         disk_margin: Disk margin α (balanced).
         disk_gain_margin: ``(low, high)`` gain factors it guarantees.
         disk_phase_margin: Phase it guarantees [deg].
+        delay_margin: Largest pure delay the loop tolerates [s] (``inf`` if |L| never crosses 1).
+        delay_margin_samples: The same in samples of ``dt`` for a discrete loop (None: continuous).
+        w_delay_margin: Gain crossover frequency that binds the delay margin [rad/s] (nan if none).
     """
 
     name: str
@@ -70,6 +86,9 @@ class ChannelMargins:
     disk_margin: float
     disk_gain_margin: tuple[float, float]
     disk_phase_margin: float
+    delay_margin: float = math.inf
+    delay_margin_samples: float | None = None
+    w_delay_margin: float = math.nan
 
     @property
     def gain_margin_db(self) -> tuple[float, float]:
@@ -106,16 +125,23 @@ class LoopMargins:
         w = max([10, *(len(c.name) for c in self.channels)])  # names whole (elbow_motor), columns aligned
         head = (
             f"  {'input':{w}s} {'GM low':>9s} {'GM high':>9s} {'ω_pc':>8s} {'PM [°]':>8s} {'ω_gc':>8s} "
-            f"{'disk α':>7s} {'disk GM':>15s} {'disk PM':>8s}"
+            f"{'disk α':>7s} {'disk GM':>15s} {'disk PM':>8s} {'DM [s]':>9s}"
+            + (f" {'DM [smp]':>8s}" if self.dt is not None else "")
         )
         lines = [head]
         for c in self.channels:
             lines.append(
                 f"  {c.name:{w}s} {_f(c.gain_margin_low):>9s} {_f(c.gain_margin_high):>9s} "
                 f"{_f(c.w_phase_crossover):>8s} {_f(c.phase_margin):>8s} {_f(c.w_gain_crossover):>8s} "
-                f"{c.disk_margin:7.3f} {_pair(c.disk_gain_margin):>15s} {c.disk_phase_margin:7.1f}°"
+                f"{c.disk_margin:7.3f} {_pair(c.disk_gain_margin):>15s} {c.disk_phase_margin:7.1f}° "
+                f"{_f(c.delay_margin):>9s}"
+                + (f" {_f(c.delay_margin_samples or math.inf):>8s}" if self.dt is not None else "")
             )
         lines.append("  (gain margins as factors: the loop stays stable for input gains in (GM low, GM high))")
+        lines.append(
+            "  (DM: delay margin, the largest pure delay at that input the loop tolerates"
+            + (" [s] and [samples of dt])" if self.dt else " [s])")
+        )
         if len(self.channels) > 1:
             lines.append(
                 f"  simultaneous disk margin α = {self.disk_margin:.3f}: gains {_pair(self.disk_gain_margin)}, "
@@ -303,6 +329,28 @@ def _crossings(Ls: Any, dt: float | None, w: np.ndarray) -> tuple[list[tuple[flo
     return _dedupe(crit), _dedupe(pms)
 
 
+def delay_margin(Ls: Any, dt: float | None, crossovers: Any) -> tuple[float, float]:
+    """``(τ_max [s], ω [rad/s])``: the delay margin of a SISO loop and the gain crossover that binds it.
+
+    ``τ_max = min_c ((∠L(jω_c) + 180°) mod 360°) / ω_c`` over the gain crossovers ``ω_c`` (module
+    docstring); ``(inf, nan)`` without a crossover at ``ω > 0``.
+
+    Args:
+        Ls: SISO loop (a python-control StateSpace).
+        dt: Sampling time [s] (None: continuous).
+        crossovers: Gain crossover frequencies [rad/s] (``|L| = 1``).
+    """
+    best = (math.inf, math.nan)
+    ws = np.asarray([x for x in np.atleast_1d(crossovers) if x > 0], dtype=float)
+    if not ws.size:
+        return best
+    for x, v in zip(ws, _siso_response(Ls, dt, ws), strict=True):
+        theta = math.radians((math.degrees(math.atan2(v.imag, v.real)) + 180.0) % 360.0)
+        if theta / x < best[0]:
+            best = (float(theta / x), float(x))
+    return best
+
+
 def _dedupe(pairs: list[tuple[float, float]]) -> list[tuple[float, float]]:
     out: list[tuple[float, float]] = []
     for v, x in sorted(pairs, key=lambda p: p[1]):
@@ -403,8 +451,22 @@ def loop_margins(
         binding = low if (high[0] == math.inf or (low[0] > 0 and abs(_db(low[0])) < abs(_db(high[0])))) else high
         pmv, wg = min(pms, default=(math.inf, math.nan))
         alpha, dgm, dpm = _disk(Li, w)
+        dm, w_dm = delay_margin(Li, dt, [x for _, x in pms])
         channels.append(
-            ChannelMargins(names[i], float(low[0]), float(high[0]), pmv, float(binding[1]), wg, alpha, dgm, dpm)
+            ChannelMargins(
+                names[i],
+                float(low[0]),
+                float(high[0]),
+                pmv,
+                float(binding[1]),
+                wg,
+                alpha,
+                dgm,
+                dpm,
+                dm,
+                None if dt is None else dm / dt,
+                w_dm,
+            )
         )
     if m > 1:
         alpha, dgm, dpm = simultaneous_disk_margin(A, B, K, dt, w)

@@ -366,6 +366,7 @@ def render_report(
         ("ωn [rad/s]", f"{_num(lo)} – {_num(hi)}"),
         ("disk margin α", f"{a.margins.disk_margin:.3f}"),
         ("min PM [°]", _num(min(c.phase_margin for c in a.margins.channels), ".1f")),
+        ("min delay margin [s]", _num(min(c.delay_margin for c in a.margins.channels), ".3g")),
         ("Ms", f"{a.margins.Ms:.3g}"),
         ("controllable", "yes" if a.structure.controllable else "NO"),
     ]

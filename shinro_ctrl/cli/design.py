@@ -158,6 +158,28 @@ def _model_gap(sim: Any) -> ModelGap | None:
         engine.data.ctrl[:] = ctrl_now
 
 
+def _print_loop_delay(sim, analysis) -> None:
+    """The pure delay the scenario's ``[sim] actuator`` / ``sensor`` put in each input's loop, against its margin.
+
+    At input ``i`` the loop carries the actuator's delay ``d_i`` plus the sensor's: exactly when every measured
+    state is delayed alike, at most its largest delay otherwise (the bound is printed as such).
+    """
+    act, sen = sim.actuator, sim.sensor
+    if (act is None or not act.delay.any()) and (sen is None or not sen.delay.any()):
+        return
+    dt = sim.plant.dt
+    s_max = float(sen.delay.max()) if sen is not None and sen.delay.size else 0.0
+    uniform = sen is None or not sen.delay.size or bool((sen.delay == sen.delay[0]).all())
+    print("delay in the loop ([sim] actuator and sensor) against the delay margin:")
+    for i, c in enumerate(analysis.margins.channels[: sim.plant.input_dim]):
+        d = (float(act.delay[i]) if act is not None else 0.0) + s_max
+        verdict = "inside" if d < c.delay_margin else "OUTSIDE: expect the loop to lose stability"
+        print(
+            f"  {c.name}: {'' if uniform else 'at most '}{d:g} s ({round(d / dt)} steps) of {c.delay_margin:.4g} s "
+            f"({verdict}; a lag adds phase the margin does not count)"
+        )
+
+
 def _design_analysis(args: argparse.Namespace, sim) -> int:
     """``design``: poles, structure, margins, linear step metrics; ``--report`` and ``--tradeoff``."""
     from shinro_ctrl.analysis import analyze_controller
@@ -179,6 +201,7 @@ def _design_analysis(args: argparse.Namespace, sim) -> int:
     gap = _model_gap(sim)
     if gap is not None:
         print(gap.format())
+    _print_loop_delay(sim, analysis)
     if args.report:
         from shinro_ctrl.analysis.report import write_report
         from shinro_ctrl.sim import RobotSim

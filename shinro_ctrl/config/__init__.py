@@ -16,13 +16,15 @@ scenario that loads is one that can be built.
 The package's modules: :mod:`~shinro_ctrl.config.schema` (tables, keys and the
 dataclasses), :mod:`~shinro_ctrl.config.parse` (loading; ``[plant]``,
 ``[engine]``, ``[controller]``, ``[plan]``, ``[regression]``),
-:mod:`~shinro_ctrl.config.sim_table` (``[sim]``, ``[estimator]``),
+:mod:`~shinro_ctrl.config.sim_table` (``[sim]``, ``[estimator]``; ``[sim] actuator`` and ``sensor`` in
+:mod:`~shinro_ctrl.config.nonideal_table`),
 :mod:`~shinro_ctrl.config.strict` (strict value types) and
 :mod:`~shinro_ctrl.config.context` (error messages). Every name is importable
 from ``shinro_ctrl.config``.
 """
 
 from shinro_ctrl.config.context import ConfigContext, whole_steps
+from shinro_ctrl.config.nonideal_table import ACTUATOR_KEYS, SENSOR_KEYS, delay_steps, nonideal_channels
 from shinro_ctrl.config.parse import load_scenario, parse_scenario
 from shinro_ctrl.config.schema import (
     ENGINE_KEYS,
@@ -48,10 +50,12 @@ from shinro_ctrl.config.strict import (
 )
 
 __all__ = [
+    "ACTUATOR_KEYS",
     "ENGINE_KEYS",
     "MAX_ELEMENTS",
     "MAX_NESTING",
     "REFERENCE_KINDS",
+    "SENSOR_KEYS",
     "SIM_KEYS",
     "SIZE_LIMITS",
     "TABLES",
@@ -64,7 +68,9 @@ __all__ = [
     "Scenario",
     "SimConfig",
     "check_value",
+    "delay_steps",
     "load_scenario",
+    "nonideal_channels",
     "parse_scenario",
     "signature_annotations",
     "table_annotations",

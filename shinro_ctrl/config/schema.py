@@ -33,6 +33,8 @@ SIM_KEYS = (
     "sensor_noise",
     "process_noise",
     "disturbance",
+    "actuator",
+    "sensor",
 )
 REFERENCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # kind: (required keys, optional keys)
@@ -103,6 +105,11 @@ class SimConfig:
         disturbance: Parsed ``disturbance`` entries
             (:class:`~shinro_ctrl.disturbances.DisturbanceSpec`); see
             :mod:`shinro_ctrl.disturbances`.
+        actuator: The ``actuator`` table as written (checked): ``delay``, ``lag``,
+            ``quantization``, ``rate_limit``, each a scalar or one value per input
+            (:class:`~shinro_ctrl.sim.nonideal.ActuatorModel`).
+        sensor: The ``sensor`` table as written (checked): ``delay``, ``quantization``,
+            each a scalar or one value per state (:class:`~shinro_ctrl.sim.nonideal.SensorModel`).
     """
 
     duration: float = 5.0
@@ -116,6 +123,8 @@ class SimConfig:
     sensor_noise: list[float] | None = None
     process_noise: list[float] | None = None
     disturbance: DisturbanceTables | None = None
+    actuator: dict[str, Any] | None = None
+    sensor: dict[str, Any] | None = None
 
 
 @dataclass

@@ -55,6 +55,7 @@ def _parse_sim(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> SimConfig:
         if any(v < 0 for v in sim.measurement_noise):
             raise ctx.error("sim", "'measurement_noise' standard deviations must be >= 0")
     _parse_output_feedback(ctx, st, sim, probe)
+    _parse_nonideal(ctx, st, sim, probe)
     if "seed" in st:
         if isinstance(st["seed"], bool) or not isinstance(st["seed"], int) or st["seed"] < 0:
             raise ctx.error("sim", f"'seed' must be a non-negative integer, got {st['seed']!r}")
@@ -151,6 +152,23 @@ def _parse_output_feedback(ctx: _Ctx, st: Mapping[str, Any], sim: SimConfig, pro
             sim.disturbance = parse_disturbances(st["disturbance"], probe, "[sim] disturbance")
         except ConfigError as exc:
             raise ctx.error("", str(exc)) from None
+
+
+def _parse_nonideal(ctx: _Ctx, st: Mapping[str, Any], sim: SimConfig, probe: Any) -> None:
+    """``[sim] actuator`` (one value per input) and ``sensor`` (one per state): see :mod:`.nonideal_table`."""
+    from shinro_ctrl.config.nonideal_table import ACTUATOR_KEYS, SENSOR_KEYS, nonideal_channels
+    from shinro_ctrl.errors import InvalidArgument
+
+    for key, keys, size, unit in (
+        ("actuator", ACTUATOR_KEYS, probe.input_dim, "one per input"),
+        ("sensor", SENSOR_KEYS, probe.state_dim, "one per state"),
+    ):
+        if key in st:
+            try:
+                nonideal_channels(st[key], keys, size, probe.dt, unit=unit, what=key)
+            except InvalidArgument as exc:
+                raise ctx.error("sim", str(exc)) from None
+            setattr(sim, key, dict(st[key]))
 
 
 def _parse_estimator(ctx: _Ctx, doc: Mapping[str, Any], sim: SimConfig, probe: Any) -> EstimatorConfig | None:

@@ -10,11 +10,13 @@ the metrics that regression baselines are made of.
 
 The package's modules: :mod:`~shinro_ctrl.sim.robot` (the loop),
 :mod:`~shinro_ctrl.sim.result` (:class:`SimResult`), :mod:`~shinro_ctrl.sim.reference`
-(:class:`Reference`) and :mod:`~shinro_ctrl.sim.metrics`; every name is importable from
+(:class:`Reference`), :mod:`~shinro_ctrl.sim.metrics` and :mod:`~shinro_ctrl.sim.nonideal`
+(:class:`ActuatorModel`, :class:`SensorModel`: ``[sim] actuator`` and ``sensor``); every name is importable from
 ``shinro_ctrl.sim``.
 """
 
 from shinro_ctrl.sim.metrics import NEVER_METRICS, bound_excess, compute_metrics, format_metrics, response_metrics
+from shinro_ctrl.sim.nonideal import ActuatorModel, SensorModel
 from shinro_ctrl.sim.reference import Reference
 from shinro_ctrl.sim.result import SimResult
 from shinro_ctrl.sim.robot import MAX_STEPS, RobotSim
@@ -22,8 +24,10 @@ from shinro_ctrl.sim.robot import MAX_STEPS, RobotSim
 __all__ = [
     "MAX_STEPS",
     "NEVER_METRICS",
+    "ActuatorModel",
     "Reference",
     "RobotSim",
+    "SensorModel",
     "SimResult",
     "bound_excess",
     "compute_metrics",

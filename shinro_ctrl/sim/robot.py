@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from shinro_ctrl.controllers.base import Controller
     from shinro_ctrl.engine import MujocoEngine
     from shinro_ctrl.plants.base import Plant
+    from shinro_ctrl.sim.nonideal import ActuatorModel, SensorModel
 
 __all__ = ["MAX_STEPS", "RobotSim"]
 
@@ -70,6 +71,10 @@ class RobotSim:
             :class:`~shinro_ctrl.estimators.full_state.FullState`); assign
             another one before :meth:`run` to close the loop through it.
         reference: The :class:`~shinro_ctrl.sim.Reference`.
+        actuator: The :class:`~shinro_ctrl.sim.nonideal.ActuatorModel` between the
+            controller and the plant (``[sim] actuator``), or None (ideal).
+        sensor: The :class:`~shinro_ctrl.sim.nonideal.SensorModel` between the plant
+            and the estimator (``[sim] sensor``), or None (ideal).
     """
 
     def __init__(self, scenario: Scenario, *, engine: str | None = None):
@@ -100,6 +105,7 @@ class RobotSim:
         self.reference = Reference(sim.reference, self.initial_state if _moves(sim.reference) else self.operating_point)
         names = sim.track or list(getattr(self.plant, "tracked_states", None) or self._default_tracked())
         self.tracked = [self.plant.state_names.index(s) for s in names]
+        self.actuator, self.sensor = _nonideal(scenario, self.plant, self.estimator.measured)
 
     def _design(self, plant: Plant) -> Controller:
         """The scenario's controller, built by its class's ``from_plant`` on ``plant``."""
@@ -170,6 +176,8 @@ class RobotSim:
         if ik is not None:  # the arm's IK is its controller: designed on the new arm
             sim.controller = ik
         sim.engine = self._attach_engine(sim.plant) if self.engine is not None else None
+        # its own actuator and sensor: a run's FIFOs and filter states are not shared
+        sim.actuator, sim.sensor = _nonideal(self.scenario, sim.plant, sim.estimator.measured)
         return sim
 
     @classmethod
@@ -266,6 +274,13 @@ class RobotSim:
         # y = C x (+ noise): the rows of the identity at the estimator's measured indices
         measured = None if tuple(est.measured) == tuple(range(n)) else np.asarray(est.measured, dtype=np.intp)
         u_prev = self._operating_input()
+        if self.actuator is not None:
+            self.actuator.reset(u_prev)  # at rest at the operating input
+        if self.sensor is not None:
+            states = self.sensor.states
+            if states is not None and states != tuple(est.measured):  # another estimator: the scenario's sensor
+                self.sensor = _nonideal(self.scenario, plant, est.measured)[1]  # on the outputs it measures
+            self.sensor.reset()
         # Output feedback (output_feedback.py): sensor/process noise and disturbances drawn once, before the loop.
         p = n if measured is None else measured.shape[0]
         sig = loop_signals(self.scenario, plant, t, p)
@@ -301,6 +316,7 @@ class RobotSim:
         n, dt, steps = plant.state_dim, plant.dt, U.shape[0]
         x, u_prev = s.x, s.u_prev
         clamps, clamped = s.clamps, s.clamped
+        actuator, sensor_model = self.actuator, self.sensor
         estimate = self.estimator.update
         bar = Progress(steps, f"{self.scenario.name} ({self.loop})", progress, unit="steps")
         clock = time.perf_counter
@@ -318,7 +334,11 @@ class RobotSim:
                     y = y[measured]
                 if sensor is not None:
                     y = y + sensor[k]
-                Y[k] = y
+                if sensor_model is not None:
+                    Y[k] = sensor_model(y)  # quantized and delayed: what the estimator is given
+                    y = Y[k]  # the row, not the model's buffer that the next reading overwrites
+                else:
+                    Y[k] = y
                 x_hat = estimate(y, u_prev)  # the controller sees the estimate, never the plant's state
                 X_hat[k] = x_hat[:n]  # an offset-free estimator returns [x̂; d̂]
                 t0 = clock()
@@ -328,7 +348,8 @@ class RobotSim:
                 u_prev = u
                 for body, F, _ in forces:
                     engine.set_body_force(body, F[k])
-                plant.step(u if extra is None else u + extra[k])  # the plant feels noise and disturbances
+                u_in = u if actuator is None else actuator(u)  # delayed, rate-limited, quantized, lagged
+                plant.step(u_in if extra is None else u_in + extra[k])  # the plant feels noise and disturbances
                 x = plant.get_state()
                 X[k + 1] = x
                 if clamps is not None:
@@ -350,7 +371,8 @@ class RobotSim:
         steps, n = s.U.shape[0], self.plant.state_dim
         y = s.x + s.noise * s.rng.standard_normal(n) if s.noise is not None else s.x
         y = y[s.measured] if s.measured is not None else y
-        s.Y[steps] = y + s.sig.sensor[steps] if s.sig.sensor is not None else y
+        y = y + s.sig.sensor[steps] if s.sig.sensor is not None else y
+        s.Y[steps] = self.sensor(y) if self.sensor is not None else y
         s.X_hat[steps] = self.estimator.update(s.Y[steps], s.u_prev)[:n]
         s.R[steps] = self.reference(s.t[steps])
 
@@ -457,12 +479,33 @@ class RobotSim:
                 sim[key] = getattr(s.sim, key)
         if s.sim.disturbance:
             sim["disturbance"] = [d.as_table() for d in s.sim.disturbance]
+        for key in ("actuator", "sensor"):
+            if getattr(s.sim, key):
+                sim[key] = dict(getattr(s.sim, key))
         doc["sim"] = sim
         if s.estimator is not None:
             doc["estimator"] = {"type": s.estimator.type, **s.estimator.options}
         if s.regression:
             doc["regression"] = s.regression
         return doc
+
+
+def _nonideal(scenario: Scenario, plant: Plant, measured: Any) -> tuple[ActuatorModel | None, SensorModel | None]:
+    """The scenario's actuator and sensor models for ``plant`` (None where ``[sim]`` leaves them out).
+
+    ``measured``: the estimator's measured state indices (the sensor's values are per state).
+    """
+    from shinro_ctrl.sim.nonideal import ActuatorModel, SensorModel
+
+    sim = scenario.sim
+    act = ActuatorModel.from_table(sim.actuator, plant.input_dim, plant.dt) if sim.actuator else None
+    full = tuple(measured) == tuple(range(plant.state_dim))
+    sen = (
+        SensorModel.from_table(sim.sensor, plant.state_dim, plant.dt, None if full else measured)
+        if sim.sensor
+        else None
+    )
+    return act, sen
 
 
 def _bound(value: Any, size: int) -> np.ndarray | None:

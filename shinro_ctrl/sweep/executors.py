@@ -279,6 +279,8 @@ def batch_reason(nominal: Any, names: Sequence[str]) -> str | None:
         return "the controller sees an estimate (output feedback)"
     if sim.sensor_noise or sim.process_noise or sim.disturbance:
         return "the scenario adds sensor or process noise or a disturbance"
+    if sim.actuator or sim.sensor:
+        return "the scenario has a non-ideal actuator or sensor ([sim] actuator / sensor)"
     missing = [n for n in names if n not in nominal.plant.param_names]
     if missing:  # pragma: no cover - implied by batch_unsupported_reason
         return f"{missing[0]!r} is not a dynamics parameter"
