@@ -7,7 +7,7 @@ applied over the last step and returns ``x̂``; the controller maps ``(x̂, r)``
 and a controller part (tag ``ctl``), and writes the public ``NAME_step`` around them.
 
 The C contract of a part (``@N@`` in :attr:`Part.code` is replaced by the export's ``NAME``; the
-workspace type is ``@N@_workspace`` and a field ``f`` of a part tagged ``t`` is ``ws->t_f``):
+workspace type is ``@N@_workspace``, ``@U@`` is the upper-case name that prefixes the status macros, and a field ``f`` of a part tagged ``t`` is ``ws->t_f``):
 
 * estimator (tag ``est``)::
 
@@ -25,12 +25,12 @@ workspace type is ``@N@_workspace`` and a field ``f`` of a part tagged ``t`` is 
   ``x_hat`` as the estimator returns it, ``ref`` the ``NX`` reference state last given to
   ``@N@_set_reference``, ``u`` ``NU`` values. Returns a status (below).
 
-Status codes (bit flags, named in the header; a part returns an OR of them): ``@N@_OK`` 0,
-``@N@_INPUT_CLAMPED`` 1 (a saturation bound was active), ``@N@_SOLVER_MAX_ITER`` 2 (an iterative solver
-stopped at its iteration limit; ``u`` is its last iterate), ``@N@_PLAN_FINISHED`` 4 (a plan-tracking
-controller is past its plan and holds its final law); errors from ``@N@_ERROR`` (16) on:
-``@N@_NONFINITE_MEASUREMENT`` 16, ``@N@_NONFINITE_RESULT`` 32 (an internal value overflowed), both
-leaving the workspace as it was and writing the previous input to ``u``; ``@N@_BAD_ARGUMENT`` 64
+Status codes (bit flags, named in the header; a part returns an OR of them): ``@U@_OK`` 0,
+``@U@_INPUT_CLAMPED`` 1 (a saturation bound was active), ``@U@_SOLVER_MAX_ITER`` 2 (an iterative solver
+stopped at its iteration limit; ``u`` is its last iterate), ``@U@_PLAN_FINISHED`` 4 (a plan-tracking
+controller is past its plan and holds its final law); errors from ``@U@_ERROR`` (16) on:
+``@U@_NONFINITE_MEASUREMENT`` 16, ``@U@_NONFINITE_RESULT`` 32 (an internal value overflowed), both
+leaving the workspace as it was and writing the previous input to ``u``; ``@U@_BAD_ARGUMENT`` 64
 (a NULL pointer).
 
 Rules for the code (the assembler's tests check them): C99 that compiles with
@@ -53,9 +53,15 @@ import numpy as np
 
 from shinro_ctrl.errors import ExportError
 
-__all__ = ["CArray", "CField", "Part", "c_number", "casadi_source", "format_array"]
+__all__ = ["CArray", "CField", "Part", "c_number", "casadi_source", "fill", "format_array"]
 
 PLACEHOLDER = "@N@"
+UPPER = "@U@"
+
+
+def fill(text: str, name: str) -> str:
+    """``text`` with ``@N@`` replaced by ``name`` and ``@U@`` by ``name.upper()`` (the status macros' prefix)."""
+    return text.replace(PLACEHOLDER, name).replace(UPPER, name.upper())
 
 
 def c_number(v: float) -> str:
@@ -175,11 +181,11 @@ class Part:
             "",
         ]
         body = "\n".join(head) + "\n" + "\n".join(t.declaration(self.tag) for t in self.tables) + "\n" + self.code
-        return body.replace(PLACEHOLDER, name).rstrip() + "\n"
+        return fill(body, name).rstrip() + "\n"
 
     def tables_text(self, name: str) -> str:
         """The tables alone (what the data hash covers)."""
-        return "".join(t.declaration(self.tag) for t in self.tables).replace(PLACEHOLDER, name)
+        return fill("".join(t.declaration(self.tag) for t in self.tables), name)
 
 
 def casadi_source(functions: Sequence[object], name: str, stem: str) -> tuple[tuple[str, str], tuple[str, str]]:
@@ -220,6 +226,6 @@ def casadi_source(functions: Sequence[object], name: str, stem: str) -> tuple[tu
             os.chdir(cwd)
     pragma = (
         "/* CasADi's generated entry points take arguments a small function leaves unused. */\n"
-        "#if defined(__GNUC__)\n#pragma GCC diagnostic ignored \"-Wunused-parameter\"\n#endif\n"
+        '#if defined(__GNUC__)\n#pragma GCC diagnostic ignored "-Wunused-parameter"\n#endif\n'
     )
     return (f"{stem}.c", pragma + c_text), (f"{stem}.h", h_text)
