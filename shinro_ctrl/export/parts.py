@@ -6,8 +6,9 @@ applied over the last step and returns ``x̂``; the controller maps ``(x̂, r)``
 (:mod:`shinro_ctrl.export.assemble`) therefore takes exactly two parts, an estimator part (tag ``est``)
 and a controller part (tag ``ctl``), and writes the public ``NAME_step`` around them.
 
-The C contract of a part (``@N@`` in :attr:`Part.code` is replaced by the export's ``NAME``; the
-workspace type is ``@N@_workspace``, ``@U@`` is the upper-case name that prefixes the status macros, and a field ``f`` of a part tagged ``t`` is ``ws->t_f``):
+The C contract of a part (``@N@`` in :attr:`Part.code` is replaced by the export's ``NAME``, ``@U@`` by
+``NAME`` in upper case, the prefix of the status macros; the workspace type is ``@N@_workspace`` and a
+field ``f`` of a part tagged ``t`` is ``ws->t_f``):
 
 * estimator (tag ``est``)::
 
@@ -29,8 +30,8 @@ Status codes (bit flags, named in the header; a part returns an OR of them): ``@
 ``@U@_INPUT_CLAMPED`` 1 (a saturation bound was active), ``@U@_SOLVER_MAX_ITER`` 2 (an iterative solver
 stopped at its iteration limit; ``u`` is its last iterate), ``@U@_PLAN_FINISHED`` 4 (a plan-tracking
 controller is past its plan and holds its final law); errors from ``@U@_ERROR`` (16) on:
-``@U@_NONFINITE_MEASUREMENT`` 16, ``@U@_NONFINITE_RESULT`` 32 (an internal value overflowed), both
-leaving the workspace as it was and writing the previous input to ``u``; ``@U@_BAD_ARGUMENT`` 64
+``@U@_NONFINITE_MEASUREMENT`` 16 (nothing updated), ``@U@_NONFINITE_RESULT`` 32 (an internal value
+overflowed: reset before the next step), both writing the previous input to ``u``; ``@U@_BAD_ARGUMENT`` 64
 (a NULL pointer).
 
 Rules for the code (the assembler's tests check them): C99 that compiles with
@@ -75,7 +76,7 @@ def c_number(v: float) -> str:
         raise ExportError("a table of the exported controller holds NaN")
     if math.isinf(v):
         return "INFINITY" if v > 0 else "-INFINITY"
-    s = "%.17g" % v
+    s = f"{v:.17g}"
     if not any(c in s for c in ".en"):
         s += ".0"
     return s

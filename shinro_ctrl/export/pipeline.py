@@ -194,7 +194,7 @@ def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Rec
             "takes one set-point reference per step"
         )
     x_hat_dim = sim.estimator.n if not hasattr(est, "n_aug") else int(est.n_aug)
-    ctx = ExportContext(name, plant, ctrl, est, x_hat_dim)
+    ctx = ExportContext(name, plant, ctrl, est, x_hat_dim, sim.initial_covariance)
     est_part = exporter_for(est, "estimator").part(est, ctx)
     ctl_part = exporter_for(ctrl, "controller").part(ctrl, ctx)
     per_loop = -(-MIN_STEPS // len(sims))

@@ -35,6 +35,7 @@ class ExportContext:
         controller: The scenario's controller.
         estimator: The scenario's estimator.
         x_hat_dim: Length of the estimate the estimator hands the controller (``n``, or ``n + m``).
+        initial_covariance: The covariance the loop resets a filter with (the scenario's ``P0``), or None.
     """
 
     name: str
@@ -42,6 +43,7 @@ class ExportContext:
     controller: Controller
     estimator: Estimator
     x_hat_dim: int
+    initial_covariance: object = None
 
 
 class Exporter(Protocol):
