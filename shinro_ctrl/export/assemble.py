@@ -179,6 +179,9 @@ int {N}_set_reference({N}_workspace *ws, const double *ref);
  * Returns an OR of the status codes above. */
 int {N}_step({N}_workspace *ws, const double *y, double *u_out);
 
+/* sizeof({N}_workspace), for callers that cannot see the struct (a foreign-function interface). */
+unsigned long {N}_workspace_size(void);
+
 /* SHA-256 (hex) of the scenario and of every constant compiled in: the test program refuses data recorded
  * for other constants. */
 const char *{N}_data_hash(void);
@@ -236,6 +239,10 @@ static int {N}_all_finite(const double *v, int k) {{
 
 const char *{N}_data_hash(void) {{
     return {U}_DATA_HASH;
+}}
+
+unsigned long {N}_workspace_size(void) {{
+    return (unsigned long)sizeof({N}_workspace);
 }}
 
 int {N}_reset({N}_workspace *ws, const double *x_hat0) {{
