@@ -31,7 +31,8 @@ def _export(tmp_path_factory: pytest.TempPathFactory, config: str | Path, **kw: 
 
 @pytest.fixture(scope="module")
 def lqr(tmp_path_factory):
-    return _export(tmp_path_factory, config_path("cartpole_lqr.toml"))
+    """The regression cart-pole LQR, exported once (``regress`` holds its exported run to the Python baseline)."""
+    return _export(tmp_path_factory, config_path("regression/cartpole_lqr.toml"))
 
 
 def _verified(rep, loops=("standalone", "mujoco")) -> None:
@@ -63,12 +64,12 @@ def test_cartpole_lqr_exports_a_complete_folder_that_reproduces_python(lqr):
     body = text.split("cartpole_lqr_ctl_K[4] = {", 1)[1].split("}", 1)[0]
     from shinro_ctrl.sim import RobotSim
 
-    K = RobotSim.from_config(config_path("cartpole_lqr.toml")).controller.K
+    K = RobotSim.from_config(config_path("regression/cartpole_lqr.toml")).controller.K
     assert np.array_equal(np.array([float(v) for v in body.replace("\n", " ").split(",")]), K.reshape(-1))
 
 
 def test_reexport_is_byte_identical_no_heap_and_a_changed_scenario_leaves_stale_data_refused(lqr, tmp_path):
-    again = export_scenario(config_path("cartpole_lqr.toml"), tmp_path / "again", verify=False)
+    again = export_scenario(config_path("regression/cartpole_lqr.toml"), tmp_path / "again", verify=False)
     cmp = filecmp.dircmp(lqr.out, again.out)
     assert sorted(cmp.same_files) == sorted(lqr.files) and not cmp.diff_files and not cmp.left_only
     for f in lqr.files:
@@ -77,7 +78,7 @@ def test_reexport_is_byte_identical_no_heap_and_a_changed_scenario_leaves_stale_
     assert '"casadi"' in manifest and '"numpy"' in manifest and '"sha256"' in manifest
     # the scenario changes (another R), is exported again: its data in the old folder is refused as stale
     doc = tmp_path / "changed.toml"
-    doc.write_text(config_path("cartpole_lqr.toml").read_text().replace("R = [0.1]", "R = [0.2]"))
+    doc.write_text(config_path("regression/cartpole_lqr.toml").read_text().replace("R = [0.1]", "R = [0.2]"))
     changed = export_scenario(doc, tmp_path / "changed", name="cartpole_lqr", verify=False)
     work = tmp_path / "stale"
     shutil.copytree(lqr.out, work)
@@ -98,7 +99,7 @@ def test_sil_load_runs_the_exported_code_and_regress_holds_it_to_the_python_base
     from shinro_ctrl.sim import RobotSim
 
     src = config_path("regression/cartpole_lqr.toml")
-    folder = export_scenario(src, tmp_path / "reg", verify=False).out
+    folder = lqr.out
     doc = tomllib.loads(src.read_text())
     py = RobotSim.from_config(doc).run()
     doc["controller"] = {"type": "Exported", "path": str(folder)}
@@ -151,7 +152,7 @@ def test_bad_input_is_one_line(lqr, tmp_path, capsys):
     from shinro_ctrl.export import load
 
     with pytest.raises(InvalidArgument, match="--name: expected a C identifier"):
-        export_scenario(config_path("cartpole_lqr.toml"), tmp_path / "x", name="int")
+        export_scenario(config_path("regression/cartpole_lqr.toml"), tmp_path / "x", name="int")
     keep = tmp_path / "mine"
     keep.mkdir()
     (keep / "notes.txt").write_text("mine")
