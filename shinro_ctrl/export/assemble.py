@@ -72,6 +72,8 @@ class Unit:
         scenario_text: The scenario file's text; scenario_name its file name.
         versions: Package versions.
         tolerance: Agreement the test program demands.
+        design: The controller's ``x0``, ``u0``, ``u_min``, ``u_max`` (lists or None), recorded in ``export.json``
+            so that the software-in-the-loop controller reports the same operating point and bounds.
     """
 
     name: str
@@ -91,6 +93,7 @@ class Unit:
     scenario_name: str
     versions: dict[str, str]
     tolerance: float = 1e-9
+    design: dict[str, list[float] | None] | None = None
 
     @property
     def scenario_hash(self) -> str:
@@ -667,6 +670,7 @@ def assemble(unit: Unit, recordings: list[Recording]) -> dict[str, str]:
         "recorded": {r.label: int(r.y.shape[0]) for r in recordings},
         "tolerance": unit.tolerance,
         "versions": dict(sorted(unit.versions.items())),
+        "design": dict(sorted((unit.design or {}).items())),
         "files": {k: hashlib.sha256(v.encode("utf-8")).hexdigest() for k, v in sorted(files.items())},
     }
     files["export.json"] = json.dumps(manifest, indent=2, sort_keys=True) + "\n"

@@ -234,8 +234,13 @@ def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Rec
         scenario_text=text,
         scenario_name=Path(str(path)).name if path is not None else scenario.name,
         versions=_versions(),
+        design={key: _listed(getattr(ctrl, key, None)) for key in ("x0", "u0", "u_min", "u_max")},
     )
     return unit, recordings, py_time, clamped
+
+
+def _listed(value: object) -> list[float] | None:
+    return None if value is None else [float(v) for v in np.asarray(value, dtype=float).reshape(-1)]
 
 
 def is_export_folder(path: Path) -> bool:
