@@ -127,6 +127,18 @@ def test_lqg_with_a_kalman_filter_takes_the_measurement(tmp_path_factory):
     assert "#define CARTPOLE_LQG_NY 2" in (rep.out / "cartpole_lqg.h").read_text()
 
 
+def test_time_varying_kalman_filter_solves_for_its_gain_each_step(tmp_path_factory, tmp_path):
+    scen = tmp_path / "lqg_tv.toml"
+    scen.write_text(
+        config_path("cartpole_lqg.toml")
+        .read_text()
+        .replace('type = "KalmanFilter"', 'type = "KalmanFilter"\nsteady_state = false\nP0 = [0.01, 0.01, 0.1, 0.1]')
+    )
+    rep = _export(tmp_path_factory, scen)
+    _verified(rep)
+    assert "lqg_tv_est_solve" in (rep.out / "lqg_tv_est.c").read_text()
+
+
 def test_lqi_with_saturation_and_anti_windup_agrees_where_bounds_are_active(tmp_path_factory):
     rep = _export(tmp_path_factory, config_path("cartpole_lqi_disturbance_mujoco.toml"))
     _verified(rep)
@@ -160,14 +172,10 @@ def test_bad_input_is_one_line(lqr, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "not an exported folder: refusing" in err and len(err.strip().splitlines()) == 1
     assert (keep / "notes.txt").read_text() == "mine"
-    doc = tmp_path / "tv_kf.toml"
-    doc.write_text(
-        config_path("cartpole_lqg.toml")
-        .read_text()
-        .replace('type = "KalmanFilter"', 'type = "KalmanFilter"\nsteady_state = false')
-    )
-    with pytest.raises(ExportError, match="cannot export a time-varying KalmanFilter"):
+    doc = tmp_path / "ff.toml"
+    doc.write_text(config_path("cartpole_lqr.toml").read_text().replace("R = [0.1]", "R = [0.1]\nfeedforward = true"))
+    with pytest.raises(ExportError, match="cannot export an LQR with feedforward") as info:
         export_scenario(doc, tmp_path / "y")
-    assert not (tmp_path / "y").exists()
+    assert "\n" not in str(info.value) and not (tmp_path / "y").exists()
     with pytest.raises(ExportError, match="not an exported folder"):
         load(keep)
