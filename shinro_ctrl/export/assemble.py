@@ -621,7 +621,7 @@ or `cmake -S . -B build && cmake --build build && (cd build && ctest)`. Add the 
 as they are; compile them without `-ffast-math` (it would change the arithmetic the test checks).
 
 The recorded data ({loops}) holds each step's measurement, reference and the Python controller's input;
-the test program demands `|u_C − u_Python| ≤ {c_number(u.tolerance)} · max(1, |u_Python|)` at every step, and
+the test program demands `|u_C − u_Python| ≤ {u.tolerance:g} · max(1, |u_Python|)` at every step, and
 refuses data recorded for other constants (the data hash `{dhash[:16]}…` covers the scenario and every
 table compiled in).
 
