@@ -148,14 +148,16 @@ def test_lqi_with_saturation_and_anti_windup_agrees_where_bounds_are_active(tmp_
 def test_a_compensator_with_an_unstable_mode_is_diagnosed_not_blamed_on_the_c(tmp_path):
     # LQI behind a Kalman filter: the compensator's own dynamics (filter + integrator + gain, without the plant)
     # have a mode outside the unit circle, so an open-loop replay amplifies a 1e-15 change beyond 1e-9
-    from shinro_ctrl.export.pipeline import prepare, replay_drift
+    from shinro_ctrl.export.pipeline import record_run, replay_drift
+    from shinro_ctrl.sim import RobotSim
 
     scen = tmp_path / "lqi_kf.toml"
     scen.write_text(
         config_path("cartpole_lqi_disturbance_mujoco.toml").read_text()
         + '\nmeasured = ["x", "theta"]\nsensor_noise = [0.002, 0.002]\nseed = 4\n\n[estimator]\ntype = "KalmanFilter"\n'
     )
-    _, recordings, _, _, sim = prepare(scen)
+    sim = RobotSim.from_config(scen, engine="standalone")
+    recordings = [record_run(sim, 800, "standalone")]
     c, e = sim.controller, sim.estimator
     lqi, ImC = c.integral_action, np.eye(4) - e.M @ e.C
     comp = np.block([[ImC @ (e.A - e.B @ c.K), -ImC @ e.B @ lqi.K_i], [lqi.dt * np.eye(4)[[0]], np.eye(1)]])

@@ -32,7 +32,7 @@ from shinro_ctrl.export.registry import ExportContext, exporter_for
 if TYPE_CHECKING:
     from shinro_ctrl.sim import RobotSim
 
-__all__ = ["MIN_STEPS", "ExportReport", "check_name", "export_scenario", "prepare"]
+__all__ = ["MIN_STEPS", "ExportReport", "check_name", "export_scenario", "prepare", "record_run", "replay_drift"]
 
 #: Closed-loop steps recorded in all (split over the loops).
 MIN_STEPS = 1000
@@ -115,7 +115,8 @@ def _initial_estimate(sim: RobotSim, x_start: np.ndarray) -> np.ndarray:
     return np.asarray(x0, dtype=float)[: sim.plant.state_dim].copy()
 
 
-def _record(sim: RobotSim, steps: int, label: str) -> Recording:
+def record_run(sim: RobotSim, steps: int, label: str) -> Recording:
+    """Run ``sim``'s closed loop with the Python controller for ``steps`` steps and keep what the C replays."""
     res = sim.run(steps * sim.plant.dt, progress=False)
     return Recording(label, _initial_estimate(sim, res.x[0]), res.y[:-1].copy(), res.ref[:-1].copy(), res.u.copy())
 
@@ -135,7 +136,7 @@ def _saturating_run(sim: RobotSim, steps: int) -> Recording | None:
     for scale in (2.0, 4.0, 8.0):
         sim.initial_state = op + scale * (start - op)
         try:
-            rec = _record(sim, steps, f"standalone_x{scale:g}")
+            rec = record_run(sim, steps, f"standalone_x{scale:g}")
         except ShinroError:
             continue
         finally:
@@ -229,7 +230,7 @@ def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Rec
     recordings = []
     for s in sims:
         steps = max(per_loop, round(s.scenario.sim.duration / s.plant.dt))
-        recordings.append(_record(s, steps, s.loop))
+        recordings.append(record_run(s, steps, s.loop))
     clamped = sum(_clamped(r, ctrl.u_min, ctrl.u_max) for r in recordings)
     if clamped == 0 and ctrl.u_min is not None and np.any(np.isfinite(np.r_[ctrl.u_min, ctrl.u_max])):
         extra = _saturating_run(sim, min(per_loop, 500))
