@@ -12,6 +12,7 @@ from __future__ import annotations
 __all__ = [
     "ConcurrentUse",
     "ConfigError",
+    "ExportError",
     "InvalidArgument",
     "MPCInfeasible",
     "NonFiniteError",
@@ -64,3 +65,7 @@ class ConcurrentUse(ShinroError, RuntimeError):
 
 class PlanningFailed(ShinroError, RuntimeError):
     """A trajectory optimization did not converge; the message names the solver status and the worst constraint."""
+
+
+class ExportError(ShinroError, RuntimeError):
+    """A controller or estimator cannot be exported as C, or the exported code failed to build or verify."""

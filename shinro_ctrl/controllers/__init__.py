@@ -14,6 +14,7 @@ whose keyword names are the keys a ``[controller]`` table may hold
 from __future__ import annotations
 
 from shinro_ctrl.controllers.base import CONTROLLER_REGISTRY, Controller
+from shinro_ctrl.controllers.exported import Exported
 from shinro_ctrl.controllers.ik_qp import IKQP
 from shinro_ctrl.controllers.lqr import LQR
 from shinro_ctrl.controllers.mpc import LinearMPC
@@ -27,6 +28,7 @@ __all__ = [
     "LQR",
     "TVLQR",
     "Controller",
+    "Exported",
     "LinearMPC",
     "NonlinearMPC",
     "controller_class",

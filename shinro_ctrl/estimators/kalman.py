@@ -381,6 +381,9 @@ class ExtendedKalmanFilter(Estimator):
         f_first = cs.Function(
             "ekf_correct", [x, P, u, y], [out_first[0], out_first[1].T, out_first[2].T], ["x", "P", "u", "y"], outs
         )
+        #: ``(ekf_update, ekf_correct)``: ``(x, P, u, y) -> (x̂, P̂ᵀ, Kᵀ)`` with and without the prediction
+        #: (the C export generates code from exactly these).
+        self.update_functions = (f_pred, f_first)
         # Buffers bound once: inputs and outputs are arrays this object owns (casadi.Function.buffer).
         self._x = np.zeros(n)
         self._P = np.zeros((n, n))
