@@ -33,7 +33,7 @@ import tempfile
 import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -42,6 +42,7 @@ import numpy as np
 from shinro_ctrl.engine.warnings import ModelWarning, collect_messages
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.multibody import ActuatorInfo, BodyInfo, JointInfo, ModelTree
+from shinro_ctrl.multibody.constraints import Constraint
 from shinro_ctrl.resources import asset_path, list_assets
 
 __all__ = [
@@ -61,6 +62,12 @@ _BAD_JOINTS = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJN
 _GAIN = {int(mujoco.mjtGain.mjGAIN_FIXED): "fixed", int(mujoco.mjtGain.mjGAIN_AFFINE): "affine"}
 _BIAS = {int(mujoco.mjtBias.mjBIAS_NONE): "none", int(mujoco.mjtBias.mjBIAS_AFFINE): "affine"}
 _DSBL = mujoco.mjtDisableBit
+#: The equality constraints modelled exactly (shinro_ctrl.multibody.constraints).
+_EQ_KINDS = {
+    int(mujoco.mjtEq.mjEQ_JOINT): "joint",
+    int(mujoco.mjtEq.mjEQ_CONNECT): "connect",
+    int(mujoco.mjtEq.mjEQ_WELD): "weld",
+}
 #: Root element -> model kind.
 _ROOTS = {"mujoco": "mjcf", "robot": "urdf"}
 #: Suffixes MuJoCo's ``MjSpec.from_file`` recognizes itself (it picks its decoder by the exact suffix).
@@ -531,7 +538,59 @@ def _read(m: mujoco.MjModel, path: str, label: _Label) -> ModelTree:
     joints, body_joints = _read_joints(m)
     bodies = _read_bodies(m, body_joints)
     actuators = [_read_actuator(m, a) for a in range(m.nu)]
-    return _tree_with_options(m, path, bodies, joints, actuators)
+    tree = _tree_with_options(m, path, bodies, joints, actuators)
+    return replace(tree, equalities=read_equalities(m, label))
+
+
+def read_equalities(m: mujoco.MjModel, label: _Label | None = None) -> tuple[Constraint, ...]:
+    """The model's active equality constraints as :class:`~shinro_ctrl.multibody.constraints.Constraint`.
+
+    MuJoCo's data layout (``eq_data``): a joint coupling holds ``polycoef``; a body ``connect`` the
+    anchor in body 1 then the matching point in body 2; a body ``weld`` the anchor in body 2, then
+    ``relpose`` (frame 1's pose in body 1) and ``torquescale``. Site-based ``connect``/``weld`` use
+    the sites' frames. Nothing when the model disables equalities; unsupported kinds are
+    :func:`_unsupported`'s to refuse.
+    """
+    urdf = label.urdf if label is not None and label.kind == "urdf" else _Urdf()
+    if int(m.opt.disableflags) & int(_DSBL.mjDSBL_EQUALITY):
+        return ()
+    out = []
+    for e in range(m.neq):
+        kind = _EQ_KINDS.get(int(m.eq_type[e]))
+        if kind is None or not m.eq_active0[e]:
+            continue
+        o1, o2, data = int(m.eq_obj1id[e]), int(m.eq_obj2id[e]), np.array(m.eq_data[e], dtype=float)
+        if kind == "joint":
+            name = m.joint(o1).name
+            what = (
+                f"<mimic> on joint '{name}' (of '{urdf.mimic[name]}')"
+                if name in urdf.mimic
+                else f"equality {_equality(m, e)}"
+            )
+            out.append(Constraint("joint", what, joint1=o1, joint2=o2, polycoef=tuple(float(c) for c in data[:5])))
+            continue
+        what = f"equality {_equality(m, e)}"
+        if int(m.eq_objtype[e]) == int(mujoco.mjtObj.mjOBJ_SITE):
+            frames = [(int(m.site_bodyid[s]), np.array(m.site_pos[s]), np.array(m.site_quat[s])) for s in (o1, o2)]
+        elif kind == "connect":
+            frames = [(o1, data[0:3], np.array([1.0, 0, 0, 0])), (o2, data[3:6], np.array([1.0, 0, 0, 0]))]
+        else:  # body weld: frame 1 = relpose in body 1, frame 2 = the anchor (body 2's axes)
+            frames = [(o1, data[3:6], data[6:10]), (o2, data[0:3], np.array([1.0, 0, 0, 0]))]
+        (b1, p1, r1), (b2, p2, r2) = frames
+        out.append(
+            Constraint(
+                kind,
+                what,
+                body1=b1,
+                pos1=p1,
+                quat1=r1,
+                body2=max(b2, 0),
+                pos2=p2,
+                quat2=r2,
+                rotation=kind == "weld" and float(data[10]) != 0.0,
+            )
+        )
+    return tuple(out)
 
 
 # ------------------------------------------------------------------- names
@@ -633,23 +692,21 @@ def _unsupported(m: mujoco.MjModel, label: _Label) -> list[str]:
     if m.neq and not flags & int(_DSBL.mjDSBL_EQUALITY):
         for e in range(m.neq):
             if not m.eq_active0[e]:
-                continue
-            j1, j2 = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
-            mimic = m.joint(j1).name if int(m.eq_type[e]) == int(mujoco.mjtEq.mjEQ_JOINT) else ""
-            if label.kind == "urdf" and mimic in urdf.mimic:
                 out.append(
                     (
-                        "<mimic> on joint",
-                        f"'{mimic}' (of '{urdf.mimic[mimic] or m.joint(j2).name}')",
-                        "MuJoCo couples the joints by an equality constraint, not supported yet: remove the <mimic>",
+                        "inactive equality constraint",
+                        _equality(m, e),
+                        "MuJoCo may switch it on at run time, which the design model cannot follow; make it "
+                        'active="true" or remove it',
                     )
                 )
-            else:
+            elif int(m.eq_type[e]) not in _EQ_KINDS:
+                kind = mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix("mjEQ_").lower()
                 out.append(
                     (
-                        "equality constraint",
+                        f"{kind} equality constraint",
                         _equality(m, e),
-                        'not supported yet; fix: <option><flag equality="disable"/></option>, or remove it',
+                        "not supported: only joint couplings, connect and weld are modelled exactly",
                     )
                 )
     if getattr(m, "nflex", 0):

@@ -8,8 +8,12 @@ them into equations of motion.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from shinro_ctrl.multibody.constraints import Constraint
 
 __all__ = ["ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree"]
 
@@ -121,6 +125,8 @@ class ModelTree:
         springs_enabled: False when the model disables joint springs.
         actuation_enabled: False when the model disables actuation.
         disableflags: The model's raw ``opt.disableflags`` bit field.
+        equalities: The model's active equality constraints (joint couplings, connects, welds), see
+            :mod:`shinro_ctrl.multibody.constraints`; empty when it has none or disables them.
     """
 
     name: str
@@ -136,6 +142,7 @@ class ModelTree:
     springs_enabled: bool = True
     actuation_enabled: bool = True
     disableflags: int = 0
+    equalities: tuple[Constraint, ...] = ()
 
     @property
     def nq(self) -> int:
