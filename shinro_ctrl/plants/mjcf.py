@@ -40,6 +40,7 @@ import numpy as np
 from shinro_ctrl.backend import ArrayBackend, CasadiBackend
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
 from shinro_ctrl.multibody import RigidBodyTree
+from shinro_ctrl.multibody.constraints import ConstrainedDynamics
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_positive, closest
 
@@ -230,20 +231,31 @@ class MjcfPlant(Plant):
                 raise InvalidArgument(f"actuators lists a name twice: {list(actuators)!r}")
             active = tuple(active_list)
         self.tree, self.rigid_body_tree = tree, rb
-        self._fun = _function(str(source), mtime, active)
         self.source_path = str(robot.source)  # the user's file (a URDF itself for a URDF)
+        self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
+        self.constraints: ConstrainedDynamics | None = None
+        if tree.equalities:  # exact constrained dynamics in the independent coordinates (class docstring)
+            ref = self._default_x0(robot.keyframe)
+            self.constraints = cd = ConstrainedDynamics(rb, tree.equalities, active=active, q_ref=ref[: tree.nq])
+            xs, us = cs.SX.sym("x", 2 * cd.ni), cs.SX.sym("u", len(active))
+            self._fun = cs.Function("f", [xs, us], [cd.symbolic_xdot(xs, us)], ["x", "u"], ["xdot"])
+        else:
+            self._fun = _function(str(source), mtime, active)
         self.model_path = str(robot.path)  # the file plant and engine load (a URDF's translation)
         self.asset = self.model_path  # the engine loads the same file
         self.active_actuators = active
         nq = tree.nq
-        self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
-        self.state_names = (*self.joint_names, *(f"{j}_dot" for j in self.joint_names))
+        free = self.constraints.independent if self.constraints else range(nq)
+        self.state_names = (*(self.joint_names[i] for i in free), *(f"{self.joint_names[i]}_dot" for i in free))
+        nq = len(free)  # the design coordinates
         self.input_names = tuple(names[k] or f"u{k}" for k in active)
         self.position_indices = tuple(range(nq))
         self.velocity_indices = tuple(range(nq, 2 * nq))
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
-        if x0 is None:
+        if self.constraints is not None:
+            self._x0 = self._constrained_x0(robot.keyframe, x0)
+        elif x0 is None:
             self._x0 = self._default_x0(robot.keyframe)
         else:
             self._x0 = as_vector("x0", x0, 2 * nq).copy()
@@ -266,6 +278,22 @@ class MjcfPlant(Plant):
                 margin = RANGE_MARGIN * (hi - lo)
                 x[i] = min(max(x[i], lo + margin), hi - margin)
         return x
+
+    def _constrained_x0(self, keyframe: tuple[str, np.ndarray] | None, x0: ArrayLike | None) -> np.ndarray:
+        """The design operating state: the keyframe projected onto the constraints, or the user's ``x0``.
+
+        A user's ``x0`` is either the design state ``[q_I; q̇_I]`` (completed) or a full ``[q; q̇]`` (checked).
+        """
+        cd, nq = self.constraints, self.tree.nq
+        if x0 is None:
+            what = f"keyframe '{keyframe[0]}'" if keyframe and keyframe[0] else "the default operating point"
+            full = cd.project_state(self._default_x0(keyframe), f"{self._label()}: {what}")
+        elif np.size(x0) == 2 * nq and nq != cd.ni:
+            full = cd.check_full(as_vector("x0", x0, 2 * nq), f"{self._label()}: x0")
+        else:
+            full = cd.complete(as_vector("x0", x0, 2 * cd.ni), what=f"{self._label()}: x0")
+        self._check_in_range(full, "x0")
+        return cd.reduce(full)
 
     def _check_in_range(self, x: np.ndarray, what: str) -> None:
         """Raise InvalidArgument naming every joint of ``x`` outside its range."""
@@ -310,7 +338,7 @@ class MjcfPlant(Plant):
             NonFiniteError: the accelerations at ``x`` overflow float64.
         """
         x = as_vector("x", x, self.state_dim)
-        nq = self.tree.nq
+        nq = len(self.position_indices)
         u0 = np.zeros(self.input_dim)
         a0 = self._eval_one(x, u0)[nq:]
         Bq = np.column_stack([self._eval_one(x, e)[nq:] - a0 for e in np.eye(self.input_dim)])
@@ -332,14 +360,17 @@ class MjcfPlant(Plant):
         """Joint ranges of limited joints for the positions; ±inf elsewhere."""
         lo = np.full(self.state_dim, -np.inf)
         hi = np.full(self.state_dim, np.inf)
-        for i, j in enumerate(self.tree.joints):
-            if j.limited:
-                lo[i], hi[i] = j.range
+        free = self.constraints.independent if self.constraints else range(self.tree.nq)
+        for k, i in enumerate(free):
+            if self.tree.joints[i].limited:
+                lo[k], hi[k] = self.tree.joints[i].range
         return lo, hi
 
     # -------------------------------------------------------------- dynamics
     def _eval_one(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``ẋ (2nq,)`` at one ``x``, ``u`` through this thread's buffer."""
+        """``ẋ (2nq,)`` at one ``x``, ``u`` through this thread's buffer (constrained: Newton, then the KKT system)."""
+        if self.constraints is not None:
+            return self.constraints.xdot(x, u)
         try:
             b = self._local.buffers
         except AttributeError:
@@ -393,8 +424,21 @@ class MjcfPlant(Plant):
         xb = np.broadcast_to(x, (*lead, x.shape[-1])).reshape(-1, x.shape[-1])
         ub = np.broadcast_to(u, (*lead, u.shape[-1])).reshape(-1, u.shape[-1])
         rb, active = self.rigid_body_tree, self.active_actuators
+        if self.constraints is not None:
+            raise InvalidArgument(
+                f"{self._label()}: no complex-step evaluation of a constrained model (use method='fd')"
+            )
         out = np.array([rb.xdot_numpy(xb[k], ub[k], active) for k in range(xb.shape[0])], dtype=complex)
         return out.reshape(*lead, x.shape[-1])
+
+    def linearize(
+        self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """See :meth:`Plant.linearize`; a constrained model's exact Jacobians: the implicit function theorem."""
+        if self.constraints is None or method != "exact":
+            return super().linearize(x0, u0, method=method, eps=eps)
+        x0, u0 = self.operating_point(x0, u0)
+        return self.constraints.jacobians(x0, u0)
 
     def symbolic(self, params: bool = False) -> cs.Function:
         """The dynamics as a CasADi ``Function`` ``f(x, u)`` (``params=True``: ``f(x, u, p)`` with an empty ``p``)."""
@@ -410,7 +454,7 @@ class MjcfPlant(Plant):
 
     def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """One semi-implicit Euler step: ``q̇⁺ = q̇ + dt q̈``, ``q⁺ = q + dt q̇⁺`` (MuJoCo's Euler)."""
-        nq = self.tree.nq
+        nq = len(self.position_indices)
         xd = self._eval_one(x, u)
         new = x.copy()
         new[nq:] += self.dt * xd[nq:]
@@ -429,16 +473,19 @@ class MjcfPlant(Plant):
 
     def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Identity: the state is MuJoCo's ``[qpos; qvel]`` (see :meth:`Plant.engine_state_map`)."""
+        if self.constraints is not None:
+            raise NotImplementedError(f"{self._label()}: a constrained model's state is its independent coordinates")
         n = self.state_dim
         return np.eye(n), np.arange(n)
 
     def engine_read(self, engine: MujocoEngine) -> np.ndarray:
-        """The state ``[qpos; qvel]`` read from the engine."""
-        return engine.get_state_vector()
+        """The state ``[qpos; qvel]`` read from the engine (constrained: its independent coordinates)."""
+        x = engine.get_state_vector()
+        return x if self.constraints is None else self.constraints.reduce(x)
 
     def engine_write(self, engine: MujocoEngine, x: np.ndarray) -> None:
-        """Write ``[qpos; qvel]`` into the engine."""
-        engine.set_state_vector(x)
+        """Write ``[qpos; qvel]`` into the engine (constrained: the dependent coordinates completed)."""
+        engine.set_state_vector(x if self.constraints is None else self.constraints.complete(x))
 
     def engine_apply(self, engine: MujocoEngine, u: np.ndarray) -> None:
         """Set the selected actuators' controls (the others stay 0)."""
