@@ -379,7 +379,7 @@ def _read_urdf(path: Path) -> _Urdf:
 
 
 def _translation_path(src: Path) -> Path:
-    key = hashlib.sha1(f"{src}:{src.stat().st_mtime_ns}".encode()).hexdigest()[:12]
+    key = hashlib.sha1(f"{src}:{src.stat().st_mtime_ns}:mimic-unactuated".encode()).hexdigest()[:12]
     return Path(tempfile.gettempdir()) / "shinro_ctrl_urdf" / f"{src.stem}-{key}.xml"
 
 
@@ -388,7 +388,9 @@ def urdf_with_motors(path: str | os.PathLike[str]) -> Path:
 
     URDF describes no actuators, so MuJoCo compiles a URDF without any. This
     writes MuJoCo's translation of the URDF plus a motor (gain 1, gear 1,
-    named after its joint) per hinge/slide joint, with contacts disabled (the
+    named after its joint) per hinge/slide joint except the ``<mimic>`` joints
+    (MuJoCo couples those to their leader by an equality constraint: the
+    leader's motor drives them), with contacts disabled (the
     symbolic model has none), to a cache file in the system's temporary
     folder, keyed by the URDF's path and modification time. Mesh paths stay
     relative to the URDF's folder. A URDF whose translation already has
@@ -414,8 +416,9 @@ def urdf_with_motors(path: str | os.PathLike[str]) -> Path:
         folder = Path(getattr(spec, attr) or ".")
         setattr(spec, attr, str(folder if folder.is_absolute() else (src.parent / folder).resolve()))
     _compile(spec, src, "urdf")  # the URDF's own errors, in its terms, before the translation exists
+    mimic = _read_urdf(src).mimic
     for joint in spec.joints:
-        if int(joint.type) in _JOINT_KINDS and joint.name:
+        if int(joint.type) in _JOINT_KINDS and joint.name and joint.name not in mimic:
             motor = spec.add_actuator()
             motor.name = joint.name
             motor.target = joint.name

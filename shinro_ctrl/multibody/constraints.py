@@ -48,8 +48,9 @@ the others are the *independent* joints ``I``. The design state is
 ``x = [q_I; q̇_I]``; the full state follows from it:
 
 * ``q_D`` solves ``φ(q_I, q_D) = 0`` by Newton's method (:meth:`ConstrainedDynamics.complete`),
-  started from the reference's first-order prediction so that it stays on the
-  reference's assembly branch;
+  continued from the reference in stages of at most :data:`CONTINUATION_STEP` with a
+  first-order predictor, so that the answer depends on ``q_I`` alone (never on earlier
+  calls) and stays on the reference's assembly branch;
 * ``q̇ = S(q) q̇_I`` with the null-space basis ``S = [I; −J_D⁻¹ J_I]`` (rows ordered by ``I``, ``D``).
 
 The reduced dynamics ``ẋ = [q̇_I; q̈_I(q, S q̇_I, u)]`` and their exact Jacobians
@@ -84,6 +85,8 @@ CONSTRAINT_KINDS = ("joint", "connect", "weld")
 SYMBOLIC_NEWTON_STEPS = 4
 #: Residual ``max|φ|`` [m or rad] below which a configuration satisfies the constraints.
 TOLERANCE = 1e-9
+#: Largest change [m or rad] of an independent coordinate per continuation stage (:meth:`ConstrainedDynamics.complete`).
+CONTINUATION_STEP = 0.25
 #: Relative tolerance of the rank decisions (redundant rows, dependent joints).
 RANK_RTOL = 1e-9
 
@@ -379,21 +382,30 @@ class ConstrainedDynamics:
             InvalidArgument: Newton does not converge: no configuration of the reference's branch
                 has these independent coordinates (naming the worst constraint).
         """
-        ind, dep = list(self.independent), list(self.dependent)
+        ind, dep, rows = list(self.independent), list(self.dependent), list(self.rows)
         qi = np.asarray(x[: self.ni], dtype=float)
         q = self.q_ref.copy()
-        q[ind] = qi
-        q[dep] = self.q_ref[dep] + self._predict @ (qi - self.q_ref[ind])
-        rows = list(self.rows)
-        for _ in range(50):
-            phi, J = self._phi(q)
-            phi = phi.ravel()[rows]
-            if np.abs(phi).max() < 1e-14 or not np.isfinite(phi).all():
+        predict = self._predict
+        delta = qi - self.q_ref[ind]
+        # continuation from the reference in steps of at most CONTINUATION_STEP: stays on its assembly branch
+        stages = max(1, int(np.ceil(np.abs(delta).max(initial=0.0) / CONTINUATION_STEP)))
+        for s in range(1, stages + 1):
+            target = self.q_ref[ind] + delta * (s / stages)
+            q[dep] = q[dep] + predict @ (target - q[ind])
+            q[ind] = target
+            for _ in range(50):
+                phi, J = self._phi(q)
+                phi = phi.ravel()[rows]
+                JD = J[np.ix_(rows, dep)]
+                if np.abs(phi).max() < 1e-14 or not np.isfinite(phi).all():
+                    break
+                step = np.linalg.solve(JD, phi)
+                q[dep] -= step
+                if np.abs(step).max() < 1e-15:
+                    break
+            if not np.isfinite(q).all():
                 break
-            step = np.linalg.solve(J[np.ix_(rows, dep)], phi)
-            q[dep] -= step
-            if np.abs(step).max() < 1e-15:
-                break
+            predict = -np.linalg.solve(JD, J[np.ix_(rows, ind)])
         if not np.isfinite(q).all() or self.residuals(q).max() > TOLERANCE:
             names = ", ".join(f"{self.rb.tree.joints[i].name or i} = {q[i]:.4g}" for i in ind)
             raise self._violation(
