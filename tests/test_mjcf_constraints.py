@@ -205,7 +205,8 @@ def test_urdf_mimic_becomes_a_coupling_driven_by_the_leader() -> None:
 SOFT_D = 0.9999
 
 WELD_XML = """<mujoco><option gravity="0 0 -9.81"/><worldbody>
-<body name="a1" pos="0 0 1"><joint name="ja1" axis="0 1 0"/><inertial pos="0.2 0 0" mass="1" diaginertia="0.01 0.02 0.03"/>
+<body name="a1" pos="0 0 1"><joint name="ja1" axis="0 1 0"/>
+ <inertial pos="0.2 0 0" mass="1" diaginertia="0.01 0.02 0.03"/>
  <body name="a2" pos="0.4 0 0" euler="0 30 0"><joint name="ja2" axis="0 1 0"/>
   <inertial pos="0.1 0.05 0" mass="0.5" diaginertia="0.01 0.02 0.01"/>
   <body name="a3" pos="0.3 0 0"><joint name="ja3" axis="0 0 1"/><joint name="sa3" type="slide" axis="1 0 0"/>
@@ -321,14 +322,14 @@ def test_x0_violating_the_loop_is_refused_naming_it() -> None:
     assert plant.equilibrium()[0] == pytest.approx([0.2, 0.0])
 
 
-def _variant(tmp_path, text: str, old: str, new: str) -> str:  # noqa: ANN001
+def _variant(tmp_path, text: str, old: str, new: str) -> str:
     assert old in text
     path = tmp_path / "variant.xml"
     path.write_text(text.replace(old, new))
     return str(path)
 
 
-def test_inactive_tendon_and_unsatisfiable_equalities_are_refused_by_name(tmp_path) -> None:  # noqa: ANN001
+def test_inactive_tendon_and_unsatisfiable_equalities_are_refused_by_name(tmp_path) -> None:
     text = asset_path("gallery/four_bar.xml").read_text()
     inactive = _variant(tmp_path, text, '<connect name="loop"', '<connect active="false" name="loop"')
     with pytest.raises(InvalidArgument, match="inactive equality constraint 'loop'"):

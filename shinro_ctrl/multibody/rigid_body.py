@@ -45,6 +45,7 @@ a ``velocity`` servo ``gain = k_v``, ``bias = (0, 0, −k_v)``; a ``motor``
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, TypeAlias
@@ -390,24 +391,27 @@ class RigidBodyTree:
         """
         return self._joint_transforms(q, ops)
 
+    @functools.cached_property
+    def _placements(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Each body's ``(node, R, p)`` (see :meth:`body_placement`), built once."""
+        bodies = self.tree.bodies
+        out: list[tuple[int, np.ndarray, np.ndarray]] = [(-1, np.eye(3), np.zeros(3))] * len(bodies)
+        for b in range(1, len(bodies)):  # the same walk as _build_nodes: node j is joint j
+            info = bodies[b]
+            node, Rp, pp = out[info.parent]
+            R = Rp @ quat_to_mat(info.quat)
+            p = pp + Rp @ np.asarray(info.pos, dtype=float)
+            for j in info.joints:
+                node, R, p = j, np.eye(3), -np.asarray(self.tree.joints[j].pos, dtype=float)
+            out[b] = (node, R, p)
+        return out
+
     def body_placement(self, body: int) -> tuple[int, np.ndarray, np.ndarray]:
         """Where body ``body``'s frame is fixed: ``(node, R (3, 3), p (3,))``, its pose in that node's frame.
 
         ``node`` is the index of the last joint node at or above the body (-1: the body is welded to the
         world, and ``R``, ``p`` are its world pose).
         """
-        if not hasattr(self, "_placements"):
-            bodies = self.tree.bodies
-            out: list[tuple[int, np.ndarray, np.ndarray]] = [(-1, np.eye(3), np.zeros(3))] * len(bodies)
-            for b in range(1, len(bodies)):  # the same walk as _build_nodes: node j is joint j
-                info = bodies[b]
-                node, Rp, pp = out[info.parent]
-                R = Rp @ quat_to_mat(info.quat)
-                p = pp + Rp @ np.asarray(info.pos, dtype=float)
-                for j in info.joints:
-                    node, R, p = j, np.eye(3), -np.asarray(self.tree.joints[j].pos, dtype=float)
-                out[b] = (node, R, p)
-            self._placements = out
         return self._placements[body]
 
     def frame_pose(
