@@ -16,7 +16,9 @@ MuJoCo's own warnings while loading are collected and reported as a
 Supported by :func:`read_robot` / :func:`read_model_tree`: fixed-base trees
 of hinge and slide joints; actuators with a joint transmission, no activation
 dynamics, ``fixed``/``affine`` gain and ``none``/``affine`` bias (``motor``,
-``position``, ``velocity`` and equivalent ``general`` actuators). Everything
+``position``, ``velocity`` and equivalent ``general`` actuators); active
+``joint``, ``connect`` and ``weld`` equality constraints (:func:`read_equalities`;
+a URDF ``<mimic>`` is a joint equality in MuJoCo). Everything
 else in a file is refused in one error that lists every unsupported feature
 by the name of its element (for a URDF, by the URDF element: ``<mimic>``,
 ``<dynamics friction>``), with the fix where one exists; so is every
@@ -51,6 +53,7 @@ __all__ = [
     "load_model",
     "load_spec",
     "model_kind",
+    "read_equalities",
     "read_model_tree",
     "read_robot",
     "resolve_model_path",
@@ -510,7 +513,7 @@ def read_model_tree(model: str | os.PathLike[str] | mujoco.MjModel, *, path: str
         InvalidArgument: every unsupported feature (free or ball joints, no
             joints, no actuators, an actuator other than a joint transmission
             without activation dynamics with fixed/affine gain and none/affine
-            bias, equality constraints, tendons that exert force, gravity
+            bias, tendon/flex or inactive equality constraints, tendons that exert force, gravity
             compensation, frictionloss, fluid forces ...) and every non-finite
             or invalid number, listed at once by element name.
     """

@@ -3,9 +3,13 @@
 * :mod:`~shinro_ctrl.multibody.tree`: the plain description (bodies, joints,
   actuators, options) a model file is read into;
 * :mod:`~shinro_ctrl.multibody.rigid_body`: :class:`RigidBodyTree`, its
-  equations of motion on any scalar type (CasADi ``SX``, floats, complex).
+  equations of motion on any scalar type (CasADi ``SX``, floats, complex);
+* :mod:`~shinro_ctrl.multibody.constraints`: :class:`Constraint` (joint
+  couplings, connect, weld) and :class:`ConstrainedDynamics`, the exact KKT
+  dynamics in the coordinates the constraints leave free.
 """
 
+from shinro_ctrl.multibody.constraints import ConstrainedDynamics, Constraint
 from shinro_ctrl.multibody.rigid_body import CASADI_OPS, NUMPY_OPS, Ops, RigidBodyTree, Scalar
 from shinro_ctrl.multibody.tree import ActuatorInfo, BodyInfo, JointInfo, ModelTree
 
@@ -14,6 +18,8 @@ __all__ = [
     "NUMPY_OPS",
     "ActuatorInfo",
     "BodyInfo",
+    "ConstrainedDynamics",
+    "Constraint",
     "JointInfo",
     "ModelTree",
     "Ops",

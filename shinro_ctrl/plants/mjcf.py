@@ -18,6 +18,9 @@ numeric ``dynamics()`` evaluates the compiled function. The MuJoCo engine
 loads the same file (:meth:`MjcfPlant.mjcf_patch` edits nothing but the
 timestep), so the state map is the identity.
 
+With equality constraints the state is the independent coordinates and the
+dynamics the exact KKT system (:mod:`shinro_ctrl.multibody.constraints`; see the class).
+
 What the symbolic model leaves out, because it is not smooth dynamics:
 contacts, joint-limit constraint forces, and MuJoCo's ``ctrlrange`` /
 ``forcerange`` clamps. Keep trajectories inside the joint ranges and the
@@ -142,10 +145,25 @@ class MjcfPlant(Plant):
 
     The file's kind is read from its content (``<mujoco>`` or ``<robot>``),
     whatever its name. Everything in it the plant cannot model (free or ball
-    joints, equality constraints, tendons that exert force, frictionloss, an
-    unsupported actuator ...) and every invalid number (a ``NaN`` gravity, an
-    infinite mass) is refused in one error that lists them all by element
-    name, with the fix where one exists.
+    joints, tendon or inactive equality constraints, tendons that exert force,
+    frictionloss, an unsupported actuator ...) and every invalid number (a
+    ``NaN`` gravity, an infinite mass) is refused in one error that lists them
+    all by element name, with the fix where one exists.
+
+    Equality constraints (``<joint>`` couplings and URDF ``<mimic>``,
+    ``<connect>``, ``<weld>``) are exact constrained dynamics, held in
+    :attr:`constraints` (a :class:`~shinro_ctrl.multibody.constraints.ConstrainedDynamics`,
+    None without equalities) and delegated to: the state is then
+    ``[q_I; q̇_I]``, the *independent* joints chosen at the reference
+    configuration (first keyframe, else ``qpos0``, projected onto the
+    constraints), named after them; :meth:`dynamics` completes the dependent
+    joints by Newton and solves the KKT system; :meth:`linearize` gives the
+    exact Jacobians by the implicit function theorem; :meth:`symbolic`
+    unrolls the Newton steps in ``SX``; the engine hooks read the independent
+    joints and complete the dependent ones when writing. ``x0`` may then be
+    ``[q_I; q̇_I]`` or a full ``[qpos; qvel]`` that satisfies the constraints;
+    the keyframe is projected onto them (refused, naming the constraint, when
+    it cannot be). ``engine_state_map`` (``crosscheck``) does not apply.
 
     A URDF file carries no actuators: its inputs are joint torques (forces
     for prismatic joints), one motor per joint named after the joint, in an
@@ -191,7 +209,7 @@ class MjcfPlant(Plant):
             load; unsupported features or invalid numbers (all listed at
             once); no actuators, an unknown actuator name; a bad ``dt`` or
             ``u0``; an ``x0`` (or keyframe) outside a joint's range (naming
-            the joint).
+            the joint) or off the equality constraints (naming the constraint).
     """
 
     def __init__(
