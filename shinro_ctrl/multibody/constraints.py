@@ -85,6 +85,8 @@ CONSTRAINT_KINDS = ("joint", "connect", "weld")
 SYMBOLIC_NEWTON_STEPS = 4
 #: Residual ``max|φ|`` [m or rad] below which a configuration satisfies the constraints.
 TOLERANCE = 1e-9
+#: Newton steps per call of the compiled Newton function (:meth:`ConstrainedDynamics.complete` repeats calls).
+NEWTON_UNROLL = 2
 #: Largest change [m or rad] of an independent coordinate per continuation stage (:meth:`ConstrainedDynamics.complete`).
 CONTINUATION_STEP = 0.25
 #: Relative tolerance of the rank decisions (redundant rows, dependent joints).
@@ -157,6 +159,14 @@ class Constraint:
 
 def _col(values: Sequence[object]) -> cs.SX:
     return cs.vertcat(*[cs.SX(v) if isinstance(v, float | int) else v for v in values])
+
+
+def _with(q: cs.SX, idx: Sequence[int], values: cs.SX) -> cs.SX:
+    """``q`` with the entries ``idx`` replaced by ``values``."""
+    parts = [q[i] for i in range(q.shape[0])]
+    for k, i in enumerate(idx):
+        parts[i] = values[k]
+    return cs.vertcat(*parts)
 
 
 def _lists(A: cs.SX) -> list[list[cs.SX]]:
@@ -281,6 +291,17 @@ class ConstrainedDynamics:
         self._jac = _Numeric(self.jacobian_function)
         self._lam = _Numeric(cs.Function("lam", [q, qd, u], [lam]))
         self._phir = cs.Function("phir", [q], [phir, cs.densify(Jr)])
+        # NEWTON_UNROLL Newton steps on q_D per call, with max|φ| (all rows), q̇ = S q̇_I and ∂q_D/∂q_I at the result
+        phi_fun = cs.Function("phi_all", [q], [phi])
+        S_fun = cs.Function("S", [q], [S])
+        qn = q
+        for _ in range(NEWTON_UNROLL):
+            phin, Jn = self._phir(qn)
+            qn = _with(qn, dep, qn[dep] - cs.solve(Jn[:, dep], phin))
+        Sn = S_fun(qn)
+        self._newton = _Numeric(
+            cs.Function("newton", [q, vi], [qn, cs.mtimes(Sn, vi), cs.mmax(cs.fabs(phi_fun(qn))), Sn[dep, :]])
+        )
         self._nu = u.shape[0]
         J0r = J0[list(rows)]
         self._predict = -np.linalg.solve(J0r[:, dep], J0r[:, ind])  # ∂q_D/∂q_I at the reference
@@ -382,41 +403,36 @@ class ConstrainedDynamics:
             InvalidArgument: Newton does not converge: no configuration of the reference's branch
                 has these independent coordinates (naming the worst constraint).
         """
-        ind, dep, rows = list(self.independent), list(self.dependent), list(self.rows)
+        ind, dep = list(self.independent), list(self.dependent)
         qi = np.asarray(x[: self.ni], dtype=float)
+        vi = np.asarray(x[self.ni :], dtype=float)
         q = self.q_ref.copy()
         predict = self._predict
         delta = qi - self.q_ref[ind]
+        res = np.inf
         # continuation from the reference in steps of at most CONTINUATION_STEP: stays on its assembly branch
         stages = max(1, int(np.ceil(np.abs(delta).max(initial=0.0) / CONTINUATION_STEP)))
         for s in range(1, stages + 1):
             target = self.q_ref[ind] + delta * (s / stages)
             q[dep] = q[dep] + predict @ (target - q[ind])
             q[ind] = target
-            for _ in range(50):
-                phi, J = self._phi(q)
-                phi = phi.ravel()[rows]
-                JD = J[np.ix_(rows, dep)]
-                if np.abs(phi).max() < 1e-14 or not np.isfinite(phi).all():
+            previous = np.inf
+            for _ in range(25):
+                qn, qd, r, predict = self._newton(q, vi)
+                q, res = qn.ravel(), float(r[0, 0])
+                if not np.isfinite(res) or res <= 1e-14 or res > 0.5 * previous:  # converged, or stalled
                     break
-                step = np.linalg.solve(JD, phi)
-                q[dep] -= step
-                if np.abs(step).max() < 1e-15:
-                    break
-            if not np.isfinite(q).all():
+                previous = res
+            if not np.isfinite(res):
                 break
-            predict = -np.linalg.solve(JD, J[np.ix_(rows, ind)])
-        if not np.isfinite(q).all() or self.residuals(q).max() > TOLERANCE:
-            names = ", ".join(f"{self.rb.tree.joints[i].name or i} = {q[i]:.4g}" for i in ind)
+        if not np.isfinite(res) or res > TOLERANCE:
+            names = ", ".join(f"{self.rb.tree.joints[i].name or i} = {qi[k]:.4g}" for k, i in enumerate(ind))
             raise self._violation(
-                q, f"{what} ({names})", "the dependent joints cannot close the constraints there (Newton failed)"
+                q if np.isfinite(q).all() else self.q_ref,
+                f"{what} ({names})",
+                "the dependent joints cannot close the constraints there (Newton failed)",
             )
-        _, J = self._phi(q)
-        Jr = J[rows]
-        qd = np.zeros(self.nq)
-        qd[ind] = x[self.ni :]
-        qd[dep] = -np.linalg.solve(Jr[:, dep], Jr[:, ind] @ qd[ind])
-        return np.concatenate([q, qd])
+        return np.concatenate([q, qd.ravel()])
 
     def reduce(self, x_full: np.ndarray) -> np.ndarray:
         """The design state ``[q_I; q̇_I]`` of a full state ``[q; q̇] (2nq,)``."""
