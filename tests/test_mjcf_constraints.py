@@ -290,6 +290,21 @@ def test_free_coordinates_match_the_rank_of_mujocos_constraint_jacobian(
         assert np.abs(data.efc_pos).max() <= 1e-12
 
 
+def test_redundant_rows_are_dropped_and_change_nothing(four_bar: MjcfPlant, tmp_path) -> None:
+    # the loop closed twice at the same point: six rows of rank 2 (a zero row each, and a duplicate)
+    text = asset_path("gallery/four_bar.xml").read_text()
+    twice = _variant(
+        tmp_path, text, "</equality>", '<connect body1="rocker" body2="world" anchor="0.3 0 0"/></equality>'
+    )
+    plant = MjcfPlant(twice)
+    assert len(plant.constraints.rows) == 2 and plant.state_names == four_bar.state_names
+    for x, u in ((np.array([0.7, 1.5]), [0.4]), (np.array([-1.3, -3.0]), [-0.2])):
+        assert np.abs(plant.dynamics(x, u) - four_bar.dynamics(x, u)).max() <= 1e-12 * 200
+        A, B = plant.linearize(x, u)
+        A0, B0 = four_bar.linearize(x, u)
+        assert np.abs(A - A0).max() <= 1e-9 and np.abs(B - B0).max() <= 1e-9
+
+
 # ----------------------------------------------------------------------------------- closed loop
 def test_lqr_designed_on_the_four_bar_holds_it_in_mujoco() -> None:
     from shinro_ctrl.sim import RobotSim

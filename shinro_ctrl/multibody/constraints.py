@@ -289,7 +289,6 @@ class ConstrainedDynamics:
         )
         self._f = _Numeric(self.reduced_function)
         self._jac = _Numeric(self.jacobian_function)
-        self._lam = _Numeric(cs.Function("lam", [q, qd, u], [lam]))
         self._phir = cs.Function("phir", [q], [phir, cs.densify(Jr)])
         # NEWTON_UNROLL Newton steps on q_D per call, with max|φ| (all rows), q̇ = S q̇_I and ∂q_D/∂q_I at the result
         phi_fun = cs.Function("phi_all", [q], [phi])
@@ -302,7 +301,6 @@ class ConstrainedDynamics:
         self._newton = _Numeric(
             cs.Function("newton", [q, vi], [qn, cs.mtimes(Sn, vi), cs.mmax(cs.fabs(phi_fun(qn))), Sn[dep, :]])
         )
-        self._nu = u.shape[0]
         J0r = J0[list(rows)]
         self._predict = -np.linalg.solve(J0r[:, dep], J0r[:, ind])  # ∂q_D/∂q_I at the reference
 

@@ -456,7 +456,9 @@ class MjcfPlant(Plant):
         if self.constraints is None or method != "exact":
             return super().linearize(x0, u0, method=method, eps=eps)
         x0, u0 = self.operating_point(x0, u0)
-        return self.constraints.jacobians(x0, u0)
+        A, B = self.constraints.jacobians(x0, u0)
+        self._check_finite_model(A, B, f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}")
+        return A, B
 
     def symbolic(self, params: bool = False) -> cs.Function:
         """The dynamics as a CasADi ``Function`` ``f(x, u)`` (``params=True``: ``f(x, u, p)`` with an empty ``p``)."""
