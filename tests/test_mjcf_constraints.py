@@ -337,6 +337,22 @@ def test_x0_violating_the_loop_is_refused_naming_it() -> None:
     assert plant.equilibrium()[0] == pytest.approx([0.2, 0.0])
 
 
+def test_keyframe_is_projected_onto_the_constraints(tmp_path) -> None:
+    text = asset_path("gallery/four_bar.xml").read_text()
+    keyed = _variant(
+        tmp_path,
+        text,
+        "</mujoco>",
+        '<keyframe><key name="home" qpos="0.3 -0.38 0.092" qvel="0.5 0 0"/></keyframe></mujoco>',
+    )
+    plant = MjcfPlant(keyed)
+    x0, _ = plant.equilibrium()
+    assert x0[0] == pytest.approx(0.3, abs=2e-3) and x0[1] != 0.0  # nearest configuration and velocities on the loop
+    full = plant.constraints.complete(x0)
+    assert plant.constraints.residuals(full[:3]).max() <= 1e-12
+    assert np.abs(full[:3] - [0.3, -0.38, 0.092]).max() < 5e-3
+
+
 def _variant(tmp_path, text: str, old: str, new: str) -> str:
     assert old in text
     path = tmp_path / "variant.xml"
@@ -370,7 +386,10 @@ def test_inactive_tendon_and_unsatisfiable_equalities_are_refused_by_name(tmp_pa
         .replace('<geom fromto="0 0 0 0.3 0 0"/>', '<geom fromto="0 0 0 0.3 0 0"/><site name="tip" pos="0.3 0 0"/>')
         .replace('<geom name="ground_link"', '<site name="far" pos="3 0 0.5"/><geom name="ground_link"')
     )
-    with pytest.raises(InvalidArgument, match=r"violates equality 'loop' .* no configuration near it"):
+    with pytest.raises(
+        InvalidArgument,
+        match=r"far.xml.*violates equality 'loop' \(connecting site 'tip' to site 'far'\) .* no configuration near it",
+    ):
         MjcfPlant(far_path)
     locked = _variant(tmp_path, text, "</equality>", '<weld body1="rocker" body2="world"/></equality>')
     with pytest.raises(InvalidArgument, match="leave no free motion"):

@@ -635,11 +635,16 @@ def _equality(m: mujoco.MjModel, e: int) -> str:
     name = m.equality(e).name
     kind = mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix("mjEQ_").lower()
     o1, o2 = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
+    on_sites = int(m.eq_objtype[e]) == int(mujoco.mjtObj.mjOBJ_SITE)
+
+    def frame(i: int) -> str:
+        return (f"site '{m.site(i).name}'" if m.site(i).name else f"site #{i}") if on_sites else f"body {_body(m, i)}"
+
     verb, obj = {
         "joint": ("coupling", lambda i: f"joint {_joint(m, i)}"),
         "tendon": ("coupling", lambda i: f"tendon {_tendon(m, i)}"),
-        "connect": ("connecting", lambda i: f"body {_body(m, i)}"),
-        "weld": ("welding", lambda i: f"body {_body(m, i)}"),
+        "connect": ("connecting", frame),
+        "weld": ("welding", frame),
     }.get(kind, ("", None))
     if obj is None:
         what = f"{kind} #{e}"

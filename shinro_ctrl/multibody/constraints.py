@@ -209,6 +209,7 @@ class ConstrainedDynamics:
         active: Indices of the actuators that are the inputs ``u``.
         q_ref: Reference configuration ``(nq,)``; projected onto the constraints first
             (:meth:`project`). The row and coordinate choices are made there.
+        what: How messages name ``q_ref`` (e.g. ``"MjcfPlant('arm.xml'): keyframe 'home'"``).
 
     Attributes:
         constraints: The constraints.
@@ -225,7 +226,13 @@ class ConstrainedDynamics:
     """
 
     def __init__(
-        self, rb: RigidBodyTree, constraints: Sequence[Constraint], *, active: Sequence[int], q_ref: np.ndarray
+        self,
+        rb: RigidBodyTree,
+        constraints: Sequence[Constraint],
+        *,
+        active: Sequence[int],
+        q_ref: np.ndarray,
+        what: str = "the reference configuration",
     ):
         if not constraints:
             raise InvalidArgument("ConstrainedDynamics needs at least one constraint")
@@ -240,7 +247,7 @@ class ConstrainedDynamics:
         phi = cs.vertcat(*[v for c in self.constraints for v in c.residual(rb, ql)])
         J = cs.jacobian(phi, q)
         self._phi = _Numeric(cs.Function("phi", [q], [phi, cs.densify(J)]))
-        self.q_ref = self.project(np.asarray(q_ref, dtype=float), what="the reference configuration")
+        self.q_ref = self.project(np.asarray(q_ref, dtype=float), what=what)
 
         _, J0 = self._phi(self.q_ref)
         rows, self.dependent = self._choose(J0, constraints, rb, active)

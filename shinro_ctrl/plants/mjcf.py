@@ -253,8 +253,11 @@ class MjcfPlant(Plant):
         self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
         self.constraints: ConstrainedDynamics | None = None
         if tree.equalities:  # exact constrained dynamics in the independent coordinates (class docstring)
-            ref = self._default_x0(robot.keyframe)
-            self.constraints = cd = ConstrainedDynamics(rb, tree.equalities, active=active, q_ref=ref[: tree.nq])
+            ref, key = self._default_x0(robot.keyframe), robot.keyframe
+            what = f"{self._label()}: " + (f"keyframe '{key[0]}'" if key and key[0] else "the reference (qpos0)")
+            self.constraints = cd = ConstrainedDynamics(
+                rb, tree.equalities, active=active, q_ref=ref[: tree.nq], what=what
+            )
             xs, us = cs.SX.sym("x", 2 * cd.ni), cs.SX.sym("u", len(active))
             self._fun = cs.Function("f", [xs, us], [cd.symbolic_xdot(xs, us)], ["x", "u"], ["xdot"])
         else:
