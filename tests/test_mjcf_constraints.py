@@ -274,6 +274,21 @@ def test_matches_mujoco_soft_equality_within_its_softness(
     assert softer / gap > 5.0
 
 
+def test_mujocos_joint_coupling_leaves_out_the_curvature_term(gripper: MjcfPlant) -> None:
+    # moving, the exact coupling accelerates q2 by k q̈1 + P''(q1) q̇1²; MuJoCo's soft solution only by ≈ k q̈1
+    x, u = np.array([0.02, 0.5]), np.array([0.01])
+    m = mujoco.MjModel.from_xml_path(gripper.model_path)
+    m.eq_solimp[:, :2] = SOFT_D
+    data = mujoco.MjData(m)
+    full = gripper.constraints.complete(x)
+    data.qpos[:], data.qvel[:], data.ctrl[:] = full[:2], full[2:], u
+    mujoco.mj_forward(m, data)
+    k, curvature = 0.8 + 2 * 1.5 * x[0], 2 * 1.5 * x[1] ** 2
+    exact, _ = gripper.constraints.accelerations(full, u)
+    assert exact[1] - k * exact[0] == pytest.approx(curvature, rel=1e-9)
+    assert abs(data.qacc[1] - k * data.qacc[0]) <= 1e-2 * curvature
+
+
 def test_free_coordinates_match_the_rank_of_mujocos_constraint_jacobian(
     spatial_plants: dict[str, MjcfPlant],
 ) -> None:
