@@ -296,6 +296,9 @@ class ConstrainedDynamics:
         )
         self._f = _Numeric(self.reduced_function)
         self._jac = _Numeric(self.jacobian_function)
+        self._nu = len(active)
+        self._symbolic: cs.Function | None = None
+        self._build_lock = threading.Lock()
         self._phir = cs.Function("phir", [q], [phir, cs.densify(Jr)])
         # NEWTON_UNROLL Newton steps on q_D per call, with max|φ| (all rows), q̇ = S q̇_I and ∂q_D/∂q_I at the result
         phi_fun = cs.Function("phi_all", [q], [phi])
@@ -484,6 +487,14 @@ class ConstrainedDynamics:
         """``(q̈ (nq,), λ (r,))`` of the KKT system at a full state ``[q; q̇]`` (on the constraints)."""
         qdd, lam = self.kkt_function(x_full[: self.nq], x_full[self.nq :], u)
         return qdd.full().ravel(), lam.full().ravel()
+
+    def symbolic_function(self) -> cs.Function:
+        """:meth:`symbolic_xdot` as the ``casadi.Function`` ``f(x (2nᵢ,), u (m,)) -> xdot`` (built once)."""
+        with self._build_lock:
+            if self._symbolic is None:
+                x, u = cs.SX.sym("x", 2 * self.ni), cs.SX.sym("u", self._nu)
+                self._symbolic = cs.Function("f", [x, u], [self.symbolic_xdot(x, u)], ["x", "u"], ["xdot"])
+            return self._symbolic
 
     def symbolic_xdot(self, x: cs.SX, u: cs.SX) -> cs.SX:
         """``ẋ`` in ``SX``, with ``q_D`` from :data:`SYMBOLIC_NEWTON_STEPS` Newton steps unrolled (module docstring)."""

@@ -103,6 +103,15 @@ def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Functio
     return cs.Function("f", [x, u], [rb.xdot_sx(x, u, active)], ["x", "u"], ["xdot"])
 
 
+@functools.lru_cache(maxsize=16)
+def _constrained(
+    source: str, mtime_ns: int, active: tuple[int, ...], q_ref: tuple[float, ...], what: str
+) -> ConstrainedDynamics:
+    """The constrained dynamics of one model file version, actuator selection and reference (built once)."""
+    robot, rb = _read(source, mtime_ns)
+    return ConstrainedDynamics(rb, robot.tree.equalities, active=active, q_ref=np.array(q_ref), what=what)
+
+
 class MujocoEngine(Protocol):
     """What :class:`MjcfPlant`'s engine hooks use of a ``shinro_ctrl.engine.MujocoEngine`` (duck-typed)."""
 
@@ -255,11 +264,8 @@ class MjcfPlant(Plant):
         if tree.equalities:  # exact constrained dynamics in the independent coordinates (class docstring)
             ref, key = self._default_x0(robot.keyframe), robot.keyframe
             what = f"{self._label()}: " + (f"keyframe '{key[0]}'" if key and key[0] else "the reference (qpos0)")
-            self.constraints = cd = ConstrainedDynamics(
-                rb, tree.equalities, active=active, q_ref=ref[: tree.nq], what=what
-            )
-            xs, us = cs.SX.sym("x", 2 * cd.ni), cs.SX.sym("u", len(active))
-            self._fun = cs.Function("f", [xs, us], [cd.symbolic_xdot(xs, us)], ["x", "u"], ["xdot"])
+            self.constraints = _constrained(str(source), mtime, active, tuple(ref[: tree.nq]), what)
+            self._fun = self.constraints.symbolic_function()
         else:
             self._fun = _function(str(source), mtime, active)
         self.model_path = str(robot.path)  # the file plant and engine load (a URDF's translation)
