@@ -5,9 +5,13 @@
 * :mod:`~shinro_ctrl.multibody.rigid_body`: :class:`RigidBodyTree`, its
   equations of motion on any scalar type (CasADi ``SX``, floats, complex);
 * :mod:`~shinro_ctrl.multibody.transmission`: actuator transmissions (joint,
-  fixed tendon, site), the force law and activation dynamics.
+  fixed tendon, site), the force law and activation dynamics;
+* :mod:`~shinro_ctrl.multibody.constraints`: :class:`Constraint` (joint
+  couplings, connect, weld) and :class:`ConstrainedDynamics`, the exact KKT
+  dynamics in the coordinates the constraints leave free.
 """
 
+from shinro_ctrl.multibody.constraints import ConstrainedDynamics, Constraint
 from shinro_ctrl.multibody.rigid_body import CASADI_OPS, NUMPY_OPS, Ops, RigidBodyTree, Scalar
 from shinro_ctrl.multibody.transmission import Transmissions
 from shinro_ctrl.multibody.tree import ActuatorInfo, BodyInfo, JointInfo, ModelTree, SiteInfo, TendonInfo
@@ -17,6 +21,8 @@ __all__ = [
     "NUMPY_OPS",
     "ActuatorInfo",
     "BodyInfo",
+    "ConstrainedDynamics",
+    "Constraint",
     "JointInfo",
     "ModelTree",
     "Ops",

@@ -575,3 +575,54 @@ class RigidBodyTree:
         qdd = self.accelerations(q, qd, list(u), active, NUMPY_OPS, act)
         adot = self.transmissions.activation_rates(list(u), act, active)
         return np.array([*qd, *qdd, *adot], dtype=np.result_type(x, u, float))
+
+    # ---------------------------------------------- frame kinematics (equality and contact constraints)
+    def transforms(self, q: Sequence[Scalar], ops: Ops = NUMPY_OPS) -> Transforms:
+        """Each joint node's ``(R (3, 3), p (3,))`` in its parent node frame at ``q``.
+
+        Pass the result as ``X`` to :meth:`mass_matrix`, :meth:`bias` and :meth:`frame_pose` to build the
+        transforms once for several quantities at the same ``q``.
+        """
+        return self._joint_transforms(q, ops)
+
+    def body_placement(self, body: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """Where body ``body``'s frame is fixed: ``(node, R (3, 3), p (3,))``, its pose in that node's frame.
+
+        ``node`` is the index of the last joint node at or above the body (-1: the body is welded to the
+        world, and ``R``, ``p`` are its world pose).
+        """
+        return self._body_frame[body]
+
+    def frame_pose(
+        self,
+        q: Sequence[Scalar],
+        body: int,
+        pos: ArrayLike = (0.0, 0.0, 0.0),
+        quat: ArrayLike = (1.0, 0.0, 0.0, 0.0),
+        ops: Ops = NUMPY_OPS,
+        X: Transforms | None = None,
+    ) -> tuple[list[list[Scalar]], list[Scalar]]:
+        """World pose ``(R (3, 3), p (3,))`` at ``q`` of a frame fixed to body ``body`` (0: the world).
+
+        Args:
+            q: Joint coordinates ``(nq,)`` (floats, complex numbers or ``SX``).
+            body: Body index (MuJoCo's order).
+            pos: The frame's origin in the body frame ``(3,)`` [m].
+            quat: The frame's orientation in the body frame ``(w, x, y, z)``.
+            ops: ``sin``/``cos`` of the number type.
+            X: Node transforms already computed at ``q`` (else computed here).
+
+        Returns:
+            ``R`` and ``p`` as nested lists of scalars: ``p_world = p + R v`` for a point ``v`` of the frame.
+        """
+        node, Rb, pb = self.body_placement(body)
+        R = [_const(r) for r in Rb @ quat_to_mat(np.asarray(quat, dtype=float))]
+        p = _const(pb + Rb @ np.asarray(pos, dtype=float))
+        if node >= 0 and X is None:
+            X = self._joint_transforms(q, ops)
+        while node >= 0:
+            Rn, pn = X[node]
+            p = _vadd(pn, _matvec(Rn, p))
+            R = [[_dot(Rn[r], [R[0][c], R[1][c], R[2][c]]) for c in range(3)] for r in range(3)]
+            node = self._nodes[node].parent
+        return R, p

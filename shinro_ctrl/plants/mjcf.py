@@ -23,6 +23,9 @@ numeric ``dynamics()`` evaluates the compiled function. The MuJoCo engine
 loads the same file (:meth:`MjcfPlant.mjcf_patch` edits nothing but the
 timestep), so the state map is the identity.
 
+With equality constraints the state is the independent coordinates and the
+dynamics the exact KKT system (:mod:`shinro_ctrl.multibody.constraints`; see the class).
+
 What the symbolic model leaves out, because it is not smooth dynamics:
 contacts, joint-limit constraint forces, joint and tendon friction loss,
 and MuJoCo's ``ctrlrange`` / ``forcerange`` / ``actrange`` clamps. Keep
@@ -46,6 +49,7 @@ import numpy as np
 from shinro_ctrl.backend import ArrayBackend, CasadiBackend
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
 from shinro_ctrl.multibody import RigidBodyTree
+from shinro_ctrl.multibody.constraints import ConstrainedDynamics
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_positive, closest
 
@@ -105,6 +109,15 @@ def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Functio
     return cs.Function("f", [x, u], [rb.xdot_sx(x, u, active)], ["x", "u"], ["xdot"])
 
 
+@functools.lru_cache(maxsize=16)
+def _constrained(
+    source: str, mtime_ns: int, active: tuple[int, ...], q_ref: tuple[float, ...], what: str
+) -> ConstrainedDynamics:
+    """The constrained dynamics of one model file version, actuator selection and reference (built once)."""
+    robot, rb = _read(source, mtime_ns)
+    return ConstrainedDynamics(rb, robot.tree.equalities, active=active, q_ref=np.array(q_ref), what=what)
+
+
 class MujocoEngine(Protocol):
     """What :class:`MjcfPlant`'s engine hooks use of a ``shinro_ctrl.engine.MujocoEngine`` (duck-typed)."""
 
@@ -159,10 +172,25 @@ class MjcfPlant(Plant):
 
     The file's kind is read from its content (``<mujoco>`` or ``<robot>``),
     whatever its name. Everything in it the plant cannot model (free or ball
-    joints, equality constraints, spatial tendons that act, fluid forces, an
-    unsupported actuator ...) and every invalid number (a ``NaN`` gravity, an
-    infinite mass) is refused in one error that lists them all by element
-    name, with the reason and the fix where one exists.
+    joints, tendon or inactive equality constraints, spatial tendons that act,
+    fluid forces, an unsupported actuator ...) and every invalid number (a
+    ``NaN`` gravity, an infinite mass) is refused in one error that lists them
+    all by element name, with the reason and the fix where one exists.
+
+    Equality constraints (``<joint>`` couplings and URDF ``<mimic>``,
+    ``<connect>``, ``<weld>``) are exact constrained dynamics, held in
+    :attr:`constraints` (a :class:`~shinro_ctrl.multibody.constraints.ConstrainedDynamics`,
+    None without equalities) and delegated to: the state is then
+    ``[q_I; q̇_I]``, the *independent* joints chosen at the reference
+    configuration (first keyframe, else ``qpos0``, projected onto the
+    constraints), named after them; :meth:`dynamics` completes the dependent
+    joints by Newton and solves the KKT system; :meth:`linearize` gives the
+    exact Jacobians by the implicit function theorem; :meth:`symbolic`
+    unrolls the Newton steps in ``SX``; the engine hooks read the independent
+    joints and complete the dependent ones when writing. ``x0`` may then be
+    ``[q_I; q̇_I]`` or a full ``[qpos; qvel]`` that satisfies the constraints;
+    the keyframe is projected onto them (refused, naming the constraint, when
+    it cannot be). ``engine_state_map`` (``crosscheck``) does not apply.
 
     A URDF file carries no actuators: its inputs are joint torques (forces
     for prismatic joints), one motor per joint named after the joint, in an
@@ -210,7 +238,7 @@ class MjcfPlant(Plant):
             load; unsupported features or invalid numbers (all listed at
             once); no actuators, an unknown actuator name; a bad ``dt`` or
             ``u0``; an ``x0`` (or keyframe) outside a joint's range (naming
-            the joint).
+            the joint) or off the equality constraints (naming the constraint).
     """
 
     def __init__(
@@ -250,26 +278,43 @@ class MjcfPlant(Plant):
                 raise InvalidArgument(f"actuators lists a name twice: {list(actuators)!r}")
             active = tuple(active_list)
         self.tree, self.rigid_body_tree = tree, rb
-        self._fun = _function(str(source), mtime, active)
         self.source_path = str(robot.source)  # the user's file (a URDF itself for a URDF)
+        self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
+        self.constraints: ConstrainedDynamics | None = None
+        if tree.equalities and tree.na:
+            dyn = ", ".join(f"'{a.name or f'u{k}'}' ({a.dyntype})" for k, a in enumerate(tree.actuators) if a.act >= 0)
+            raise InvalidArgument(
+                f"{self._label()}: activation dynamics on actuators {dyn} with equality constraints are not "
+                'supported yet; give those actuators dyntype="none" or remove the equality constraints'
+            )
+        if tree.equalities:  # exact constrained dynamics in the independent coordinates (class docstring)
+            ref, key = self._default_x0(robot.keyframe), robot.keyframe
+            what = f"{self._label()}: " + (f"keyframe '{key[0]}'" if key and key[0] else "the reference (qpos0)")
+            self.constraints = _constrained(str(source), mtime, active, tuple(ref[: tree.nq]), what)
+            self._fun = self.constraints.symbolic_function()
+        else:
+            self._fun = _function(str(source), mtime, active)
         self.model_path = str(robot.path)  # the file plant and engine load (a URDF's translation)
         self.asset = self.model_path  # the engine loads the same file
         self.active_actuators = active
         nq = tree.nq
-        self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
+        free = self.constraints.independent if self.constraints else range(nq)
         acts = sorted((a.act, a.name or f"u{k}") for k, a in enumerate(tree.actuators) if a.act >= 0)
         self.state_names = (
-            *self.joint_names,
-            *(f"{j}_dot" for j in self.joint_names),
+            *(self.joint_names[i] for i in free),
+            *(f"{self.joint_names[i]}_dot" for i in free),
             *(f"{name}_act" for _, name in acts),
         )
+        nq = len(free)  # the design coordinates
         self.input_names = tuple(names[k] or f"u{k}" for k in active)
         self.position_indices = tuple(range(nq))
         self.velocity_indices = tuple(range(nq, 2 * nq))
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self.state_bounds = self._joint_range_bounds()
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
-        if x0 is None:
+        if self.constraints is not None:
+            self._x0 = self._constrained_x0(robot.keyframe, x0)
+        elif x0 is None:
             self._x0 = self._default_x0(robot.keyframe)
             held = self._hold_activations(self._x0) if tree.na and robot.keyframe is None else None
             if held is not None:
@@ -341,13 +386,33 @@ class MjcfPlant(Plant):
         return x, u
 
     def _joint_range_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Joint ranges of limited joints for the positions; ±inf elsewhere (velocities, activations)."""
+        """Joint ranges of limited joints for the positions; ±inf elsewhere (velocities, activations).
+
+        With equality constraints, the positions are the independent joints'.
+        """
         lo = np.full(self.state_dim, -np.inf)
         hi = np.full(self.state_dim, np.inf)
-        for i, j in enumerate(self.tree.joints):
-            if j.limited:
-                lo[i], hi[i] = j.range
+        free = self.constraints.independent if self.constraints else range(self.tree.nq)
+        for k, i in enumerate(free):
+            if self.tree.joints[i].limited:
+                lo[k], hi[k] = self.tree.joints[i].range
         return lo, hi
+
+    def _constrained_x0(self, keyframe: tuple[str, np.ndarray] | None, x0: ArrayLike | None) -> np.ndarray:
+        """The design operating state: the keyframe projected onto the constraints, or the user's ``x0``.
+
+        A user's ``x0`` is either the design state ``[q_I; q̇_I]`` (completed) or a full ``[q; q̇]`` (checked).
+        """
+        cd, nq = self.constraints, self.tree.nq
+        if x0 is None:
+            what = f"keyframe '{keyframe[0]}'" if keyframe and keyframe[0] else "the default operating point"
+            full = cd.project_state(self._default_x0(keyframe), f"{self._label()}: {what}")
+        elif np.size(x0) == 2 * nq and nq != cd.ni:
+            full = cd.check_full(as_vector("x0", x0, 2 * nq), f"{self._label()}: x0")
+        else:
+            full = cd.complete(as_vector("x0", x0, 2 * cd.ni), what=f"{self._label()}: x0")
+        self._check_in_range(full, "x0")
+        return cd.reduce(full)
 
     def _check_in_range(self, x: np.ndarray, what: str) -> None:
         """Raise InvalidArgument naming every joint of ``x`` outside its range."""
@@ -395,7 +460,7 @@ class MjcfPlant(Plant):
             NonFiniteError: the accelerations at ``x`` overflow float64.
         """
         x = as_vector("x", x, self.state_dim)
-        nq = self.tree.nq
+        nq = len(self.position_indices)
         u0 = np.zeros(self.input_dim)
         a0 = self._eval_one(x, u0)[nq:]  # q̈ and ȧ
         Bq = np.column_stack([self._eval_one(x, e)[nq:] - a0 for e in np.eye(self.input_dim)])
@@ -415,7 +480,9 @@ class MjcfPlant(Plant):
 
     # -------------------------------------------------------------- dynamics
     def _eval_one(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``ẋ (2nq,)`` at one ``x``, ``u`` through this thread's buffer."""
+        """``ẋ (2nq,)`` at one ``x``, ``u`` through this thread's buffer (constrained: Newton, then the KKT system)."""
+        if self.constraints is not None:
+            return self.constraints.xdot(x, u)
         try:
             b = self._local.buffers
         except AttributeError:
@@ -469,8 +536,23 @@ class MjcfPlant(Plant):
         xb = np.broadcast_to(x, (*lead, x.shape[-1])).reshape(-1, x.shape[-1])
         ub = np.broadcast_to(u, (*lead, u.shape[-1])).reshape(-1, u.shape[-1])
         rb, active = self.rigid_body_tree, self.active_actuators
+        if self.constraints is not None:
+            raise InvalidArgument(
+                f"{self._label()}: no complex-step evaluation of a constrained model (use method='fd')"
+            )
         out = np.array([rb.xdot_numpy(xb[k], ub[k], active) for k in range(xb.shape[0])], dtype=complex)
         return out.reshape(*lead, x.shape[-1])
+
+    def linearize(
+        self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """See :meth:`Plant.linearize`; a constrained model's exact Jacobians: the implicit function theorem."""
+        if self.constraints is None or method != "exact":
+            return super().linearize(x0, u0, method=method, eps=eps)
+        x0, u0 = self.operating_point(x0, u0)
+        A, B = self.constraints.jacobians(x0, u0)
+        self._check_finite_model(A, B, f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}")
+        return A, B
 
     def symbolic(self, params: bool = False) -> cs.Function:
         """The dynamics as a CasADi ``Function`` ``f(x, u)`` (``params=True``: ``f(x, u, p)`` with an empty ``p``)."""
@@ -492,7 +574,7 @@ class MjcfPlant(Plant):
         steps them (MuJoCo's ``actrange`` clamp is its loop's only). The joint
         ranges act as inelastic stops (:meth:`clip_state`).
         """
-        nq = self.tree.nq
+        nq = len(self.position_indices)
         xd = self._eval_one(x, u)
         new = x.copy()
         new[nq : 2 * nq] += self.dt * xd[nq : 2 * nq]
@@ -508,7 +590,7 @@ class MjcfPlant(Plant):
         the joints and MuJoCo's own activation update, exact for ``filterexact`` and Euler for
         ``filter`` and ``integrator``.
         """
-        nq, na = self.tree.nq, self.tree.na
+        nq, na = len(self.position_indices), self.tree.na
         x = cs.SX.sym("x", self.state_dim)
         u = cs.SX.sym("u", self.input_dim)
         p = cs.SX.sym("p", 0)
@@ -541,16 +623,19 @@ class MjcfPlant(Plant):
 
     def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`)."""
+        if self.constraints is not None:
+            raise NotImplementedError(f"{self._label()}: a constrained model's state is its independent coordinates")
         n = self.state_dim
         return np.eye(n), np.arange(n)
 
     def engine_read(self, engine: MujocoEngine) -> np.ndarray:
-        """The state ``[qpos; qvel; act]`` read from the engine."""
-        return engine.get_state_vector()
+        """The state ``[qpos; qvel; act]`` read from the engine (constrained: its independent coordinates)."""
+        x = engine.get_state_vector()
+        return x if self.constraints is None else self.constraints.reduce(x)
 
     def engine_write(self, engine: MujocoEngine, x: np.ndarray) -> None:
-        """Write ``[qpos; qvel; act]`` into the engine."""
-        engine.set_state_vector(x)
+        """Write ``[qpos; qvel; act]`` into the engine (constrained: the dependent coordinates completed)."""
+        engine.set_state_vector(x if self.constraints is None else self.constraints.complete(x))
 
     def engine_apply(self, engine: MujocoEngine, u: np.ndarray) -> None:
         """Set the selected actuators' controls (the others stay 0)."""
