@@ -26,7 +26,10 @@ inputs inside their ranges (the controller's bounds), or compare with care.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import hashlib
+import json
 import os
 import threading
 import warnings
@@ -38,6 +41,7 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import ArrayBackend, CasadiBackend
+from shinro_ctrl.codegen import compiled_by_key
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
 from shinro_ctrl.multibody import RigidBodyTree
 from shinro_ctrl.plants.base import MjcfPatch, Plant
@@ -47,6 +51,7 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
     from shinro_ctrl.engine.model_tree import RobotModel
+    from shinro_ctrl.multibody import ModelTree
 
 __all__ = ["MODEL_SUFFIXES", "MjcfPlant", "is_model_file"]
 
@@ -91,12 +96,111 @@ def _read(source: str, mtime_ns: int) -> tuple[RobotModel, RigidBodyTree]:
 
 
 @functools.lru_cache(maxsize=16)
-def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
-    """The compiled ``f(x, u) -> xdot`` of one model file version and actuator selection."""
+def _symbolic(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
+    """The CasADi ``SX`` function ``f(x, u) -> xdot`` of one model file version and actuator selection."""
     robot, rb = _read(source, mtime_ns)
     x = cs.SX.sym("x", 2 * robot.tree.nq)
     u = cs.SX.sym("u", len(active))
     return cs.Function("f", [x, u], [rb.xdot_sx(x, u, active)], ["x", "u"], ["xdot"])
+
+
+@functools.lru_cache(maxsize=1)
+def _code_fingerprint() -> str:
+    """A hash of the source of every module that shapes the compiled expressions (part of their cache key)."""
+    pkg = Path(__file__).resolve().parent.parent
+    files = [pkg / "_scalar_algebra.py", Path(__file__).resolve(), *sorted((pkg / "multibody").glob("*.py"))]
+    return hashlib.sha256(b"".join(f.read_bytes() for f in files)).hexdigest()
+
+
+def _model_key(tree: ModelTree, active: tuple[int, ...], what: str) -> str:
+    """What a compiled function of ``tree`` depends on: its numbers (not its name or path), the inputs, the code."""
+    desc = dataclasses.asdict(tree)
+    desc.pop("path", None)
+    desc.pop("name", None)
+    text = json.dumps(desc, sort_keys=True, default=lambda o: np.asarray(o).tolist())
+    return f"{what}|{active}|{_code_fingerprint()}|{text}"
+
+
+@functools.lru_cache(maxsize=16)
+def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
+    """The compiled ``f(x, u) -> xdot`` (see :mod:`shinro_ctrl.codegen`; the CasADi VM without a compiler)."""
+    robot, _ = _read(source, mtime_ns)
+
+    def build() -> cs.Function:
+        f = _symbolic(source, mtime_ns, active)
+        x, u = f.sx_in()
+        return cs.Function("mjcf_f", [x, u], [f(x, u)], ["x", "u"], ["xdot"])
+
+    return compiled_by_key("mjcf_f", _model_key(robot.tree, active, "f"), build)
+
+
+@functools.lru_cache(maxsize=16)
+def _jacobian_function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
+    """The compiled exact Jacobians ``(x, u) -> (Aᵀ, Bᵀ)`` (transposed: their column-major is ``A``'s row-major)."""
+    robot, rb = _read(source, mtime_ns)
+
+    def build() -> cs.Function:
+        x = cs.SX.sym("x", 2 * robot.tree.nq)
+        u = cs.SX.sym("u", len(active))
+        A, B = rb.xdot_jacobians_sx(x, u, active)
+        return cs.Function("mjcf_jac", [x, u], [A.T, B.T], ["x", "u"], ["A_T", "B_T"])
+
+    return compiled_by_key("mjcf_jac", _model_key(robot.tree, active, "jac"), build)
+
+
+class _CompiledJacobian:
+    """``(A, B)`` at ``(x, u)`` from the compiled Jacobian function, compiled on the first call.
+
+    Stands where :class:`~shinro_ctrl.linearization.ExactJacobian` stands for
+    other plants (``Plant.linearize`` calls it). Threads: each thread
+    evaluates in its own buffer; the first build is behind a lock.
+    """
+
+    def __init__(self, key: tuple[str, int, tuple[int, ...]], n: int, m: int):
+        self._key = key
+        self._n, self._m = n, m
+        self._fun: cs.Function | None = None
+        self._lock = threading.Lock()
+        self._local = threading.local()
+
+    def set_params(self, p: np.ndarray) -> None:
+        """``MjcfPlant`` has no parameters: nothing to bind."""
+
+    def _buffers(self) -> _JacobianBuffers:
+        try:
+            return self._local.buffers
+        except AttributeError:
+            pass
+        if self._fun is None:
+            with self._lock:
+                if self._fun is None:
+                    self._fun = _jacobian_function(*self._key)
+        b = self._local.buffers = _JacobianBuffers(self._fun, self._n, self._m)
+        return b
+
+    def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        b = self._buffers()
+        b.x[:] = x0
+        b.u[:] = u0
+        b.run()
+        return b.A.copy(), b.B.copy()
+
+
+class _JacobianBuffers:
+    """One thread's arrays bound to the Jacobian function's buffer."""
+
+    __slots__ = ("A", "B", "buf", "run", "u", "x")
+
+    def __init__(self, fun: cs.Function, n: int, m: int):
+        self.x = np.zeros(n)
+        self.u = np.zeros(m)
+        self.A = np.zeros((n, n))
+        self.B = np.zeros((n, m))
+        self.buf, self.run = fun.buffer()
+        self.buf.set_arg(0, memoryview(self.x))
+        self.buf.set_arg(1, memoryview(self.u))
+        self.buf.set_res(0, memoryview(self.A.reshape(-1)))
+        self.buf.set_res(1, memoryview(self.B.reshape(-1)))
 
 
 class MujocoEngine(Protocol):
@@ -243,6 +347,8 @@ class MjcfPlant(Plant):
         self.velocity_indices = tuple(range(nq, 2 * nq))
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
+        self._key = (str(source), mtime, active)
+        self._exact = _CompiledJacobian(self._key, 2 * nq, len(active))  # compiled at the first linearize
         if x0 is None:
             self._x0 = self._default_x0(robot.keyframe)
         else:
@@ -371,7 +477,7 @@ class MjcfPlant(Plant):
     ) -> np.ndarray | cs.SX | list[float]:
         """``ẋ``: the model's SX expression for the CasADi backend, the compiled function otherwise."""
         if isinstance(bk, CasadiBackend):
-            return self._fun(x, u)
+            return self.symbolic()(x, u)
         if np.iscomplexobj(x) or np.iscomplexobj(u):  # complex step: the scalar algorithms on complex numbers
             return self._f_complex(np.asarray(x), np.asarray(u))
         x = np.asarray(x, dtype=float)
@@ -399,13 +505,14 @@ class MjcfPlant(Plant):
     def symbolic(self, params: bool = False) -> cs.Function:
         """The dynamics as a CasADi ``Function`` ``f(x, u)`` (``params=True``: ``f(x, u, p)`` with an empty ``p``)."""
         if params not in self._symbolic:
+            f = _symbolic(*self._key)
             if not params:
-                self._symbolic[False] = self._fun
+                self._symbolic[False] = f
             else:
                 x = cs.SX.sym("x", self.state_dim)
                 u = cs.SX.sym("u", self.input_dim)
                 p = cs.SX.sym("p", 0)
-                self._symbolic[True] = cs.Function("f", [x, u, p], [self._fun(x, u)], ["x", "u", "p"], ["xdot"])
+                self._symbolic[True] = cs.Function("f", [x, u, p], [f(x, u)], ["x", "u", "p"], ["xdot"])
         return self._symbolic[params]
 
     def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
