@@ -12,8 +12,9 @@ same expression loads it in milliseconds instead of compiling again, and a
 changed expression can never load a stale library. The cache folder is
 ``$SHINRO_CTRL_CACHE``, else ``$XDG_CACHE_HOME/shinro_ctrl``, else
 ``~/.cache/shinro_ctrl`` (subfolder ``codegen``); libraries are written under
-a temporary name and renamed into place, so concurrent processes building the
-same function never load a half-written file.
+a temporary name and renamed into place, so no process ever loads a
+half-written file, and under a lock file per library, so concurrent processes
+asking for the same function compile it once (the others wait and load it).
 
 :func:`compiled_by_key` is the same for an expression that is expensive to
 build: the caller names what it depends on (a robot's numbers and the source
@@ -27,6 +28,7 @@ the same, only slower.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -34,7 +36,7 @@ import subprocess
 import tempfile
 import threading
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import casadi as cs
@@ -63,6 +65,13 @@ def find_compiler() -> str | None:
         if path:
             return path
     return None
+
+
+def _no_compiler() -> str:
+    env = os.environ.get("CC", "").strip()
+    if env:
+        return f"no C compiler: CC={env!r} is not a program on the PATH"
+    return "no C compiler found (set CC or install gcc)"
 
 
 def cache_dir() -> Path:
@@ -99,7 +108,7 @@ def _link(name: str, digest: str, src: Callable[[], str], flags: Sequence[str], 
     """The library ``<folder>/<name>_<digest>.so``, compiled from ``src()`` unless already cached; None on failure."""
     cc = find_compiler()
     if cc is None:
-        _note("no C compiler found (set CC or install gcc)")
+        _note(_no_compiler())
         return None
     folder = cache_dir() if folder is None else Path(folder)
     lib = folder / f"{name}_{digest}.so"
@@ -110,18 +119,37 @@ def _link(name: str, digest: str, src: Callable[[], str], flags: Sequence[str], 
     except OSError as exc:
         _note(f"cache folder {folder} is not writable ({exc.strerror})")
         return None
-    with tempfile.TemporaryDirectory(dir=folder) as tmp:
-        c_file = Path(tmp) / f"{name}.c"
-        c_file.write_text(src())
-        out = Path(tmp) / lib.name
-        cmd = [*cc.split(), *flags, "-shared", "-fPIC", "-o", str(out), str(c_file), "-lm"]
-        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        if proc.returncode != 0:
-            first = (proc.stderr.strip().splitlines() or ["no output"])[0]
-            _note(f"{Path(cc.split()[0]).name} could not build {name} ({first})")
-            return None
-        os.replace(out, lib)  # atomic: a concurrent builder of the same key writes the same bytes
+    with _file_lock(folder / f"{lib.name}.lock"):  # another process building the same key: wait, then load its
+        if lib.is_file():
+            return lib
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            c_file = Path(tmp) / f"{name}.c"
+            c_file.write_text(src())
+            out = Path(tmp) / lib.name
+            cmd = [*cc.split(), *flags, "-shared", "-fPIC", "-o", str(out), str(c_file), "-lm"]
+            proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            if proc.returncode != 0:
+                first = (proc.stderr.strip().splitlines() or ["no output"])[0]
+                _note(f"{Path(cc.split()[0]).name} could not build {name} ({first})")
+                return None
+            os.replace(out, lib)  # atomic: no process ever loads a half-written library
     return lib
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path) -> Iterator[None]:
+    """An exclusive advisory lock on ``path`` across processes (``fcntl``; none where it does not exist)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: the atomic rename alone keeps builds safe
+        yield
+        return
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def _digest(*parts: str) -> str:
@@ -145,7 +173,7 @@ def compiled(fun: cs.Function, *, flags: Sequence[str] = DEFAULT_FLAGS, folder: 
     """
     cc = find_compiler()
     if cc is None:
-        _note("no C compiler found (set CC or install gcc)")
+        _note(_no_compiler())
         return fun
     src = _source(fun)
     lib = _link(fun.name(), _digest(src, cc, *flags), lambda: src, flags, folder)

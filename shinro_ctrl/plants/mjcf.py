@@ -112,40 +112,47 @@ def _code_fingerprint() -> str:
     return hashlib.sha256(b"".join(f.read_bytes() for f in files)).hexdigest()
 
 
-def _model_key(tree: ModelTree, active: tuple[int, ...], what: str) -> str:
-    """What a compiled function of ``tree`` depends on: its numbers (not its name or path), the inputs, the code."""
+def _model_key(tree: ModelTree, what: str) -> str:
+    """What a compiled function of ``tree`` depends on: its numbers (not its name or path) and the code."""
     desc = dataclasses.asdict(tree)
     desc.pop("path", None)
     desc.pop("name", None)
     text = json.dumps(desc, sort_keys=True, default=lambda o: np.asarray(o).tolist())
-    return f"{what}|{active}|{_code_fingerprint()}|{text}"
+    return f"{what}|{_code_fingerprint()}|{text}"
 
 
 @functools.lru_cache(maxsize=16)
-def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
-    """The compiled ``f(x, u) -> xdot`` (see :mod:`shinro_ctrl.codegen`; the CasADi VM without a compiler)."""
-    robot, _ = _read(source, mtime_ns)
+def _function(source: str, mtime_ns: int) -> cs.Function:
+    """The compiled ``f(x, u_all) -> xdot`` of one model file version, ``u_all`` every actuator's control.
 
-    def build() -> cs.Function:
-        f = _symbolic(source, mtime_ns, active)
-        x, u = f.sx_in()
-        return cs.Function("mjcf_f", [x, u], [f(x, u)], ["x", "u"], ["xdot"])
-
-    return compiled_by_key("mjcf_f", _model_key(robot.tree, active, "f"), build)
-
-
-@functools.lru_cache(maxsize=16)
-def _jacobian_function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
-    """The compiled exact Jacobians ``(x, u) -> (Aᵀ, Bᵀ)`` (transposed: their column-major is ``A``'s row-major)."""
+    One library serves every actuator selection (the plant scatters its
+    inputs into ``u_all``, zeros elsewhere). See :mod:`shinro_ctrl.codegen`;
+    the CasADi virtual machine when no compiler can build it.
+    """
     robot, rb = _read(source, mtime_ns)
+    every = tuple(range(robot.tree.nu))
 
     def build() -> cs.Function:
         x = cs.SX.sym("x", 2 * robot.tree.nq)
-        u = cs.SX.sym("u", len(active))
-        A, B = rb.xdot_jacobians_sx(x, u, active)
+        u = cs.SX.sym("u", robot.tree.nu)
+        return cs.Function("mjcf_f", [x, u], [rb.xdot_sx(x, u, every)], ["x", "u"], ["xdot"])
+
+    return compiled_by_key("mjcf_f", _model_key(robot.tree, "f"), build)
+
+
+@functools.lru_cache(maxsize=16)
+def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
+    """The compiled exact Jacobians ``(x, u_all) -> (Aᵀ, B_allᵀ)`` (transposed: column-major is row-major)."""
+    robot, rb = _read(source, mtime_ns)
+    every = tuple(range(robot.tree.nu))
+
+    def build() -> cs.Function:
+        x = cs.SX.sym("x", 2 * robot.tree.nq)
+        u = cs.SX.sym("u", robot.tree.nu)
+        A, B = rb.xdot_jacobians_sx(x, u, every)
         return cs.Function("mjcf_jac", [x, u], [A.T, B.T], ["x", "u"], ["A_T", "B_T"])
 
-    return compiled_by_key("mjcf_jac", _model_key(robot.tree, active, "jac"), build)
+    return compiled_by_key("mjcf_jac", _model_key(robot.tree, "jac"), build)
 
 
 class _CompiledJacobian:
@@ -156,9 +163,9 @@ class _CompiledJacobian:
     evaluates in its own buffer; the first build is behind a lock.
     """
 
-    def __init__(self, key: tuple[str, int, tuple[int, ...]], n: int, m: int):
-        self._key = key
-        self._n, self._m = n, m
+    def __init__(self, source: str, mtime_ns: int, nx: int, nu: int, active: tuple[int, ...]):
+        self._key = (source, mtime_ns)
+        self._nx, self._nu, self._active = nx, nu, active
         self._fun: cs.Function | None = None
         self._lock = threading.Lock()
         self._local = threading.local()
@@ -166,7 +173,7 @@ class _CompiledJacobian:
     def set_params(self, p: np.ndarray) -> None:
         """``MjcfPlant`` has no parameters: nothing to bind."""
 
-    def _buffers(self) -> _JacobianBuffers:
+    def _buffers(self) -> _Buffers:
         try:
             return self._local.buffers
         except AttributeError:
@@ -175,32 +182,17 @@ class _CompiledJacobian:
             with self._lock:
                 if self._fun is None:
                     self._fun = _jacobian_function(*self._key)
-        b = self._local.buffers = _JacobianBuffers(self._fun, self._n, self._m)
+        b = self._local.buffers = _Buffers(
+            self._fun, self._nu, self._active, ((self._nx, self._nx), (self._nx, self._nu))
+        )
         return b
 
     def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         b = self._buffers()
-        b.x[:] = x0
-        b.u[:] = u0
+        b.set(x0, u0)
         b.run()
-        return b.A.copy(), b.B.copy()
-
-
-class _JacobianBuffers:
-    """One thread's arrays bound to the Jacobian function's buffer."""
-
-    __slots__ = ("A", "B", "buf", "run", "u", "x")
-
-    def __init__(self, fun: cs.Function, n: int, m: int):
-        self.x = np.zeros(n)
-        self.u = np.zeros(m)
-        self.A = np.zeros((n, n))
-        self.B = np.zeros((n, m))
-        self.buf, self.run = fun.buffer()
-        self.buf.set_arg(0, memoryview(self.x))
-        self.buf.set_arg(1, memoryview(self.u))
-        self.buf.set_res(0, memoryview(self.A.reshape(-1)))
-        self.buf.set_res(1, memoryview(self.B.reshape(-1)))
+        A, B = b.out
+        return A.copy(), (B.copy() if b.every else B[:, list(self._active)])
 
 
 class MujocoEngine(Protocol):
@@ -217,18 +209,33 @@ class MujocoEngine(Protocol):
 
 
 class _Buffers:
-    """One thread's evaluation buffer of the compiled dynamics (arrays bound to a CasADi ``FunctionBuffer``)."""
+    """One thread's arrays bound to a compiled function's ``FunctionBuffer`` (inputs ``x``, ``u_all``).
 
-    __slots__ = ("buf", "run", "u", "x", "y")
+    The plant's inputs ``u`` (the selected actuators) are scattered into
+    ``u_all``; the other actuators' controls stay 0.
+    """
 
-    def __init__(self, fun: cs.Function):
+    __slots__ = ("active", "buf", "every", "out", "run", "u", "x")
+
+    def __init__(self, fun: cs.Function, nu: int, active: tuple[int, ...], shapes: tuple[tuple[int, ...], ...]):
         self.x = np.zeros(fun.size1_in(0))
-        self.u = np.zeros(fun.size1_in(1))
-        self.y = np.zeros(fun.size1_out(0))
+        self.u = np.zeros(nu)
+        self.active = np.array(active, dtype=int)
+        self.every = active == tuple(range(nu))
+        self.out = tuple(np.zeros(shape) for shape in shapes)
         self.buf, self.run = fun.buffer()
         self.buf.set_arg(0, memoryview(self.x))
         self.buf.set_arg(1, memoryview(self.u))
-        self.buf.set_res(0, memoryview(self.y))
+        for k, a in enumerate(self.out):
+            self.buf.set_res(k, memoryview(a.reshape(-1)))
+
+    def set(self, x: np.ndarray, u: np.ndarray) -> None:
+        """Copy ``x`` and the selected inputs ``u`` into the bound arrays."""
+        self.x[:] = x
+        if self.every:
+            self.u[:] = u
+        else:
+            self.u[self.active] = u
 
 
 class MjcfPlant(Plant):
@@ -334,7 +341,7 @@ class MjcfPlant(Plant):
                 raise InvalidArgument(f"actuators lists a name twice: {list(actuators)!r}")
             active = tuple(active_list)
         self.tree, self.rigid_body_tree = tree, rb
-        self._fun = _function(str(source), mtime, active)
+        self._fun = _function(str(source), mtime)
         self.source_path = str(robot.source)  # the user's file (a URDF itself for a URDF)
         self.model_path = str(robot.path)  # the file plant and engine load (a URDF's translation)
         self.asset = self.model_path  # the engine loads the same file
@@ -348,7 +355,7 @@ class MjcfPlant(Plant):
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
         self._key = (str(source), mtime, active)
-        self._exact = _CompiledJacobian(self._key, 2 * nq, len(active))  # compiled at the first linearize
+        self._exact = _CompiledJacobian(str(source), mtime, 2 * nq, tree.nu, active)  # compiled at first linearize
         if x0 is None:
             self._x0 = self._default_x0(robot.keyframe)
         else:
@@ -449,11 +456,10 @@ class MjcfPlant(Plant):
         try:
             b = self._local.buffers
         except AttributeError:
-            b = self._local.buffers = _Buffers(self._fun)
-        b.x[:] = x
-        b.u[:] = u
+            b = self._local.buffers = _Buffers(self._fun, self.tree.nu, self.active_actuators, ((2 * self.tree.nq,),))
+        b.set(x, u)
         b.run()
-        return b.y.copy()
+        return b.out[0].copy()
 
     def dynamics(self, state: ArrayLike, control: ArrayLike, params: dict[str, ArrayLike] | None = None) -> np.ndarray:
         """``ẋ = f(x, u)`` (see :meth:`Plant.dynamics`).
