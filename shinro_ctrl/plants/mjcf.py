@@ -30,6 +30,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import math
 import os
 import threading
 import warnings
@@ -468,6 +469,20 @@ class MjcfPlant(Plant):
             InvalidArgument: wrong shapes.
             NonFiniteError: ``x`` or ``u`` holds NaN or inf, or ``ẋ`` overflows float64.
         """
+        if (  # fast path: one float64 state and input, straight into this thread's compiled-function buffer
+            params is None
+            and type(state) is np.ndarray
+            and type(control) is np.ndarray
+            and state.shape == (self.state_dim,)
+            and control.shape == (self.input_dim,)
+            and state.dtype == np.float64
+            and control.dtype == np.float64
+        ):
+            self.check_model_domain(state)
+            xdot = self._eval_one(state, control)
+            # one Python-float sum: not finite for any NaN or inf in x, u or ẋ (or an overflow: the slow path decides)
+            if math.isfinite(sum(state.tolist()) + sum(control.tolist()) + sum(xdot.tolist())):
+                return xdot
         for what, v, names in (("x", state, self.state_names), ("u", control, self.input_names)):
             a = np.asarray(v, dtype=float)
             if not np.isfinite(a).all():
@@ -507,6 +522,19 @@ class MjcfPlant(Plant):
         rb, active = self.rigid_body_tree, self.active_actuators
         out = np.array([rb.xdot_numpy(xb[k], ub[k], active) for k in range(xb.shape[0])], dtype=complex)
         return out.reshape(*lead, x.shape[-1])
+
+    def compiled_functions(self) -> tuple[cs.Function, cs.Function]:
+        """The compiled functions behind :meth:`dynamics` and :meth:`linearize` (the Jacobians built on first call).
+
+        ``f(x, u_all) -> ẋ`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ)``, where
+        ``u_all`` holds every actuator's control in the model's order (one
+        library serves every actuator selection) and the Jacobians come
+        transposed (dense, so their column-major nonzeros are ``A``'s and
+        ``B_all``'s row-major entries). CasADi's virtual-machine functions when
+        no compiler could build them. For callers that bind their own
+        ``Function.buffer()``; the plant's methods need none of this.
+        """
+        return self._fun, _jacobian_function(*self._key[:2])
 
     def symbolic(self, params: bool = False) -> cs.Function:
         """The dynamics as a CasADi ``Function`` ``f(x, u)`` (``params=True``: ``f(x, u, p)`` with an empty ``p``)."""
