@@ -3,14 +3,17 @@
 * :mod:`~shinro_ctrl.multibody.tree`: the plain description (bodies, joints,
   actuators, options) a model file is read into;
 * :mod:`~shinro_ctrl.multibody.rigid_body`: :class:`RigidBodyTree`, its
-  equations of motion on any scalar type (CasADi ``SX``, floats, complex).
+  equations of motion on any scalar type (CasADi ``SX``, floats, complex);
+* :mod:`~shinro_ctrl.multibody.aba`: forward dynamics by the articulated-body
+  algorithm (the default behind ``RigidBodyTree.forward_dynamics``).
 """
 
-from shinro_ctrl.multibody.rigid_body import CASADI_OPS, NUMPY_OPS, Ops, RigidBodyTree, Scalar
+from shinro_ctrl.multibody.rigid_body import CASADI_OPS, FORWARD_DYNAMICS, NUMPY_OPS, Ops, RigidBodyTree, Scalar
 from shinro_ctrl.multibody.tree import ActuatorInfo, BodyInfo, JointInfo, ModelTree
 
 __all__ = [
     "CASADI_OPS",
+    "FORWARD_DYNAMICS",
     "NUMPY_OPS",
     "ActuatorInfo",
     "BodyInfo",

@@ -12,9 +12,17 @@ the kinematic tree with :class:`~shinro_ctrl.multibody.RigidBodyTree`:
         - k \odot (q - q_s) - c(q, \dot q)) \end{bmatrix},
     \qquad x = [q; \dot q].
 
-The expression is a CasADi ``SX`` graph, so ``symbolic()``, exact
-``linearize()``, ``get_model()`` and everything downstream work unchanged;
-numeric ``dynamics()`` evaluates the compiled function. The MuJoCo engine
+The expression is a CasADi ``SX`` graph, so ``symbolic()``, ``get_model()``
+and everything downstream work unchanged. Numeric ``dynamics()`` and exact
+``linearize()`` evaluate machine code: ``f`` and its exact Jacobians (by
+differentiating the inverse dynamics, see
+:meth:`~shinro_ctrl.multibody.RigidBodyTree.xdot_jacobians_sx`) generated to
+C and compiled once by :func:`shinro_ctrl.codegen.compiled_by_key` (``f`` at
+construction, the Jacobians at the first ``linearize``), cached on disk under
+a key of the model's numbers and the code that builds them, so another
+process loading the same model loads the libraries in milliseconds; CasADi's
+virtual machine, with a one-line ``CompilerUnavailable`` warning, when no C
+compiler can build them. One library serves every actuator selection. The MuJoCo engine
 loads the same file (:meth:`MjcfPlant.mjcf_patch` edits nothing but the
 timestep), so the state map is the identity.
 
@@ -274,9 +282,9 @@ class MjcfPlant(Plant):
 
     Threads: :meth:`dynamics`, :meth:`linearize`, :meth:`equilibrium_input`
     and the other model methods may be called from any number of threads at
-    once: each thread evaluates the compiled dynamics in its own buffer
-    (created on its first call), and the exact Jacobian's one buffer is
-    behind a lock. :meth:`step` and the state belong to one thread (see
+    once: each thread evaluates the compiled dynamics and the compiled exact
+    Jacobians in its own buffers (created on its first call; the first
+    compilation is behind a lock). :meth:`step` and the state belong to one thread (see
     :class:`~shinro_ctrl.plants.base.Plant`).
 
     Args:
