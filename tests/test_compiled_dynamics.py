@@ -23,6 +23,8 @@ from shinro_ctrl.multibody import RigidBodyTree
 from shinro_ctrl.plants import MjcfPlant
 from shinro_ctrl.resources import asset_path
 
+from .thread_helpers import in_threads
+
 SHIPPED = ("panda_like_arm.xml", "furuta_pendulum.xml", "double_pendulum.xml", "cartpole.xml", "inverted_pendulum.xml")
 
 # A branched tree for ABA's less travelled paths: slide joints before and after hinges, two joints on one body, a
@@ -180,3 +182,23 @@ def test_an_actuator_subset_shares_the_arms_library_and_gets_its_columns(panda):
     np.testing.assert_array_equal(B, Bf[:, [4, 1]])
     np.testing.assert_array_equal(sub.dynamics(x, u_sub), panda.dynamics(x, u_all))
     assert sorted(cache_dir().glob("mjcf_*.so")) == before  # nothing compiled for the subset
+
+
+def test_threads_linearizing_a_fresh_plant_at_once_get_the_serial_results():
+    """The first linearize builds the Jacobian function under a lock; then every thread evaluates in its own buffer."""
+    plant = MjcfPlant("double_pendulum.xml")
+    x0, u0 = plant.equilibrium()
+    rng = np.random.default_rng(4)
+    X = x0 + rng.uniform(-1, 1, (4, 50, x0.size))
+
+    def work(t: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        return [(*plant.linearize(x, u0), plant.dynamics(x, u0)) for x in X[t]]
+
+    results = in_threads(work, range(4))
+    serial = MjcfPlant("double_pendulum.xml")
+    for t in range(4):
+        for x, (A, B, f) in zip(X[t], results[t], strict=True):
+            As, Bs = serial.linearize(x, u0)
+            np.testing.assert_array_equal(A, As)
+            np.testing.assert_array_equal(B, Bs)
+            np.testing.assert_array_equal(f, serial.dynamics(x, u0))
