@@ -126,7 +126,7 @@ def _model_key(tree: ModelTree, what: str) -> str:
     desc = dataclasses.asdict(tree)
     desc.pop("path", None)
     desc.pop("name", None)
-    text = json.dumps(desc, sort_keys=True, default=lambda o: np.asarray(o).tolist())
+    text = json.dumps(desc, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else repr(o))
     return f"{what}|{_code_fingerprint()}|{text}"
 
 
