@@ -17,9 +17,17 @@ transmissions, joint and tendon springs and dampers, gravity compensation;
 ``RigidBodyTree.generalized_forces``) and ``a_act`` the actuator activations
 (none for actuators without activation dynamics).
 
-The expression is a CasADi ``SX`` graph, so ``symbolic()``, exact
-``linearize()``, ``get_model()`` and everything downstream work unchanged;
-numeric ``dynamics()`` evaluates the compiled function. The MuJoCo engine
+The expression is a CasADi ``SX`` graph, so ``symbolic()``, ``get_model()``
+and everything downstream work unchanged. Numeric ``dynamics()`` and exact
+``linearize()`` evaluate machine code: ``f`` and its exact Jacobians (by
+differentiating the inverse dynamics, see
+:meth:`~shinro_ctrl.multibody.RigidBodyTree.xdot_jacobians_sx`) generated to
+C and compiled once by :func:`shinro_ctrl.codegen.compiled_by_key` (``f`` at
+construction, the Jacobians at the first ``linearize``), cached on disk under
+a key of the model's numbers and the code that builds them, so another
+process loading the same model loads the libraries in milliseconds; CasADi's
+virtual machine, with a one-line ``CompilerUnavailable`` warning, when no C
+compiler can build them. One library serves every actuator selection. The MuJoCo engine
 loads the same file (:meth:`MjcfPlant.mjcf_patch` edits nothing but the
 timestep), so the state map is the identity.
 
@@ -35,7 +43,11 @@ trajectories inside the joint ranges and the inputs inside their ranges
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import hashlib
+import json
+import math
 import os
 import threading
 import warnings
@@ -47,6 +59,7 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import ArrayBackend, CasadiBackend
+from shinro_ctrl.codegen import compiled_by_key
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
 from shinro_ctrl.multibody import RigidBodyTree
 from shinro_ctrl.multibody.constraints import ConstrainedDynamics
@@ -57,6 +70,7 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
     from shinro_ctrl.engine.model_tree import RobotModel
+    from shinro_ctrl.multibody import ModelTree
 
 __all__ = ["MODEL_SUFFIXES", "MjcfPlant", "is_model_file"]
 
@@ -101,8 +115,8 @@ def _read(source: str, mtime_ns: int) -> tuple[RobotModel, RigidBodyTree]:
 
 
 @functools.lru_cache(maxsize=16)
-def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
-    """The compiled ``f(x, u) -> xdot`` of one model file version and actuator selection."""
+def _symbolic(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
+    """The CasADi ``SX`` function ``f(x, u) -> xdot`` of one model file version and actuator selection."""
     robot, rb = _read(source, mtime_ns)
     x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
     u = cs.SX.sym("u", len(active))
@@ -116,6 +130,97 @@ def _constrained(
     """The constrained dynamics of one model file version, actuator selection and reference (built once)."""
     robot, rb = _read(source, mtime_ns)
     return ConstrainedDynamics(rb, robot.tree.equalities, active=active, q_ref=np.array(q_ref), what=what)
+
+
+@functools.lru_cache(maxsize=1)
+def _code_fingerprint() -> str:
+    """A hash of the source of every module that shapes the compiled expressions (part of their cache key)."""
+    pkg = Path(__file__).resolve().parent.parent
+    files = [pkg / "_scalar_algebra.py", Path(__file__).resolve(), *sorted((pkg / "multibody").glob("*.py"))]
+    return hashlib.sha256(b"".join(f.read_bytes() for f in files)).hexdigest()
+
+
+def _model_key(tree: ModelTree, what: str) -> str:
+    """What a compiled function of ``tree`` depends on: its numbers (not its name or path) and the code."""
+    desc = dataclasses.asdict(tree)
+    desc.pop("path", None)
+    desc.pop("name", None)
+    text = json.dumps(desc, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else repr(o))
+    return f"{what}|{_code_fingerprint()}|{text}"
+
+
+@functools.lru_cache(maxsize=16)
+def _function(source: str, mtime_ns: int) -> cs.Function:
+    """The compiled ``f(x, u_all) -> xdot`` of one model file version, ``u_all`` every actuator's control.
+
+    One library serves every actuator selection (the plant scatters its
+    inputs into ``u_all``, zeros elsewhere). See :mod:`shinro_ctrl.codegen`;
+    the CasADi virtual machine when no compiler can build it.
+    """
+    robot, rb = _read(source, mtime_ns)
+    every = tuple(range(robot.tree.nu))
+
+    def build() -> cs.Function:
+        x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
+        u = cs.SX.sym("u", robot.tree.nu)
+        return cs.Function("mjcf_f", [x, u], [rb.xdot_sx(x, u, every)], ["x", "u"], ["xdot"])
+
+    return compiled_by_key("mjcf_f", _model_key(robot.tree, "f"), build)
+
+
+@functools.lru_cache(maxsize=16)
+def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
+    """The compiled exact Jacobians ``(x, u_all) -> (Aᵀ, B_allᵀ)`` (transposed: column-major is row-major)."""
+    robot, rb = _read(source, mtime_ns)
+    every = tuple(range(robot.tree.nu))
+
+    def build() -> cs.Function:
+        x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
+        u = cs.SX.sym("u", robot.tree.nu)
+        A, B = rb.xdot_jacobians_sx(x, u, every)
+        return cs.Function("mjcf_jac", [x, u], [A.T, B.T], ["x", "u"], ["A_T", "B_T"])
+
+    return compiled_by_key("mjcf_jac", _model_key(robot.tree, "jac"), build)
+
+
+class _CompiledJacobian:
+    """``(A, B)`` at ``(x, u)`` from the compiled Jacobian function, compiled on the first call.
+
+    Stands where :class:`~shinro_ctrl.linearization.ExactJacobian` stands for
+    other plants (``Plant.linearize`` calls it). Threads: each thread
+    evaluates in its own buffer; the first build is behind a lock.
+    """
+
+    def __init__(self, source: str, mtime_ns: int, nx: int, nu: int, active: tuple[int, ...]):
+        self._key = (source, mtime_ns)
+        self._nx, self._nu, self._active = nx, nu, active
+        self._fun: cs.Function | None = None
+        self._lock = threading.Lock()
+        self._local = threading.local()
+
+    def set_params(self, p: np.ndarray) -> None:
+        """``MjcfPlant`` has no parameters: nothing to bind."""
+
+    def _buffers(self) -> _Buffers:
+        try:
+            return self._local.buffers
+        except AttributeError:
+            pass
+        if self._fun is None:
+            with self._lock:
+                if self._fun is None:
+                    self._fun = _jacobian_function(*self._key)
+        b = self._local.buffers = _Buffers(
+            self._fun, self._nu, self._active, ((self._nx, self._nx), (self._nx, self._nu))
+        )
+        return b
+
+    def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        b = self._buffers()
+        b.set(x0, u0)
+        b.run()
+        A, B = b.out
+        return A.copy(), (B.copy() if b.every else B[:, list(self._active)])
 
 
 class MujocoEngine(Protocol):
@@ -132,18 +237,33 @@ class MujocoEngine(Protocol):
 
 
 class _Buffers:
-    """One thread's evaluation buffer of the compiled dynamics (arrays bound to a CasADi ``FunctionBuffer``)."""
+    """One thread's arrays bound to a compiled function's ``FunctionBuffer`` (inputs ``x``, ``u_all``).
 
-    __slots__ = ("buf", "run", "u", "x", "y")
+    The plant's inputs ``u`` (the selected actuators) are scattered into
+    ``u_all``; the other actuators' controls stay 0.
+    """
 
-    def __init__(self, fun: cs.Function):
+    __slots__ = ("active", "buf", "every", "out", "run", "u", "x")
+
+    def __init__(self, fun: cs.Function, nu: int, active: tuple[int, ...], shapes: tuple[tuple[int, ...], ...]):
         self.x = np.zeros(fun.size1_in(0))
-        self.u = np.zeros(fun.size1_in(1))
-        self.y = np.zeros(fun.size1_out(0))
+        self.u = np.zeros(nu)
+        self.active = np.array(active, dtype=int)
+        self.every = active == tuple(range(nu))
+        self.out = tuple(np.zeros(shape) for shape in shapes)
         self.buf, self.run = fun.buffer()
         self.buf.set_arg(0, memoryview(self.x))
         self.buf.set_arg(1, memoryview(self.u))
-        self.buf.set_res(0, memoryview(self.y))
+        for k, a in enumerate(self.out):
+            self.buf.set_res(k, memoryview(a.reshape(-1)))
+
+    def set(self, x: np.ndarray, u: np.ndarray) -> None:
+        """Copy ``x`` and the selected inputs ``u`` into the bound arrays."""
+        self.x[:] = x
+        if self.every:
+            self.u[:] = u
+        else:
+            self.u[self.active] = u
 
 
 class MjcfPlant(Plant):
@@ -208,9 +328,9 @@ class MjcfPlant(Plant):
 
     Threads: :meth:`dynamics`, :meth:`linearize`, :meth:`equilibrium_input`
     and the other model methods may be called from any number of threads at
-    once: each thread evaluates the compiled dynamics in its own buffer
-    (created on its first call), and the exact Jacobian's one buffer is
-    behind a lock. :meth:`step` and the state belong to one thread (see
+    once: each thread evaluates the compiled dynamics and the compiled exact
+    Jacobians in its own buffers (created on its first call; the first
+    compilation is behind a lock). :meth:`step` and the state belong to one thread (see
     :class:`~shinro_ctrl.plants.base.Plant`).
 
     Args:
@@ -291,9 +411,8 @@ class MjcfPlant(Plant):
             ref, key = self._default_x0(robot.keyframe), robot.keyframe
             what = f"{self._label()}: " + (f"keyframe '{key[0]}'" if key and key[0] else "the reference (qpos0)")
             self.constraints = _constrained(str(source), mtime, active, tuple(ref[: tree.nq]), what)
-            self._fun = self.constraints.symbolic_function()
         else:
-            self._fun = _function(str(source), mtime, active)
+            self._fun = _function(str(source), mtime)  # compiled: u_all, every actuator's control
         self.model_path = str(robot.path)  # the file plant and engine load (a URDF's translation)
         self.asset = self.model_path  # the engine loads the same file
         self.active_actuators = active
@@ -312,6 +431,9 @@ class MjcfPlant(Plant):
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self.state_bounds = self._joint_range_bounds()
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
+        self._key = (str(source), mtime, active)
+        if self.constraints is None:  # compiled at the first linearize (a constrained model: see linearize)
+            self._exact = _CompiledJacobian(str(source), mtime, self.state_dim, tree.nu, active)
         if self.constraints is not None:
             self._x0 = self._constrained_x0(robot.keyframe, x0)
         elif x0 is None:
@@ -486,11 +608,10 @@ class MjcfPlant(Plant):
         try:
             b = self._local.buffers
         except AttributeError:
-            b = self._local.buffers = _Buffers(self._fun)
-        b.x[:] = x
-        b.u[:] = u
+            b = self._local.buffers = _Buffers(self._fun, self.tree.nu, self.active_actuators, ((self.state_dim,),))
+        b.set(x, u)
         b.run()
-        return b.y.copy()
+        return b.out[0].copy()
 
     def dynamics(self, state: ArrayLike, control: ArrayLike, params: dict[str, ArrayLike] | None = None) -> np.ndarray:
         """``ẋ = f(x, u)`` (see :meth:`Plant.dynamics`).
@@ -499,6 +620,20 @@ class MjcfPlant(Plant):
             InvalidArgument: wrong shapes.
             NonFiniteError: ``x`` or ``u`` holds NaN or inf, or ``ẋ`` overflows float64.
         """
+        if (  # fast path: one float64 state and input, straight into this thread's compiled-function buffer
+            params is None
+            and type(state) is np.ndarray
+            and type(control) is np.ndarray
+            and state.shape == (self.state_dim,)
+            and control.shape == (self.input_dim,)
+            and state.dtype == np.float64
+            and control.dtype == np.float64
+        ):
+            self.check_model_domain(state)
+            xdot = self._eval_one(state, control)
+            # one Python-float sum: not finite for any NaN or inf in x, u or ẋ (or an overflow: the slow path decides)
+            if math.isfinite(sum(state.tolist()) + sum(control.tolist()) + sum(xdot.tolist())):
+                return xdot
         for what, v, names in (("x", state, self.state_names), ("u", control, self.input_names)):
             a = np.asarray(v, dtype=float)
             if not np.isfinite(a).all():
@@ -514,7 +649,7 @@ class MjcfPlant(Plant):
     ) -> np.ndarray | cs.SX | list[float]:
         """``ẋ``: the model's SX expression for the CasADi backend, the compiled function otherwise."""
         if isinstance(bk, CasadiBackend):
-            return self._fun(x, u)
+            return self.symbolic()(x, u)
         if np.iscomplexobj(x) or np.iscomplexobj(u):  # complex step: the scalar algorithms on complex numbers
             return self._f_complex(np.asarray(x), np.asarray(u))
         x = np.asarray(x, dtype=float)
@@ -554,16 +689,35 @@ class MjcfPlant(Plant):
         self._check_finite_model(A, B, f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}")
         return A, B
 
+    def compiled_functions(self) -> tuple[cs.Function, cs.Function]:
+        """The compiled functions behind :meth:`dynamics` and :meth:`linearize` (the Jacobians built on first call).
+
+        ``f(x, u_all) -> ẋ`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ)``, where
+        ``u_all`` holds every actuator's control in the model's order (one
+        library serves every actuator selection) and the Jacobians come
+        transposed (dense, so their column-major nonzeros are ``A``'s and
+        ``B_all``'s row-major entries). CasADi's virtual-machine functions when
+        no compiler could build them. For callers that bind their own
+        ``Function.buffer()``; the plant's methods need none of this.
+        """
+        if self.constraints is not None:
+            raise InvalidArgument(
+                f"{self._label()}: a constrained model's dynamics are not compiled (they complete the dependent "
+                "joints by Newton's method first); use dynamics() and linearize()"
+            )
+        return self._fun, _jacobian_function(*self._key[:2])
+
     def symbolic(self, params: bool = False) -> cs.Function:
         """The dynamics as a CasADi ``Function`` ``f(x, u)`` (``params=True``: ``f(x, u, p)`` with an empty ``p``)."""
         if params not in self._symbolic:
+            f = self.constraints.symbolic_function() if self.constraints is not None else _symbolic(*self._key)
             if not params:
-                self._symbolic[False] = self._fun
+                self._symbolic[False] = f
             else:
                 x = cs.SX.sym("x", self.state_dim)
                 u = cs.SX.sym("u", self.input_dim)
                 p = cs.SX.sym("p", 0)
-                self._symbolic[True] = cs.Function("f", [x, u, p], [self._fun(x, u)], ["x", "u", "p"], ["xdot"])
+                self._symbolic[True] = cs.Function("f", [x, u, p], [f(x, u)], ["x", "u", "p"], ["xdot"])
         return self._symbolic[params]
 
     def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -594,7 +748,7 @@ class MjcfPlant(Plant):
         x = cs.SX.sym("x", self.state_dim)
         u = cs.SX.sym("u", self.input_dim)
         p = cs.SX.sym("p", 0)
-        xd = self._fun(x, u)
+        xd = self.symbolic()(x, u)
         v = x[nq : 2 * nq] + self.dt * xd[nq : 2 * nq]
         parts = [x[:nq] + self.dt * v, v]
         if na:
