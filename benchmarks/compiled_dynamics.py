@@ -172,6 +172,8 @@ def bench_model(name: str, folder: Path) -> dict:
     jb.set_arg(1, memoryview(ub))
     jb.set_res(0, memoryview(Ab))
     jb.set_res(1, memoryview(Bb))
+    sb = np.zeros(1)
+    jb.set_res(2, memoryview(sb))
     f_run()
     j_run()
     A, _ = plant.linearize(x, u)

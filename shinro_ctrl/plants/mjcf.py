@@ -151,7 +151,13 @@ def _function(source: str, mtime_ns: int) -> cs.Function:
 
 @functools.lru_cache(maxsize=16)
 def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
-    """The compiled exact Jacobians ``(x, u_all) -> (Aᵀ, B_allᵀ)`` (transposed: column-major is row-major)."""
+    """The compiled exact Jacobians ``(x, u_all) -> (Aᵀ, B_allᵀ, s)``.
+
+    Transposed, so that their column-major nonzeros are ``A``'s and
+    ``B_all``'s row-major entries; ``s`` is the sum of all their entries,
+    computed in C: finite unless an entry is NaN or inf (or the sum
+    overflows), the cheap finiteness check of :meth:`MjcfPlant.linearize`.
+    """
     robot, rb = _read(source, mtime_ns)
     every = tuple(range(robot.tree.nu))
 
@@ -159,7 +165,8 @@ def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
         x = cs.SX.sym("x", 2 * robot.tree.nq)
         u = cs.SX.sym("u", robot.tree.nu)
         A, B = rb.xdot_jacobians_sx(x, u, every)
-        return cs.Function("mjcf_jac", [x, u], [A.T, B.T], ["x", "u"], ["A_T", "B_T"])
+        total = cs.sum1(cs.sum2(A)) + cs.sum1(cs.sum2(B))
+        return cs.Function("mjcf_jac", [x, u], [A.T, B.T, total], ["x", "u"], ["A_T", "B_T", "sum"])
 
     return compiled_by_key("mjcf_jac", _model_key(robot.tree, "jac"), build)
 
@@ -192,16 +199,20 @@ class _CompiledJacobian:
                 if self._fun is None:
                     self._fun = _jacobian_function(*self._key)
         b = self._local.buffers = _Buffers(
-            self._fun, self._nu, self._active, ((self._nx, self._nx), (self._nx, self._nu))
+            self._fun, self._nu, self._active, ((self._nx, self._nx), (self._nx, self._nu), (1,))
         )
         return b
 
     def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.evaluate(x0, u0)[:2]
+
+    def evaluate(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(A, B, s)``: fresh Jacobians and the sum of all entries of ``A`` and ``B_all`` (see above)."""
         b = self._buffers()
         b.set(x0, u0)
         b.run()
-        A, B = b.out
-        return A.copy(), (B.copy() if b.every else B[:, list(self._active)])
+        A, B, s = b.out
+        return A.copy(), (B.copy() if b.every else B[:, list(self._active)]), float(s[0])
 
 
 class MujocoEngine(Protocol):
@@ -364,7 +375,8 @@ class MjcfPlant(Plant):
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
         self._key = (str(source), mtime, active)
-        self._exact = _CompiledJacobian(str(source), mtime, 2 * nq, tree.nu, active)  # compiled at first linearize
+        self._jacobian = _CompiledJacobian(str(source), mtime, 2 * nq, tree.nu, active)  # compiled at 1st linearize
+        self._exact = self._jacobian  # what Plant.linearize's general path calls
         if x0 is None:
             self._x0 = self._default_x0(robot.keyframe)
         else:
@@ -501,6 +513,31 @@ class MjcfPlant(Plant):
                 )
         return super().dynamics(state, control, params)
 
+    def linearize(
+        self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous-time Jacobians ``(A_c, B_c)`` at ``(x0, u0)`` (see :meth:`Plant.linearize`).
+
+        ``"exact"`` evaluates the compiled Jacobian function. A fast path for
+        one float64 ``x0`` and ``u0``: finiteness is checked on one sum
+        computed in C and two Python-float sums (the general path, with every
+        check and message, decides whenever one of them is not finite).
+        """
+        if (
+            method == "exact"
+            and type(x0) is np.ndarray
+            and type(u0) is np.ndarray
+            and x0.shape == (self.state_dim,)
+            and u0.shape == (self.input_dim,)
+            and x0.dtype == np.float64
+            and u0.dtype == np.float64
+        ):
+            self.check_model_domain(x0)
+            A, B, total = self._jacobian.evaluate(x0, u0)
+            if math.isfinite(total + sum(x0.tolist()) + sum(u0.tolist())):
+                return A, B
+        return super().linearize(x0, u0, method=method, eps=eps)
+
     def equations(
         self, bk: ArrayBackend, x: np.ndarray | cs.SX, u: np.ndarray | cs.SX, p: dict[str, float]
     ) -> np.ndarray | cs.SX | list[float]:
@@ -534,11 +571,11 @@ class MjcfPlant(Plant):
     def compiled_functions(self) -> tuple[cs.Function, cs.Function]:
         """The compiled functions behind :meth:`dynamics` and :meth:`linearize` (the Jacobians built on first call).
 
-        ``f(x, u_all) -> ẋ`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ)``, where
+        ``f(x, u_all) -> ẋ`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ, sum)``, where
         ``u_all`` holds every actuator's control in the model's order (one
         library serves every actuator selection) and the Jacobians come
         transposed (dense, so their column-major nonzeros are ``A``'s and
-        ``B_all``'s row-major entries). CasADi's virtual-machine functions when
+        ``B_all``'s row-major entries), with the sum of their entries. CasADi's virtual-machine functions when
         no compiler could build them. For callers that bind their own
         ``Function.buffer()``; the plant's methods need none of this.
         """
