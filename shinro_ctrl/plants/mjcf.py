@@ -132,11 +132,14 @@ def _model_key(tree: ModelTree, what: str) -> str:
 
 @functools.lru_cache(maxsize=16)
 def _function(source: str, mtime_ns: int) -> cs.Function:
-    """The compiled ``f(x, u_all) -> xdot`` of one model file version, ``u_all`` every actuator's control.
+    """The compiled ``f(x, u_all) -> (xdot, s)`` of one model file version, ``u_all`` every actuator's control.
 
     One library serves every actuator selection (the plant scatters its
-    inputs into ``u_all``, zeros elsewhere). See :mod:`shinro_ctrl.codegen`;
-    the CasADi virtual machine when no compiler can build it.
+    inputs into ``u_all``, zeros elsewhere). ``s`` is the sum of every entry
+    of ``x``, ``u_all`` and ``xdot``, computed in C: finite unless one of them
+    is NaN or inf (or the sum overflows), the fast path's finiteness check.
+    See :mod:`shinro_ctrl.codegen`; the CasADi virtual machine when no
+    compiler can build it.
     """
     robot, rb = _read(source, mtime_ns)
     every = tuple(range(robot.tree.nu))
@@ -144,7 +147,9 @@ def _function(source: str, mtime_ns: int) -> cs.Function:
     def build() -> cs.Function:
         x = cs.SX.sym("x", 2 * robot.tree.nq)
         u = cs.SX.sym("u", robot.tree.nu)
-        return cs.Function("mjcf_f", [x, u], [rb.xdot_sx(x, u, every)], ["x", "u"], ["xdot"])
+        xdot = rb.xdot_sx(x, u, every)
+        total = cs.sum1(x) + cs.sum1(u) + cs.sum1(xdot)
+        return cs.Function("mjcf_f", [x, u], [xdot, total], ["x", "u"], ["xdot", "sum"])
 
     return compiled_by_key("mjcf_f", _model_key(robot.tree, "f"), build)
 
@@ -154,9 +159,9 @@ def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
     """The compiled exact Jacobians ``(x, u_all) -> (Aᵀ, B_allᵀ, s)``.
 
     Transposed, so that their column-major nonzeros are ``A``'s and
-    ``B_all``'s row-major entries; ``s`` is the sum of all their entries,
-    computed in C: finite unless an entry is NaN or inf (or the sum
-    overflows), the cheap finiteness check of :meth:`MjcfPlant.linearize`.
+    ``B_all``'s row-major entries; ``s`` is the sum of all their entries and
+    of ``x`` and ``u_all``, computed in C: finite unless one is NaN or inf (or
+    the sum overflows), the cheap finiteness check of :meth:`MjcfPlant.linearize`.
     """
     robot, rb = _read(source, mtime_ns)
     every = tuple(range(robot.tree.nu))
@@ -165,7 +170,7 @@ def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
         x = cs.SX.sym("x", 2 * robot.tree.nq)
         u = cs.SX.sym("u", robot.tree.nu)
         A, B = rb.xdot_jacobians_sx(x, u, every)
-        total = cs.sum1(cs.sum2(A)) + cs.sum1(cs.sum2(B))
+        total = cs.sum1(cs.sum2(A)) + cs.sum1(cs.sum2(B)) + cs.sum1(x) + cs.sum1(u)
         return cs.Function("mjcf_jac", [x, u], [A.T, B.T, total], ["x", "u"], ["A_T", "B_T", "sum"])
 
     return compiled_by_key("mjcf_jac", _model_key(robot.tree, "jac"), build)
@@ -207,7 +212,7 @@ class _CompiledJacobian:
         return self.evaluate(x0, u0)[:2]
 
     def evaluate(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(A, B, s)``: fresh Jacobians and the sum of all entries of ``A`` and ``B_all`` (see above)."""
+        """``(A, B, s)``: fresh Jacobians and the sum of all entries of ``A``, ``B_all``, ``x0`` and ``u_all``."""
         b = self._buffers()
         b.set(x0, u0)
         b.run()
@@ -474,13 +479,18 @@ class MjcfPlant(Plant):
     # -------------------------------------------------------------- dynamics
     def _eval_one(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """``ẋ (2nq,)`` at one ``x``, ``u`` through this thread's buffer."""
+        return self._eval_checked(x, u)[0]
+
+    def _eval_checked(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, float]:
+        """``(ẋ, s)`` with ``s`` the sum of ``x``, ``u`` and ``ẋ`` computed in C (see :func:`_function`)."""
         try:
             b = self._local.buffers
         except AttributeError:
-            b = self._local.buffers = _Buffers(self._fun, self.tree.nu, self.active_actuators, ((2 * self.tree.nq,),))
+            shapes = ((2 * self.tree.nq,), (1,))
+            b = self._local.buffers = _Buffers(self._fun, self.tree.nu, self.active_actuators, shapes)
         b.set(x, u)
         b.run()
-        return b.out[0].copy()
+        return b.out[0].copy(), float(b.out[1][0])
 
     def dynamics(self, state: ArrayLike, control: ArrayLike, params: dict[str, ArrayLike] | None = None) -> np.ndarray:
         """``ẋ = f(x, u)`` (see :meth:`Plant.dynamics`).
@@ -499,9 +509,8 @@ class MjcfPlant(Plant):
             and control.dtype == np.float64
         ):
             self.check_model_domain(state)
-            xdot = self._eval_one(state, control)
-            # one Python-float sum: not finite for any NaN or inf in x, u or ẋ (or an overflow: the slow path decides)
-            if math.isfinite(sum(state.tolist()) + sum(control.tolist()) + sum(xdot.tolist())):
+            xdot, total = self._eval_checked(state, control)
+            if math.isfinite(total):  # no NaN or inf in x, u or ẋ (or an overflow: the general path decides)
                 return xdot
         for what, v, names in (("x", state, self.state_names), ("u", control, self.input_names)):
             a = np.asarray(v, dtype=float)
@@ -519,9 +528,9 @@ class MjcfPlant(Plant):
         """Continuous-time Jacobians ``(A_c, B_c)`` at ``(x0, u0)`` (see :meth:`Plant.linearize`).
 
         ``"exact"`` evaluates the compiled Jacobian function. A fast path for
-        one float64 ``x0`` and ``u0``: finiteness is checked on one sum
-        computed in C and two Python-float sums (the general path, with every
-        check and message, decides whenever one of them is not finite).
+        one float64 ``x0`` and ``u0``: finiteness is checked on one sum of
+        ``x0``, ``u0``, ``A`` and ``B`` computed in C (the general path, with
+        every check and message, decides whenever it is not finite).
         """
         if (
             method == "exact"
@@ -534,7 +543,7 @@ class MjcfPlant(Plant):
         ):
             self.check_model_domain(x0)
             A, B, total = self._jacobian.evaluate(x0, u0)
-            if math.isfinite(total + sum(x0.tolist()) + sum(u0.tolist())):
+            if math.isfinite(total):
                 return A, B
         return super().linearize(x0, u0, method=method, eps=eps)
 
@@ -571,12 +580,13 @@ class MjcfPlant(Plant):
     def compiled_functions(self) -> tuple[cs.Function, cs.Function]:
         """The compiled functions behind :meth:`dynamics` and :meth:`linearize` (the Jacobians built on first call).
 
-        ``f(x, u_all) -> ẋ`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ, sum)``, where
-        ``u_all`` holds every actuator's control in the model's order (one
-        library serves every actuator selection) and the Jacobians come
-        transposed (dense, so their column-major nonzeros are ``A``'s and
-        ``B_all``'s row-major entries), with the sum of their entries. CasADi's virtual-machine functions when
-        no compiler could build them. For callers that bind their own
+        ``f(x, u_all) -> (ẋ, sum)`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ,
+        sum)``, where ``u_all`` holds every actuator's control in the model's
+        order (one library serves every actuator selection), the Jacobians
+        come transposed (dense, so their column-major nonzeros are ``A``'s and
+        ``B_all``'s row-major entries) and ``sum`` adds up every input and
+        output entry (the fast paths' finiteness check). CasADi's
+        virtual-machine functions when no compiler could build them. For callers that bind their own
         ``Function.buffer()``; the plant's methods need none of this.
         """
         return self._fun, _jacobian_function(*self._key[:2])
