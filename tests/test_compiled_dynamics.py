@@ -17,8 +17,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from shinro_ctrl.codegen import cache_dir
+from shinro_ctrl.codegen import CompilerUnavailable, cache_dir
 from shinro_ctrl.engine.model_tree import read_robot
+from shinro_ctrl.errors import NonFiniteError
 from shinro_ctrl.multibody import RigidBodyTree
 from shinro_ctrl.plants import MjcfPlant
 from shinro_ctrl.resources import asset_path
@@ -216,3 +217,43 @@ def test_threads_linearizing_a_fresh_plant_at_once_get_the_serial_results():
             np.testing.assert_array_equal(A, As)
             np.testing.assert_array_equal(B, Bs)
             np.testing.assert_array_equal(f, serial.dynamics(x, u0))
+
+
+def test_the_fast_paths_give_the_general_paths_results_and_errors(panda):
+    """float64 arrays take the compiled fast path; lists, ints and NaN take the general path: same answers."""
+    x0, u0 = panda.equilibrium()
+    A, B = panda.linearize(x0, u0)
+    A2, B2 = panda.linearize(list(x0), list(u0))
+    np.testing.assert_array_equal(A, A2)
+    np.testing.assert_array_equal(B, B2)
+    np.testing.assert_array_equal(panda.dynamics(x0, u0), panda.dynamics(list(x0), list(u0)))
+    xi = np.zeros(x0.size, dtype=int)
+    np.testing.assert_array_equal(panda.dynamics(xi, u0), panda.dynamics(xi.astype(float), u0))
+    bad = x0.copy()
+    bad[3] = np.nan
+    with pytest.raises(NonFiniteError, match="x0 must be finite"):
+        panda.linearize(bad, u0)
+    with pytest.raises(NonFiniteError, match=r"x holds NaN or inf \(in joint4\)"):
+        panda.dynamics(bad, u0)
+    with pytest.raises(NonFiniteError, match="u holds NaN or inf"):
+        panda.dynamics(x0, np.full(u0.size, np.inf))
+
+
+def test_without_a_compiler_the_plant_runs_on_casadis_vm_with_one_warning(tmp_path, monkeypatch):
+    """A model never compiled, no compiler: same results from the virtual machine, one CompilerUnavailable line."""
+    copy = tmp_path / "pendulum_copy.xml"
+    copy.write_text(asset_path("double_pendulum.xml").read_text())
+    monkeypatch.setenv("SHINRO_CTRL_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    with pytest.warns(CompilerUnavailable) as record:
+        vm = MjcfPlant(copy)
+        x0, u0 = vm.equilibrium()
+        A, B = vm.linearize(x0 + 0.1, u0)
+    assert len(record) == 1 and "no-such-cc" in str(record[0].message)
+    assert not any(f.is_a("External") for f in vm.compiled_functions())
+    monkeypatch.undo()
+    ref = MjcfPlant("double_pendulum.xml")
+    assert all(f.is_a("External") for f in ref.compiled_functions())
+    Ar, Br = ref.linearize(x0 + 0.1, u0)
+    assert _rel(np.hstack([A, B]), np.hstack([Ar, Br])) <= 1e-14
+    assert _rel(vm.dynamics(x0 + 0.1, u0), ref.dynamics(x0 + 0.1, u0)) <= 1e-15

@@ -151,11 +151,14 @@ def _model_key(tree: ModelTree, what: str) -> str:
 
 @functools.lru_cache(maxsize=16)
 def _function(source: str, mtime_ns: int) -> cs.Function:
-    """The compiled ``f(x, u_all) -> xdot`` of one model file version, ``u_all`` every actuator's control.
+    """The compiled ``f(x, u_all) -> (xdot, s)`` of one model file version, ``u_all`` every actuator's control.
 
     One library serves every actuator selection (the plant scatters its
-    inputs into ``u_all``, zeros elsewhere). See :mod:`shinro_ctrl.codegen`;
-    the CasADi virtual machine when no compiler can build it.
+    inputs into ``u_all``, zeros elsewhere). ``s`` is the sum of every entry
+    of ``x``, ``u_all`` and ``xdot``, computed in C: finite unless one of them
+    is NaN or inf (or the sum overflows), the fast path's finiteness check.
+    See :mod:`shinro_ctrl.codegen`; the CasADi virtual machine when no
+    compiler can build it.
     """
     robot, rb = _read(source, mtime_ns)
     every = tuple(range(robot.tree.nu))
@@ -163,14 +166,22 @@ def _function(source: str, mtime_ns: int) -> cs.Function:
     def build() -> cs.Function:
         x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
         u = cs.SX.sym("u", robot.tree.nu)
-        return cs.Function("mjcf_f", [x, u], [rb.xdot_sx(x, u, every)], ["x", "u"], ["xdot"])
+        xdot = rb.xdot_sx(x, u, every)
+        total = cs.sum1(x) + cs.sum1(u) + cs.sum1(xdot)
+        return cs.Function("mjcf_f", [x, u], [xdot, total], ["x", "u"], ["xdot", "sum"])
 
     return compiled_by_key("mjcf_f", _model_key(robot.tree, "f"), build)
 
 
 @functools.lru_cache(maxsize=16)
 def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
-    """The compiled exact Jacobians ``(x, u_all) -> (Aᵀ, B_allᵀ)`` (transposed: column-major is row-major)."""
+    """The compiled exact Jacobians ``(x, u_all) -> (Aᵀ, B_allᵀ, s)``.
+
+    Transposed, so that their column-major nonzeros are ``A``'s and
+    ``B_all``'s row-major entries; ``s`` is the sum of all their entries and
+    of ``x`` and ``u_all``, computed in C: finite unless one is NaN or inf (or
+    the sum overflows), the cheap finiteness check of :meth:`MjcfPlant.linearize`.
+    """
     robot, rb = _read(source, mtime_ns)
     every = tuple(range(robot.tree.nu))
 
@@ -178,7 +189,8 @@ def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
         x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
         u = cs.SX.sym("u", robot.tree.nu)
         A, B = rb.xdot_jacobians_sx(x, u, every)
-        return cs.Function("mjcf_jac", [x, u], [A.T, B.T], ["x", "u"], ["A_T", "B_T"])
+        total = cs.sum1(cs.sum2(A)) + cs.sum1(cs.sum2(B)) + cs.sum1(x) + cs.sum1(u)
+        return cs.Function("mjcf_jac", [x, u], [A.T, B.T, total], ["x", "u"], ["A_T", "B_T", "sum"])
 
     return compiled_by_key("mjcf_jac", _model_key(robot.tree, "jac"), build)
 
@@ -211,16 +223,20 @@ class _CompiledJacobian:
                 if self._fun is None:
                     self._fun = _jacobian_function(*self._key)
         b = self._local.buffers = _Buffers(
-            self._fun, self._nu, self._active, ((self._nx, self._nx), (self._nx, self._nu))
+            self._fun, self._nu, self._active, ((self._nx, self._nx), (self._nx, self._nu), (1,))
         )
         return b
 
     def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.evaluate(x0, u0)[:2]
+
+    def evaluate(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(A, B, s)``: fresh Jacobians and the sum of all entries of ``A``, ``B_all``, ``x0`` and ``u_all``."""
         b = self._buffers()
         b.set(x0, u0)
         b.run()
-        A, B = b.out
-        return A.copy(), (B.copy() if b.every else B[:, list(self._active)])
+        A, B, s = b.out
+        return A.copy(), (B.copy() if b.every else B[:, list(self._active)]), float(s[0])
 
 
 class MujocoEngine(Protocol):
@@ -432,8 +448,10 @@ class MjcfPlant(Plant):
         self.state_bounds = self._joint_range_bounds()
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
         self._key = (str(source), mtime, active)
+        self._jacobian: _CompiledJacobian | None = None
         if self.constraints is None:  # compiled at the first linearize (a constrained model: see linearize)
-            self._exact = _CompiledJacobian(str(source), mtime, self.state_dim, tree.nu, active)
+            self._jacobian = _CompiledJacobian(str(source), mtime, self.state_dim, tree.nu, active)
+            self._exact = self._jacobian  # what Plant.linearize's general path calls
         if self.constraints is not None:
             self._x0 = self._constrained_x0(robot.keyframe, x0)
         elif x0 is None:
@@ -602,16 +620,24 @@ class MjcfPlant(Plant):
 
     # -------------------------------------------------------------- dynamics
     def _eval_one(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``ẋ (2nq,)`` at one ``x``, ``u`` through this thread's buffer (constrained: Newton, then the KKT system)."""
+        """``ẋ (nx,)`` at one ``x``, ``u`` through this thread's buffer (constrained: Newton, then the KKT system)."""
         if self.constraints is not None:
             return self.constraints.xdot(x, u)
+        return self._eval_checked(x, u)[0]
+
+    def _eval_checked(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, float]:
+        """``(ẋ, s)`` with ``s`` the sum of ``x``, ``u`` and ``ẋ`` computed in C (see :func:`_function`)."""
+        if self.constraints is not None:
+            xd = self.constraints.xdot(x, u)
+            return xd, float(np.sum(x) + np.sum(u) + np.sum(xd))
         try:
             b = self._local.buffers
         except AttributeError:
-            b = self._local.buffers = _Buffers(self._fun, self.tree.nu, self.active_actuators, ((self.state_dim,),))
+            shapes = ((self.state_dim,), (1,))
+            b = self._local.buffers = _Buffers(self._fun, self.tree.nu, self.active_actuators, shapes)
         b.set(x, u)
         b.run()
-        return b.out[0].copy()
+        return b.out[0].copy(), float(b.out[1][0])
 
     def dynamics(self, state: ArrayLike, control: ArrayLike, params: dict[str, ArrayLike] | None = None) -> np.ndarray:
         """``ẋ = f(x, u)`` (see :meth:`Plant.dynamics`).
@@ -630,9 +656,8 @@ class MjcfPlant(Plant):
             and control.dtype == np.float64
         ):
             self.check_model_domain(state)
-            xdot = self._eval_one(state, control)
-            # one Python-float sum: not finite for any NaN or inf in x, u or ẋ (or an overflow: the slow path decides)
-            if math.isfinite(sum(state.tolist()) + sum(control.tolist()) + sum(xdot.tolist())):
+            xdot, total = self._eval_checked(state, control)
+            if math.isfinite(total):  # no NaN or inf in x, u or ẋ (or an overflow: the general path decides)
                 return xdot
         for what, v, names in (("x", state, self.state_names), ("u", control, self.input_names)):
             a = np.asarray(v, dtype=float)
@@ -643,6 +668,41 @@ class MjcfPlant(Plant):
                     f"{np.array2string(a, precision=4)}"
                 )
         return super().dynamics(state, control, params)
+
+    def linearize(
+        self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous-time Jacobians ``(A_c, B_c)`` at ``(x0, u0)`` (see :meth:`Plant.linearize`).
+
+        ``"exact"`` evaluates the compiled Jacobian function. A fast path for
+        one float64 ``x0`` and ``u0``: finiteness is checked on one sum of
+        ``x0``, ``u0``, ``A`` and ``B`` computed in C (the general path, with
+        every check and message, decides whenever it is not finite). A
+        constrained model's exact Jacobians come from the implicit function
+        theorem (:meth:`ConstrainedDynamics.jacobians`), not compiled.
+        """
+        if self.constraints is not None:
+            if method != "exact":
+                return super().linearize(x0, u0, method=method, eps=eps)
+            x0, u0 = self.operating_point(x0, u0)
+            A, B = self.constraints.jacobians(x0, u0)
+            where = f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}"
+            self._check_finite_model(A, B, where)
+            return A, B
+        if (
+            method == "exact"
+            and type(x0) is np.ndarray
+            and type(u0) is np.ndarray
+            and x0.shape == (self.state_dim,)
+            and u0.shape == (self.input_dim,)
+            and x0.dtype == np.float64
+            and u0.dtype == np.float64
+        ):
+            self.check_model_domain(x0)
+            A, B, total = self._jacobian.evaluate(x0, u0)
+            if math.isfinite(total):
+                return A, B
+        return super().linearize(x0, u0, method=method, eps=eps)
 
     def equations(
         self, bk: ArrayBackend, x: np.ndarray | cs.SX, u: np.ndarray | cs.SX, p: dict[str, float]
@@ -678,26 +738,16 @@ class MjcfPlant(Plant):
         out = np.array([rb.xdot_numpy(xb[k], ub[k], active) for k in range(xb.shape[0])], dtype=complex)
         return out.reshape(*lead, x.shape[-1])
 
-    def linearize(
-        self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """See :meth:`Plant.linearize`; a constrained model's exact Jacobians: the implicit function theorem."""
-        if self.constraints is None or method != "exact":
-            return super().linearize(x0, u0, method=method, eps=eps)
-        x0, u0 = self.operating_point(x0, u0)
-        A, B = self.constraints.jacobians(x0, u0)
-        self._check_finite_model(A, B, f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}")
-        return A, B
-
     def compiled_functions(self) -> tuple[cs.Function, cs.Function]:
         """The compiled functions behind :meth:`dynamics` and :meth:`linearize` (the Jacobians built on first call).
 
-        ``f(x, u_all) -> ẋ`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ)``, where
-        ``u_all`` holds every actuator's control in the model's order (one
-        library serves every actuator selection) and the Jacobians come
-        transposed (dense, so their column-major nonzeros are ``A``'s and
-        ``B_all``'s row-major entries). CasADi's virtual-machine functions when
-        no compiler could build them. For callers that bind their own
+        ``f(x, u_all) -> (ẋ, sum)`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ,
+        sum)``, where ``u_all`` holds every actuator's control in the model's
+        order (one library serves every actuator selection), the Jacobians
+        come transposed (dense, so their column-major nonzeros are ``A``'s and
+        ``B_all``'s row-major entries) and ``sum`` adds up every input and
+        output entry (the fast paths' finiteness check). CasADi's
+        virtual-machine functions when no compiler could build them. For callers that bind their own
         ``Function.buffer()``; the plant's methods need none of this.
         """
         if self.constraints is not None:
