@@ -93,9 +93,12 @@ def _all_zero(v: Sequence[Any]) -> bool:
     return all(_zero(c) for c in v)
 
 
-def _ldl_solve(M: list[list[Any]], b: list[Any]) -> list[Any]:
-    """Solve ``M x = b`` for symmetric positive definite ``M`` by LDLᵀ (structural zeros skipped)."""
-    n = len(b)
+def _ldl_factor(M: list[list[Any]]) -> tuple[list[list[Any]], list[Any]]:
+    """``M = L D Lᵀ`` (``L`` unit lower triangular, ``D`` diagonal) of a symmetric positive definite ``M``.
+
+    No pivoting; structural zeros of ``M`` stay zeros of ``L`` where no fill-in reaches them.
+    """
+    n = len(M)
     L: list[list[Any]] = [[0.0] * n for _ in range(n)]
     D: list[Any] = [0.0] * n
     for j in range(n):
@@ -103,6 +106,12 @@ def _ldl_solve(M: list[list[Any]], b: list[Any]) -> list[Any]:
         for i in range(j + 1, n):
             s = _sub(M[i][j], _add(*(_mul(_mul(L[i][k], L[j][k]), D[k]) for k in range(j))))
             L[i][j] = 0.0 if _zero(s) else s / D[j]
+    return L, D
+
+
+def _ldl_back(L: list[list[Any]], D: list[Any], b: list[Any]) -> list[Any]:
+    """Solve ``L D Lᵀ x = b`` with the factors of :func:`_ldl_factor`."""
+    n = len(b)
     y: list[Any] = [0.0] * n
     for i in range(n):
         y[i] = _sub(b[i], _add(*(_mul(L[i][k], y[k]) for k in range(i))))
@@ -110,3 +119,9 @@ def _ldl_solve(M: list[list[Any]], b: list[Any]) -> list[Any]:
     for i in range(n - 1, -1, -1):
         x[i] = _sub(y[i] / D[i] if not _zero(y[i]) else 0.0, _add(*(_mul(L[k][i], x[k]) for k in range(i + 1, n))))
     return x
+
+
+def _ldl_solve(M: list[list[Any]], b: list[Any]) -> list[Any]:
+    """Solve ``M x = b`` for symmetric positive definite ``M`` by LDLᵀ (structural zeros skipped)."""
+    L, D = _ldl_factor(M)
+    return _ldl_back(L, D, b)

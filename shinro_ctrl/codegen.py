@@ -12,8 +12,13 @@ same expression loads it in milliseconds instead of compiling again, and a
 changed expression can never load a stale library. The cache folder is
 ``$SHINRO_CTRL_CACHE``, else ``$XDG_CACHE_HOME/shinro_ctrl``, else
 ``~/.cache/shinro_ctrl`` (subfolder ``codegen``); libraries are written under
-a temporary name and renamed into place, so concurrent processes building the
-same function never load a half-written file.
+a temporary name and renamed into place, so no process ever loads a
+half-written file, and under a lock file per library, so concurrent processes
+asking for the same function compile it once (the others wait and load it).
+
+:func:`compiled_by_key` is the same for an expression that is expensive to
+build: the caller names what it depends on (a robot's numbers and the source
+of the code that builds it), so a cache hit skips building it altogether.
 
 Nothing is compiled at import. Without a working compiler (none found, or the
 build fails) :func:`compiled` returns the function unchanged and warns once
@@ -23,6 +28,7 @@ the same, only slower.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -30,12 +36,12 @@ import subprocess
 import tempfile
 import threading
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import casadi as cs
 
-__all__ = ["CompilerUnavailable", "cache_dir", "compiled", "find_compiler"]
+__all__ = ["CompilerUnavailable", "cache_dir", "compiled", "compiled_by_key", "find_compiler"]
 
 #: Default optimization flags: ``-O1`` compiles large generated Jacobians several times faster than ``-O3`` and runs
 #: them about as fast (the generated code is straight-line arithmetic with little left to optimize).
@@ -59,6 +65,13 @@ def find_compiler() -> str | None:
         if path:
             return path
     return None
+
+
+def _no_compiler() -> str:
+    env = os.environ.get("CC", "").strip()
+    if env:
+        return f"no C compiler: CC={env!r} is not a program on the PATH"
+    return "no C compiler found (set CC or install gcc)"
 
 
 def cache_dir() -> Path:
@@ -91,6 +104,58 @@ def _source(fun: cs.Function) -> str:
         return (Path(tmp) / name).read_text()
 
 
+def _link(name: str, digest: str, src: Callable[[], str], flags: Sequence[str], folder: Path | None) -> Path | None:
+    """The library ``<folder>/<name>_<digest>.so``, compiled from ``src()`` unless already cached; None on failure."""
+    cc = find_compiler()
+    if cc is None:
+        _note(_no_compiler())
+        return None
+    folder = cache_dir() if folder is None else Path(folder)
+    lib = folder / f"{name}_{digest}.so"
+    if lib.is_file():
+        return lib
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _note(f"cache folder {folder} is not writable ({exc.strerror})")
+        return None
+    with _file_lock(folder / f"{lib.name}.lock"):  # another process building the same key: wait, then load its
+        if lib.is_file():
+            return lib
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            c_file = Path(tmp) / f"{name}.c"
+            c_file.write_text(src())
+            out = Path(tmp) / lib.name
+            cmd = [*cc.split(), *flags, "-shared", "-fPIC", "-o", str(out), str(c_file), "-lm"]
+            proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            if proc.returncode != 0:
+                first = (proc.stderr.strip().splitlines() or ["no output"])[0]
+                _note(f"{Path(cc.split()[0]).name} could not build {name} ({first})")
+                return None
+            os.replace(out, lib)  # atomic: no process ever loads a half-written library
+    return lib
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path) -> Iterator[None]:
+    """An exclusive advisory lock on ``path`` across processes (``fcntl``; none where it does not exist)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: the atomic rename alone keeps builds safe
+        yield
+        return
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _digest(*parts: str) -> str:
+    return hashlib.sha256("\0".join(parts).encode()).hexdigest()[:24]
+
+
 def compiled(fun: cs.Function, *, flags: Sequence[str] = DEFAULT_FLAGS, folder: Path | None = None) -> cs.Function:
     """``fun`` as compiled machine code, built once and cached on disk.
 
@@ -108,27 +173,54 @@ def compiled(fun: cs.Function, *, flags: Sequence[str] = DEFAULT_FLAGS, folder: 
     """
     cc = find_compiler()
     if cc is None:
-        _note("no C compiler found (set CC or install gcc)")
+        _note(_no_compiler())
         return fun
     src = _source(fun)
-    key = hashlib.sha256("\0".join([src, cc, *flags]).encode()).hexdigest()[:24]
-    folder = cache_dir() if folder is None else Path(folder)
-    lib = folder / f"{fun.name()}_{key}.so"
-    if not lib.is_file():
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            _note(f"cache folder {folder} is not writable ({exc.strerror})")
-            return fun
-        with tempfile.TemporaryDirectory(dir=folder) as tmp:
-            c_file = Path(tmp) / f"{fun.name()}.c"
-            c_file.write_text(src)
-            out = Path(tmp) / lib.name
-            cmd = [*cc.split(), *flags, "-shared", "-fPIC", "-o", str(out), str(c_file), "-lm"]
-            proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-            if proc.returncode != 0:
-                first = (proc.stderr.strip().splitlines() or ["no output"])[0]
-                _note(f"{Path(cc.split()[0]).name} could not build {fun.name()} ({first})")
-                return fun
-            os.replace(out, lib)
-    return cs.external(fun.name(), str(lib))
+    lib = _link(fun.name(), _digest(src, cc, *flags), lambda: src, flags, folder)
+    return fun if lib is None else cs.external(fun.name(), str(lib))
+
+
+def compiled_by_key(
+    name: str,
+    key: str,
+    build: Callable[[], cs.Function],
+    *,
+    flags: Sequence[str] = DEFAULT_FLAGS,
+    folder: Path | None = None,
+) -> cs.Function:
+    """A compiled function found by a key the caller computes, built (by ``build()``) only when not cached.
+
+    :func:`compiled` must build the expression and generate its C source to
+    find its cache key; when the expression is expensive to build (a robot's
+    exact Jacobians take ~0.3 s) but determined by cheaper data (the model's
+    numbers and the source of the code that builds it), key on those instead:
+    a cache hit then costs one ``dlopen``.
+
+    Args:
+        name: The function's name (``build()`` must return a function of that name).
+        key: Everything the expression depends on, as text (hashed together
+            with the compiler, its flags and the CasADi version). A key that
+            misses an input can load a stale library: include the source of
+            the code that builds the expression.
+        build: Returns the CasADi function; called on a cache miss, and when no
+            compiler can build it (the virtual-machine fallback).
+        flags: Compiler flags besides ``-shared -fPIC``.
+        folder: The cache folder; default :func:`cache_dir`.
+
+    Returns:
+        The compiled function, or ``build()`` itself with a one-line
+        :class:`CompilerUnavailable` warning when no compiler can build it.
+    """
+    built: list[cs.Function] = []
+
+    def source() -> str:
+        built.append(build())
+        if built[0].name() != name:
+            raise ValueError(f"build() returned a function named {built[0].name()!r}, expected {name!r}")
+        return _source(built[0])
+
+    cc = find_compiler() or ""
+    lib = _link(name, _digest(key, cc, *flags, cs.__version__), source, flags, folder)
+    if lib is None:
+        return built[0] if built else build()
+    return cs.external(name, str(lib))

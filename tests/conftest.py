@@ -1,6 +1,10 @@
-"""Shared fixtures: plant factories and a seeded random generator."""
+"""Shared fixtures: plant factories and a seeded random generator; one compiled-code cache per test session."""
 
 from __future__ import annotations
+
+import os
+import shutil
+import tempfile
 
 import numpy as np
 import pytest
@@ -8,6 +12,25 @@ import pytest
 from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum
 
 PENDULUM_FAMILY = [InvertedPendulum, CartPole, DoublePendulum]
+
+_OWN_CACHE = "_SHINRO_CTRL_TEST_CACHE_OWNER"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Compiled dynamics (shinro_ctrl.codegen) go to a fresh folder shared by the session's xdist workers.
+
+    Set in the controlling process before the workers start, so they inherit it and each library is compiled once
+    per session (the others wait on its lock); a SHINRO_CTRL_CACHE the caller set is kept.
+    """
+    if "SHINRO_CTRL_CACHE" not in os.environ:
+        os.environ["SHINRO_CTRL_CACHE"] = tempfile.mkdtemp(prefix="shinro-ctrl-test-cache-")
+        os.environ[_OWN_CACHE] = str(os.getpid())
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if os.environ.get(_OWN_CACHE) == str(os.getpid()):
+        shutil.rmtree(os.environ.pop("SHINRO_CTRL_CACHE"), ignore_errors=True)
+        del os.environ[_OWN_CACHE]
 
 
 @pytest.fixture

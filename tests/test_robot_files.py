@@ -96,44 +96,74 @@ def test_an_operating_point_outside_a_joint_range_is_refused_naming_the_joint(tm
         load_scenario(scenario)
 
 
-# ------------------------------------------------------- unsupported, at once
-def test_urdf_mimic_and_friction_listed_at_once_in_the_urdfs_terms(capsys):
+# ------------------------------------------------------- what real files carry, at once
+def test_urdf_mimic_and_friction_both_load(capsys):
+    # <mimic>: a joint coupling modelled exactly (tests/test_mjcf_constraints.py); <dynamics friction>: recorded,
+    # MuJoCo-loop only (tests/test_mjcf_features.py)
     path = DATA / "gripper_mimic.urdf"
-    with pytest.raises(InvalidArgument) as info:
-        MjcfPlant(path)
-    msg = str(info.value)
-    assert f"URDF '{path}'" in msg and "shinro_ctrl_urdf" not in msg
-    assert "/tmp" not in msg.replace(str(path), "")  # no temporary translation (the checkout itself may be in /tmp)
-    assert "<mimic> on joint 'finger_right_joint' (of 'finger_left_joint')" in msg
-    assert "friction" not in msg  # <dynamics friction> loads: MuJoCo-loop only (tests/test_mjcf_features.py)
-    assert "remove the <mimic>" in msg
-    line = _one_error_line(capsys, ["linearize", str(path)])
-    assert "<mimic>" in line and "gripper_mimic.urdf" in line
+    plant = MjcfPlant(path)
+    assert plant.constraints is not None
+    assert "finger_right_joint" not in plant.state_names and "finger_left_joint" in plant.state_names
+    friction = {j.name: j.frictionloss for j in plant.tree.joints}
+    assert friction["wrist_roll"] > 0 and friction["finger_left_joint"] > 0
+    assert np.isfinite(plant.dynamics(*plant.equilibrium())).all()
 
 
-def test_mjcf_frictionloss_tendon_and_equality_listed_at_once_and_the_fixes_work(tmp_path, capsys):
-    path = DATA / "piper_like.xml"
-    with pytest.raises(InvalidArgument) as info:
-        MjcfPlant(path)
-    msg = str(info.value)
-    assert "equality constraint coupling joint 'finger_b_slide' to joint 'finger_a_slide'" in msg
-    # the fixed tendon's spring and the joints' frictionloss load (tests/test_mjcf_features.py)
-    assert "tendon" not in msg and "frictionloss" not in msg
-    assert 'flag equality="disable"' in msg
-    assert "#0" not in msg
-    line = _one_error_line(capsys, ["crosscheck", str(path)])
-    assert "equality" in line
-    # the fixes the message gives: the file then loads, and plant and MuJoCo agree on it
-    fixed = tmp_path / "piper_fixed.xml"
-    fixed.write_text(
-        path.read_text()
-        .replace('<flag contact="disable"/>', '<flag contact="disable" frictionloss="disable" equality="disable"/>')
-        .replace(' stiffness="50"', "")
-    )
-    plant = MjcfPlant(fixed)
+def _piper_variant(tmp_path: Path, *edits: tuple[str, str]) -> Path:
+    text = (DATA / "piper_like.xml").read_text()
+    for old, new in edits:
+        assert old in text
+        text = text.replace(old, new)
+    out = tmp_path / "piper_variant.xml"
+    out.write_text(text)
+    return out
+
+
+def test_mjcf_frictionloss_tendon_gravcomp_and_equality_together_match_mujoco(tmp_path):
+    # piper_like as it comes loads: the coupling exact, the tendon's spring in the dynamics, frictionloss recorded
+    plant = MjcfPlant(DATA / "piper_like.xml")
     assert plant.input_names == ("m1", "m2", "m3", "u3")
-    assert main(["crosscheck", str(fixed)]) == 0
-    assert "MuJoCo" in capsys.readouterr().out
+    assert plant.constraints is not None and len(plant.state_names) == 8
+    # a tendon that the coupling stretches (length q_a + q_b) and gravity compensation: both act in the KKT system
+    path = _piper_variant(
+        tmp_path, ('coef="-1"', 'coef="1"'), ('<body name="link2" pos', '<body name="link2" gravcomp="0.5" pos')
+    )
+    plant = MjcfPlant(path)
+    m = mujoco.MjModel.from_xml_path(plant.model_path)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)  # frictionloss acts in MuJoCo's loop only
+    m.eq_solimp[:, :2] = 0.99999
+    data = mujoco.MjData(m)
+    rng = np.random.default_rng(3)
+    x = np.r_[0.3, 1.0, -0.8, 0.02, rng.normal(size=4) * 0.3]
+    u = rng.normal(size=4) * 0.5
+    full = plant.constraints.complete(x)
+    data.qpos[:], data.qvel[:] = full[: m.nq], full[m.nq :]
+    data.ctrl[:] = u
+    mujoco.mj_forward(m, data)
+    exact, _ = plant.constraints.accelerations(full, u)
+    assert np.abs(data.efc_pos).max() <= 1e-12  # on MuJoCo's constraint manifold
+    assert np.abs(data.qfrc_spring).max() > 0.1 and np.abs(data.qfrc_gravcomp).max() > 0.1  # both forces act
+    gap = np.abs(data.qacc - exact).max()
+    assert gap <= 1e-3 * np.abs(exact).max()  # within MuJoCo's softness
+    m.tendon_stiffness[:] = 0.0
+    m.body_gravcomp[:] = 0.0
+    mujoco.mj_forward(m, data)
+    assert np.abs(data.qacc - exact).max() > 100 * gap  # without the two forces MuJoCo is far off
+    assert np.allclose(plant.dynamics(x, u)[4:], exact[list(plant.constraints.independent)])
+
+
+def test_equality_with_activation_dynamics_is_refused_in_one_line(tmp_path, capsys):
+    path = _piper_variant(
+        tmp_path,
+        (
+            '<motor name="m2" joint="j2" gear="20"/>',
+            '<general name="m2" joint="j2" gear="20" dyntype="filter" dynprm="0.05"/>',
+        ),
+    )
+    with pytest.raises(InvalidArgument, match=r"activation dynamics on actuators 'm2' \(filter\) with equality"):
+        MjcfPlant(path)
+    line = _one_error_line(capsys, ["linearize", str(path)])
+    assert "'m2' (filter)" in line and "equality" in line
 
 
 def test_unnamed_elements_are_named_by_what_they_sit_on(tmp_path):

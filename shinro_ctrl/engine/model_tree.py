@@ -19,13 +19,14 @@ compensation; actuators with a joint, fixed-tendon or site transmission,
 ``none``/``filter``/``filterexact``/``integrator`` activation dynamics,
 ``fixed``/``affine`` gain and ``none``/``affine`` bias (``motor``,
 ``position``, ``velocity``, ``intvelocity`` and equivalent ``general``
-actuators). Joint and tendon friction loss and ranges, and the control,
-force and activation clamps, are read and recorded (they act in MuJoCo's
-loop only). Everything else in a file is refused in one error that lists
-every unsupported feature by the name of its element (for a URDF, by the
-URDF element: ``<mimic>``), with the reason and the fix where one exists;
-so is every non-finite or invalid number (a ``NaN`` gravity, an infinite
-mass).
+actuators); active ``joint``, ``connect`` and ``weld`` equality constraints
+(:func:`read_equalities`; a URDF ``<mimic>`` is a joint equality in MuJoCo).
+Joint and tendon friction loss and ranges, and the control, force and
+activation clamps, are read and recorded (they act in MuJoCo's loop only).
+Everything else in a file is refused in one error that lists every
+unsupported feature by the name of its element, with the reason and the fix
+where one exists; so is every non-finite or invalid number (a ``NaN``
+gravity, an infinite mass).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ import tempfile
 import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -47,6 +48,7 @@ import numpy as np
 from shinro_ctrl.engine.warnings import ModelWarning, collect_messages
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.multibody import ActuatorInfo, BodyInfo, JointInfo, ModelTree, SiteInfo, TendonInfo
+from shinro_ctrl.multibody.constraints import Constraint
 from shinro_ctrl.resources import asset_path, list_assets
 
 __all__ = [
@@ -55,6 +57,7 @@ __all__ = [
     "load_model",
     "load_spec",
     "model_kind",
+    "read_equalities",
     "read_model_tree",
     "read_robot",
     "resolve_model_path",
@@ -77,6 +80,12 @@ _DYNAMICS = {
     int(mujoco.mjtDyn.mjDYN_FILTER): "filter",
     int(mujoco.mjtDyn.mjDYN_FILTEREXACT): "filterexact",
     int(mujoco.mjtDyn.mjDYN_INTEGRATOR): "integrator",
+}
+#: The equality constraints modelled exactly (shinro_ctrl.multibody.constraints).
+_EQ_KINDS = {
+    int(mujoco.mjtEq.mjEQ_JOINT): "joint",
+    int(mujoco.mjtEq.mjEQ_CONNECT): "connect",
+    int(mujoco.mjtEq.mjEQ_WELD): "weld",
 }
 #: Root element -> model kind.
 _ROOTS = {"mujoco": "mjcf", "robot": "urdf"}
@@ -389,7 +398,7 @@ def _read_urdf(path: Path) -> _Urdf:
 
 
 def _translation_path(src: Path) -> Path:
-    key = hashlib.sha1(f"{src}:{src.stat().st_mtime_ns}".encode()).hexdigest()[:12]
+    key = hashlib.sha1(f"{src}:{src.stat().st_mtime_ns}:mimic-unactuated".encode()).hexdigest()[:12]
     return Path(tempfile.gettempdir()) / "shinro_ctrl_urdf" / f"{src.stem}-{key}.xml"
 
 
@@ -398,7 +407,9 @@ def urdf_with_motors(path: str | os.PathLike[str]) -> Path:
 
     URDF describes no actuators, so MuJoCo compiles a URDF without any. This
     writes MuJoCo's translation of the URDF plus a motor (gain 1, gear 1,
-    named after its joint) per hinge/slide joint, with contacts disabled (the
+    named after its joint) per hinge/slide joint except the ``<mimic>`` joints
+    (MuJoCo couples those to their leader by an equality constraint: the
+    leader's motor drives them), with contacts disabled (the
     symbolic model has none), to a cache file in the system's temporary
     folder, keyed by the URDF's path and modification time. Mesh paths stay
     relative to the URDF's folder. A URDF whose translation already has
@@ -424,8 +435,9 @@ def urdf_with_motors(path: str | os.PathLike[str]) -> Path:
         folder = Path(getattr(spec, attr) or ".")
         setattr(spec, attr, str(folder if folder.is_absolute() else (src.parent / folder).resolve()))
     _compile(spec, src, "urdf")  # the URDF's own errors, in its terms, before the translation exists
+    mimic = _read_urdf(src).mimic
     for joint in spec.joints:
-        if int(joint.type) in _JOINT_KINDS and joint.name:
+        if int(joint.type) in _JOINT_KINDS and joint.name and joint.name not in mimic:
             motor = spec.add_actuator()
             motor.name = joint.name
             motor.target = joint.name
@@ -516,9 +528,10 @@ def read_model_tree(model: str | os.PathLike[str] | mujoco.MjModel, *, path: str
         FileNotFoundError: no such file.
         InvalidArgument: every unsupported feature (free or ball joints, no
             joints, no actuators, an actuator with another transmission,
-            other activation dynamics or another gain or bias, equality
-            constraints, spatial tendons that act, fluid forces ...) and every
-            non-finite or invalid number, listed at once by element name.
+            other activation dynamics or another gain or bias, tendon, flex or
+            inactive equality constraints, spatial tendons that act, fluid
+            forces ...) and every non-finite or invalid number, listed at once
+            by element name.
     """
     if isinstance(model, mujoco.MjModel):
         m = model
@@ -547,7 +560,59 @@ def _read(m: mujoco.MjModel, path: str, label: _Label) -> ModelTree:
     joints, body_joints = _read_joints(m)
     bodies = _read_bodies(m, body_joints)
     actuators = [_read_actuator(m, a) for a in range(m.nu)]
-    return _tree_with_options(m, path, bodies, joints, actuators)
+    tree = _tree_with_options(m, path, bodies, joints, actuators)
+    return replace(tree, equalities=read_equalities(m, label))
+
+
+def read_equalities(m: mujoco.MjModel, label: _Label | None = None) -> tuple[Constraint, ...]:
+    """The model's active equality constraints as :class:`~shinro_ctrl.multibody.constraints.Constraint`.
+
+    MuJoCo's data layout (``eq_data``): a joint coupling holds ``polycoef``; a body ``connect`` the
+    anchor in body 1 then the matching point in body 2; a body ``weld`` the anchor in body 2, then
+    ``relpose`` (frame 1's pose in body 1) and ``torquescale``. Site-based ``connect``/``weld`` use
+    the sites' frames. Nothing when the model disables equalities; unsupported kinds are
+    :func:`_unsupported`'s to refuse.
+    """
+    urdf = label.urdf if label is not None and label.kind == "urdf" else _Urdf()
+    if int(m.opt.disableflags) & int(_DSBL.mjDSBL_EQUALITY):
+        return ()
+    out = []
+    for e in range(m.neq):
+        kind = _EQ_KINDS.get(int(m.eq_type[e]))
+        if kind is None or not m.eq_active0[e]:
+            continue
+        o1, o2, data = int(m.eq_obj1id[e]), int(m.eq_obj2id[e]), np.array(m.eq_data[e], dtype=float)
+        if kind == "joint":
+            name = m.joint(o1).name
+            what = (
+                f"<mimic> on joint '{name}' (of '{urdf.mimic[name]}')"
+                if name in urdf.mimic
+                else f"equality {_equality(m, e)}"
+            )
+            out.append(Constraint("joint", what, joint1=o1, joint2=o2, polycoef=tuple(float(c) for c in data[:5])))
+            continue
+        what = f"equality {_equality(m, e)}"
+        if int(m.eq_objtype[e]) == int(mujoco.mjtObj.mjOBJ_SITE):
+            frames = [(int(m.site_bodyid[s]), np.array(m.site_pos[s]), np.array(m.site_quat[s])) for s in (o1, o2)]
+        elif kind == "connect":
+            frames = [(o1, data[0:3], np.array([1.0, 0, 0, 0])), (o2, data[3:6], np.array([1.0, 0, 0, 0]))]
+        else:  # body weld: frame 1 = relpose in body 1, frame 2 = the anchor (body 2's axes)
+            frames = [(o1, data[3:6], data[6:10]), (o2, data[0:3], np.array([1.0, 0, 0, 0]))]
+        (b1, p1, r1), (b2, p2, r2) = frames
+        out.append(
+            Constraint(
+                kind,
+                what,
+                body1=b1,
+                pos1=p1,
+                quat1=r1,
+                body2=max(b2, 0),
+                pos2=p2,
+                quat2=r2,
+                rotation=kind == "weld" and float(data[10]) != 0.0,
+            )
+        )
+    return tuple(out)
 
 
 # ------------------------------------------------------------------- names
@@ -586,11 +651,16 @@ def _equality(m: mujoco.MjModel, e: int) -> str:
     name = m.equality(e).name
     kind = mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix("mjEQ_").lower()
     o1, o2 = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
+    on_sites = int(m.eq_objtype[e]) == int(mujoco.mjtObj.mjOBJ_SITE)
+
+    def frame(i: int) -> str:
+        return (f"site '{m.site(i).name}'" if m.site(i).name else f"site #{i}") if on_sites else f"body {_body(m, i)}"
+
     verb, obj = {
         "joint": ("coupling", lambda i: f"joint {_joint(m, i)}"),
         "tendon": ("coupling", lambda i: f"tendon {_tendon(m, i)}"),
-        "connect": ("connecting", lambda i: f"body {_body(m, i)}"),
-        "weld": ("welding", lambda i: f"body {_body(m, i)}"),
+        "connect": ("connecting", frame),
+        "weld": ("welding", frame),
     }.get(kind, ("", None))
     if obj is None:
         what = f"{kind} #{e}"
@@ -659,23 +729,21 @@ def _unsupported(m: mujoco.MjModel, label: _Label) -> list[str]:
     if m.neq and not flags & int(_DSBL.mjDSBL_EQUALITY):
         for e in range(m.neq):
             if not m.eq_active0[e]:
-                continue
-            j1, j2 = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
-            mimic = m.joint(j1).name if int(m.eq_type[e]) == int(mujoco.mjtEq.mjEQ_JOINT) else ""
-            if label.kind == "urdf" and mimic in urdf.mimic:
                 out.append(
                     (
-                        "<mimic> on joint",
-                        f"'{mimic}' (of '{urdf.mimic[mimic] or m.joint(j2).name}')",
-                        "MuJoCo couples the joints by an equality constraint, not supported yet: remove the <mimic>",
+                        "inactive equality constraint",
+                        _equality(m, e),
+                        "MuJoCo may switch it on at run time, which the design model cannot follow; make it "
+                        'active="true" or remove it',
                     )
                 )
-            else:
+            elif int(m.eq_type[e]) not in _EQ_KINDS:
+                kind = mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix("mjEQ_").lower()
                 out.append(
                     (
-                        "equality constraint",
+                        f"{kind} equality constraint",
                         _equality(m, e),
-                        'not supported yet; fix: <option><flag equality="disable"/></option>, or remove it',
+                        "not supported: only joint couplings, connect and weld are modelled exactly",
                     )
                 )
     if getattr(m, "nflex", 0):

@@ -31,8 +31,16 @@ complex numbers (complex-step differentiation):
 * ``M(q)``: column ``j`` is the RNEA of unit acceleration ``e_j`` at rest
   without gravity (zeros fold away symbolically, so only the branches that
   move are built);
-* ``q̈``: an LDLᵀ factorization of ``M + diag(a)`` (no pivoting; ``M`` is
-  symmetric positive definite).
+* ``q̈``: by default the articulated-body algorithm
+  (:mod:`shinro_ctrl.multibody.aba`, ``O(n)``, no ``M``); or
+  (``algorithm="crba"``) an LDLᵀ factorization of ``M + diag(a)`` (no
+  pivoting; ``M`` is symmetric positive definite). Both agree with MuJoCo's
+  ``qacc_smooth`` to ~1e-15; :meth:`RigidBodyTree.forward_dynamics` is the one
+  place the choice is made;
+* the exact Jacobians of ``ẋ``: by differentiating the inverse dynamics
+  (:meth:`RigidBodyTree.xdot_jacobians_sx`), about 30 % smaller than the
+  automatic derivative of either forward algorithm and much cheaper to
+  compile.
 
 Each joint is one node. A node's frame is its body's frame translated to the
 joint's anchor (MuJoCo ``jnt_pos``), so a hinge rotates the frame about its
@@ -63,6 +71,8 @@ from shinro_ctrl._scalar_algebra import (
     _const,
     _cross,
     _dot,
+    _ldl_back,
+    _ldl_factor,
     _ldl_solve,
     _matTvec,
     _matvec,
@@ -72,6 +82,7 @@ from shinro_ctrl._scalar_algebra import (
     _vscale,
     quat_to_mat,
 )
+from shinro_ctrl.multibody.aba import articulated_body_accelerations
 from shinro_ctrl.multibody.transmission import SiteFrame, Transmissions, tendon_length, tendon_velocity
 
 if TYPE_CHECKING:
@@ -79,10 +90,12 @@ if TYPE_CHECKING:
 
     from shinro_ctrl.multibody.tree import ModelTree
 
-__all__ = ["CASADI_OPS", "NUMPY_OPS", "Ops", "RigidBodyTree", "Scalar"]
+__all__ = ["CASADI_OPS", "FORWARD_DYNAMICS", "NUMPY_OPS", "Ops", "RigidBodyTree", "Scalar"]
 
 #: The numbers the algorithms run on: floats, complex numbers (complex step) or CasADi ``SX`` scalars.
 Scalar: TypeAlias = "float | complex | cs.SX"
+#: The forward-dynamics algorithms :meth:`RigidBodyTree.forward_dynamics` offers.
+FORWARD_DYNAMICS = ("aba", "crba")
 #: Each node's ``(R (3, 3), p (3,))`` in its parent node frame, as nested lists of scalars.
 Transforms: TypeAlias = "Transforms"
 
@@ -120,15 +133,22 @@ class RigidBodyTree:
 
     Args:
         tree: The model description.
+        algorithm: The forward-dynamics algorithm, one of :data:`FORWARD_DYNAMICS`:
+            ``"aba"`` (articulated bodies, the default) or ``"crba"`` (``M`` by
+            RNEA columns, then LDLᵀ).
 
     Attributes:
         tree: The description.
+        algorithm: The forward-dynamics algorithm.
         nq: Number of joint coordinates.
         nu: Number of actuators.
         parent: Parent node of each node (-1 for the world), shape ``(nq,)``.
     """
 
-    def __init__(self, tree: ModelTree):
+    def __init__(self, tree: ModelTree, algorithm: str = "aba"):
+        if algorithm not in FORWARD_DYNAMICS:
+            raise ValueError(f"unknown forward-dynamics algorithm {algorithm!r}; valid: {', '.join(FORWARD_DYNAMICS)}")
+        self.algorithm = algorithm
         self.tree = tree
         self.nq = tree.nq
         self.nu = tree.nu
@@ -536,6 +556,45 @@ class RigidBodyTree:
             out = [_add(out[i], tg[i]) for i in range(self.nq)]
         return out
 
+    def inverse_dynamics(
+        self,
+        q: Sequence[Scalar],
+        qd: Sequence[Scalar],
+        qdd: Sequence[Scalar],
+        ops: Ops = NUMPY_OPS,
+        X: Transforms | None = None,
+    ) -> list[Scalar]:
+        """``(M(q) + diag(a)) q̈ + c(q, q̇)`` ``(nq,)`` by RNEA: the generalized force that produces ``q̈``."""
+        X = self._joint_transforms(q, ops) if X is None else X
+        tau = self._rnea(X, qd, qdd, self._a_base)
+        return [_add(tau[i], _mul(self._armature[i], qdd[i])) for i in range(self.nq)]
+
+    def forward_dynamics(
+        self,
+        q: Sequence[Scalar],
+        qd: Sequence[Scalar],
+        tau: Sequence[Scalar],
+        ops: Ops = NUMPY_OPS,
+        X: Transforms | None = None,
+    ) -> list[Scalar]:
+        r"""Accelerations ``q̈ = (M(q) + diag(a))⁻¹ (τ − c(q, q̇))`` ``(nq,)`` for a generalized force ``τ``.
+
+        The one place the forward-dynamics algorithm is chosen
+        (:attr:`algorithm`): ``"aba"``, the articulated-body algorithm
+        (:mod:`shinro_ctrl.multibody.aba`, ``O(n)``, the default: the smaller
+        expression and Jacobian), or ``"crba"``, ``M`` column by column by
+        RNEA then an LDLᵀ solve (``O(n³)``; the reference it is tested
+        against). Both are exact. ``X``: the node transforms at ``q`` when already built.
+        """
+        X = self._joint_transforms(q, ops) if X is None else X
+        if self.algorithm == "aba":
+            return articulated_body_accelerations(self._nodes, X, qd, tau, self._armature, self._a_base)
+        M = self.mass_matrix(q, ops, X)
+        for i in range(self.nq):
+            M[i][i] = _add(M[i][i], self._armature[i])
+        c = self.bias(q, qd, ops, X)
+        return _ldl_solve(M, [_sub(tau[i], c[i]) for i in range(self.nq)])
+
     def accelerations(
         self,
         q: Sequence[Scalar],
@@ -547,13 +606,77 @@ class RigidBodyTree:
     ) -> list[Scalar]:
         """Forward dynamics ``q̈ = (M + diag(a))⁻¹ (τ − c)`` ``(nq,)`` with ``τ`` from :meth:`generalized_forces`."""
         X = self._joint_transforms(q, ops)
-        M = self.mass_matrix(q, ops, X)
-        for i in range(self.nq):
+        return self.forward_dynamics(q, qd, self.generalized_forces(q, qd, u, active, act, ops, X), ops, X)
+
+    def xdot_jacobians_sx(self, x: cs.SX, u: cs.SX, active: Sequence[int]) -> tuple[cs.SX, cs.SX]:
+        r"""The exact Jacobians ``(A = ∂ẋ/∂x (nx, nx), B = ∂ẋ/∂u (nx, m))`` of :meth:`xdot_sx`, as dense ``SX``.
+
+        Differentiating the forward dynamics through its own graph (an LDLᵀ
+        solve or the articulated-body recursion) gives an expression 8-10 times
+        the size of ``f``. Instead, differentiate the identity the
+        accelerations satisfy, the inverse dynamics
+
+        .. math::
+
+            g(z, \ddot q) = (M(q) + \operatorname{diag}(a))\,\ddot q + c(q, \dot q) - \tau(q, \dot q, u, a_{act}) = 0,
+            \qquad z = (q, \dot q, a_{act}, u),
+
+        so that, with ``M̃ = M + diag(a)`` factored once (LDLᵀ, the same
+        factors give ``q̈``),
+
+        .. math::
+
+            \frac{\partial \ddot q}{\partial z} = -\tilde M^{-1}\,
+                \frac{\partial g}{\partial z}\Big|_{\ddot q = f(z)}
+
+        where ``∂g/∂z`` is the reverse-mode derivative of RNEA (``O(n)``
+        nodes per row) with ``q̈`` held as a symbol, then replaced by its
+        expression. Exact (no truncation); the rows ``∂q̇/∂x = [0, I, 0]`` are
+        constants and the activation rows ``∂ȧ/∂(x, u)`` (affine) are differentiated directly.
+
+        Args:
+            x: State symbols ``(2nq + na,)`` ``[q; q̇; a_act]``.
+            u: Input symbols ``(len(active),)``.
+            active: The actuators ``u`` drives (see :meth:`actuator_forces`).
+        """
+        n, m, na = self.nq, len(active), self.na
+        q = [x[i] for i in range(n)]
+        qd = [x[n + i] for i in range(n)]
+        act = [x[2 * n + i] for i in range(na)]
+        uu = [u[k] for k in range(m)]
+        a = cs.SX.sym("qdd", n)
+        X = self._joint_transforms(q, CASADI_OPS)
+        tau = self.generalized_forces(q, qd, uu, active, act, CASADI_OPS, X)
+        inv = self.inverse_dynamics(q, qd, [a[i] for i in range(n)], CASADI_OPS, X)
+        g = cs.vertcat(*[cs.SX(_sub(inv[i], tau[i])) for i in range(n)])
+        z = cs.vertcat(x, u)
+        # (n, 2n + na + m), affine in the symbol q̈; one reverse sweep per row: ~20 % fewer nodes than cs.jacobian
+        G = cs.vertcat(*[cs.gradient(g[i], z).T for i in range(n)])
+        M = self.mass_matrix(q, CASADI_OPS, X)
+        for i in range(n):
             M[i][i] = _add(M[i][i], self._armature[i])
-        c = self.bias(q, qd, ops, X)
-        tau = self.generalized_forces(q, qd, u, active, act, ops, X)
-        rhs = [_sub(tau[i], c[i]) for i in range(self.nq)]
-        return _ldl_solve(M, rhs)
+        L, D = _ldl_factor(M)
+        c = self.bias(q, qd, CASADI_OPS, X)
+        qdd = _ldl_back(L, D, [_sub(tau[i], c[i]) for i in range(n)])
+        G = cs.substitute(G, a, cs.vertcat(*[cs.SX(v) for v in qdd]))
+
+        def entry(i: int, j: int) -> Scalar:
+            e = G[i, j]
+            return 0.0 if e.is_zero() else -e
+
+        cols = [
+            cs.vertcat(*[cs.SX(v) for v in _ldl_back(L, D, [entry(i, j) for i in range(n)])])
+            for j in range(2 * n + na + m)
+        ]
+        Y = cs.horzcat(*cols)
+        nx = 2 * n + na
+        A = cs.vertcat(cs.horzcat(cs.SX.zeros(n, n), cs.SX.eye(n), cs.SX.zeros(n, na)), Y[:, :nx])
+        B = cs.vertcat(cs.SX.zeros(n, m), Y[:, nx:])
+        if na:
+            adot = cs.vertcat(*[cs.SX(v) for v in self.transmissions.activation_rates(uu, act, active)])
+            A = cs.vertcat(A, cs.jacobian(adot, x))
+            B = cs.vertcat(B, cs.jacobian(adot, u))
+        return cs.densify(A), cs.densify(B)
 
     def xdot_sx(self, x: cs.SX, u: cs.SX, active: Sequence[int]) -> cs.SX:
         """``ẋ = [q̇; q̈; ȧ]`` as a CasADi ``SX`` column from ``x = [q; q̇; a] (2nq + na,)`` and ``u (len(active),)``."""
@@ -575,3 +698,54 @@ class RigidBodyTree:
         qdd = self.accelerations(q, qd, list(u), active, NUMPY_OPS, act)
         adot = self.transmissions.activation_rates(list(u), act, active)
         return np.array([*qd, *qdd, *adot], dtype=np.result_type(x, u, float))
+
+    # ---------------------------------------------- frame kinematics (equality and contact constraints)
+    def transforms(self, q: Sequence[Scalar], ops: Ops = NUMPY_OPS) -> Transforms:
+        """Each joint node's ``(R (3, 3), p (3,))`` in its parent node frame at ``q``.
+
+        Pass the result as ``X`` to :meth:`mass_matrix`, :meth:`bias` and :meth:`frame_pose` to build the
+        transforms once for several quantities at the same ``q``.
+        """
+        return self._joint_transforms(q, ops)
+
+    def body_placement(self, body: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """Where body ``body``'s frame is fixed: ``(node, R (3, 3), p (3,))``, its pose in that node's frame.
+
+        ``node`` is the index of the last joint node at or above the body (-1: the body is welded to the
+        world, and ``R``, ``p`` are its world pose).
+        """
+        return self._body_frame[body]
+
+    def frame_pose(
+        self,
+        q: Sequence[Scalar],
+        body: int,
+        pos: ArrayLike = (0.0, 0.0, 0.0),
+        quat: ArrayLike = (1.0, 0.0, 0.0, 0.0),
+        ops: Ops = NUMPY_OPS,
+        X: Transforms | None = None,
+    ) -> tuple[list[list[Scalar]], list[Scalar]]:
+        """World pose ``(R (3, 3), p (3,))`` at ``q`` of a frame fixed to body ``body`` (0: the world).
+
+        Args:
+            q: Joint coordinates ``(nq,)`` (floats, complex numbers or ``SX``).
+            body: Body index (MuJoCo's order).
+            pos: The frame's origin in the body frame ``(3,)`` [m].
+            quat: The frame's orientation in the body frame ``(w, x, y, z)``.
+            ops: ``sin``/``cos`` of the number type.
+            X: Node transforms already computed at ``q`` (else computed here).
+
+        Returns:
+            ``R`` and ``p`` as nested lists of scalars: ``p_world = p + R v`` for a point ``v`` of the frame.
+        """
+        node, Rb, pb = self.body_placement(body)
+        R = [_const(r) for r in Rb @ quat_to_mat(np.asarray(quat, dtype=float))]
+        p = _const(pb + Rb @ np.asarray(pos, dtype=float))
+        if node >= 0 and X is None:
+            X = self._joint_transforms(q, ops)
+        while node >= 0:
+            Rn, pn = X[node]
+            p = _vadd(pn, _matvec(Rn, p))
+            R = [[_dot(Rn[r], [R[0][c], R[1][c], R[2][c]]) for c in range(3)] for r in range(3)]
+            node = self._nodes[node].parent
+        return R, p

@@ -8,8 +8,12 @@ them into equations of motion.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from shinro_ctrl.multibody.constraints import Constraint
 
 __all__ = ["ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree", "SiteInfo", "TendonInfo"]
 
@@ -200,6 +204,8 @@ class ModelTree:
         tendons: Fixed tendons in MuJoCo's order.
         sites: Sites in MuJoCo's order.
         frictionloss_enabled: False when the model disables friction loss.
+        equalities: The model's active equality constraints (joint couplings, connects, welds), see
+            :mod:`shinro_ctrl.multibody.constraints`; empty when it has none or disables them.
     """
 
     name: str
@@ -218,6 +224,7 @@ class ModelTree:
     tendons: tuple[TendonInfo, ...] = ()
     sites: tuple[SiteInfo, ...] = ()
     frictionloss_enabled: bool = True
+    equalities: tuple[Constraint, ...] = ()
 
     @property
     def nq(self) -> int:

@@ -17,11 +17,22 @@ transmissions, joint and tendon springs and dampers, gravity compensation;
 ``RigidBodyTree.generalized_forces``) and ``a_act`` the actuator activations
 (none for actuators without activation dynamics).
 
-The expression is a CasADi ``SX`` graph, so ``symbolic()``, exact
-``linearize()``, ``get_model()`` and everything downstream work unchanged;
-numeric ``dynamics()`` evaluates the compiled function. The MuJoCo engine
+The expression is a CasADi ``SX`` graph, so ``symbolic()``, ``get_model()``
+and everything downstream work unchanged. Numeric ``dynamics()`` and exact
+``linearize()`` evaluate machine code: ``f`` and its exact Jacobians (by
+differentiating the inverse dynamics, see
+:meth:`~shinro_ctrl.multibody.RigidBodyTree.xdot_jacobians_sx`) generated to
+C and compiled once by :func:`shinro_ctrl.codegen.compiled_by_key` (``f`` at
+construction, the Jacobians at the first ``linearize``), cached on disk under
+a key of the model's numbers and the code that builds them, so another
+process loading the same model loads the libraries in milliseconds; CasADi's
+virtual machine, with a one-line ``CompilerUnavailable`` warning, when no C
+compiler can build them. One library serves every actuator selection. The MuJoCo engine
 loads the same file (:meth:`MjcfPlant.mjcf_patch` edits nothing but the
 timestep), so the state map is the identity.
+
+With equality constraints the state is the independent coordinates and the
+dynamics the exact KKT system (:mod:`shinro_ctrl.multibody.constraints`; see the class).
 
 What the symbolic model leaves out, because it is not smooth dynamics:
 contacts, joint-limit constraint forces, joint and tendon friction loss,
@@ -32,7 +43,11 @@ trajectories inside the joint ranges and the inputs inside their ranges
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import hashlib
+import json
+import math
 import os
 import threading
 import warnings
@@ -44,8 +59,10 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.backend import ArrayBackend, CasadiBackend
+from shinro_ctrl.codegen import compiled_by_key
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
 from shinro_ctrl.multibody import RigidBodyTree
+from shinro_ctrl.multibody.constraints import ConstrainedDynamics
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_positive, closest
 
@@ -54,6 +71,7 @@ if TYPE_CHECKING:
 
     from shinro_ctrl.engine.model_gap import GapThresholds, ModelGap
     from shinro_ctrl.engine.model_tree import RobotModel
+    from shinro_ctrl.multibody import ModelTree
 
 __all__ = ["MODEL_SUFFIXES", "MjcfPlant", "is_model_file"]
 
@@ -98,12 +116,128 @@ def _read(source: str, mtime_ns: int) -> tuple[RobotModel, RigidBodyTree]:
 
 
 @functools.lru_cache(maxsize=16)
-def _function(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
-    """The compiled ``f(x, u) -> xdot`` of one model file version and actuator selection."""
+def _symbolic(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
+    """The CasADi ``SX`` function ``f(x, u) -> xdot`` of one model file version and actuator selection."""
     robot, rb = _read(source, mtime_ns)
     x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
     u = cs.SX.sym("u", len(active))
     return cs.Function("f", [x, u], [rb.xdot_sx(x, u, active)], ["x", "u"], ["xdot"])
+
+
+@functools.lru_cache(maxsize=16)
+def _constrained(
+    source: str, mtime_ns: int, active: tuple[int, ...], q_ref: tuple[float, ...], what: str
+) -> ConstrainedDynamics:
+    """The constrained dynamics of one model file version, actuator selection and reference (built once)."""
+    robot, rb = _read(source, mtime_ns)
+    return ConstrainedDynamics(rb, robot.tree.equalities, active=active, q_ref=np.array(q_ref), what=what)
+
+
+@functools.lru_cache(maxsize=1)
+def _code_fingerprint() -> str:
+    """A hash of the source of every module that shapes the compiled expressions (part of their cache key)."""
+    pkg = Path(__file__).resolve().parent.parent
+    files = [pkg / "_scalar_algebra.py", Path(__file__).resolve(), *sorted((pkg / "multibody").glob("*.py"))]
+    return hashlib.sha256(b"".join(f.read_bytes() for f in files)).hexdigest()
+
+
+def _model_key(tree: ModelTree, what: str) -> str:
+    """What a compiled function of ``tree`` depends on: its numbers (not its name or path) and the code."""
+    desc = dataclasses.asdict(tree)
+    desc.pop("path", None)
+    desc.pop("name", None)
+    text = json.dumps(desc, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else repr(o))
+    return f"{what}|{_code_fingerprint()}|{text}"
+
+
+@functools.lru_cache(maxsize=16)
+def _function(source: str, mtime_ns: int) -> cs.Function:
+    """The compiled ``f(x, u_all) -> (xdot, s)`` of one model file version, ``u_all`` every actuator's control.
+
+    One library serves every actuator selection (the plant scatters its
+    inputs into ``u_all``, zeros elsewhere). ``s`` is the sum of every entry
+    of ``x``, ``u_all`` and ``xdot``, computed in C: finite unless one of them
+    is NaN or inf (or the sum overflows), the fast path's finiteness check.
+    See :mod:`shinro_ctrl.codegen`; the CasADi virtual machine when no
+    compiler can build it.
+    """
+    robot, rb = _read(source, mtime_ns)
+    every = tuple(range(robot.tree.nu))
+
+    def build() -> cs.Function:
+        x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
+        u = cs.SX.sym("u", robot.tree.nu)
+        xdot = rb.xdot_sx(x, u, every)
+        total = cs.sum1(x) + cs.sum1(u) + cs.sum1(xdot)
+        return cs.Function("mjcf_f", [x, u], [xdot, total], ["x", "u"], ["xdot", "sum"])
+
+    return compiled_by_key("mjcf_f", _model_key(robot.tree, "f"), build)
+
+
+@functools.lru_cache(maxsize=16)
+def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
+    """The compiled exact Jacobians ``(x, u_all) -> (Aᵀ, B_allᵀ, s)``.
+
+    Transposed, so that their column-major nonzeros are ``A``'s and
+    ``B_all``'s row-major entries; ``s`` is the sum of all their entries and
+    of ``x`` and ``u_all``, computed in C: finite unless one is NaN or inf (or
+    the sum overflows), the cheap finiteness check of :meth:`MjcfPlant.linearize`.
+    """
+    robot, rb = _read(source, mtime_ns)
+    every = tuple(range(robot.tree.nu))
+
+    def build() -> cs.Function:
+        x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
+        u = cs.SX.sym("u", robot.tree.nu)
+        A, B = rb.xdot_jacobians_sx(x, u, every)
+        total = cs.sum1(cs.sum2(A)) + cs.sum1(cs.sum2(B)) + cs.sum1(x) + cs.sum1(u)
+        return cs.Function("mjcf_jac", [x, u], [A.T, B.T, total], ["x", "u"], ["A_T", "B_T", "sum"])
+
+    return compiled_by_key("mjcf_jac", _model_key(robot.tree, "jac"), build)
+
+
+class _CompiledJacobian:
+    """``(A, B)`` at ``(x, u)`` from the compiled Jacobian function, compiled on the first call.
+
+    Stands where :class:`~shinro_ctrl.linearization.ExactJacobian` stands for
+    other plants (``Plant.linearize`` calls it). Threads: each thread
+    evaluates in its own buffer; the first build is behind a lock.
+    """
+
+    def __init__(self, source: str, mtime_ns: int, nx: int, nu: int, active: tuple[int, ...]):
+        self._key = (source, mtime_ns)
+        self._nx, self._nu, self._active = nx, nu, active
+        self._fun: cs.Function | None = None
+        self._lock = threading.Lock()
+        self._local = threading.local()
+
+    def set_params(self, p: np.ndarray) -> None:
+        """``MjcfPlant`` has no parameters: nothing to bind."""
+
+    def _buffers(self) -> _Buffers:
+        try:
+            return self._local.buffers
+        except AttributeError:
+            pass
+        if self._fun is None:
+            with self._lock:
+                if self._fun is None:
+                    self._fun = _jacobian_function(*self._key)
+        b = self._local.buffers = _Buffers(
+            self._fun, self._nu, self._active, ((self._nx, self._nx), (self._nx, self._nu), (1,))
+        )
+        return b
+
+    def __call__(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.evaluate(x0, u0)[:2]
+
+    def evaluate(self, x0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(A, B, s)``: fresh Jacobians and the sum of all entries of ``A``, ``B_all``, ``x0`` and ``u_all``."""
+        b = self._buffers()
+        b.set(x0, u0)
+        b.run()
+        A, B, s = b.out
+        return A.copy(), (B.copy() if b.every else B[:, list(self._active)]), float(s[0])
 
 
 class MujocoEngine(Protocol):
@@ -120,18 +254,33 @@ class MujocoEngine(Protocol):
 
 
 class _Buffers:
-    """One thread's evaluation buffer of the compiled dynamics (arrays bound to a CasADi ``FunctionBuffer``)."""
+    """One thread's arrays bound to a compiled function's ``FunctionBuffer`` (inputs ``x``, ``u_all``).
 
-    __slots__ = ("buf", "run", "u", "x", "y")
+    The plant's inputs ``u`` (the selected actuators) are scattered into
+    ``u_all``; the other actuators' controls stay 0.
+    """
 
-    def __init__(self, fun: cs.Function):
+    __slots__ = ("active", "buf", "every", "out", "run", "u", "x")
+
+    def __init__(self, fun: cs.Function, nu: int, active: tuple[int, ...], shapes: tuple[tuple[int, ...], ...]):
         self.x = np.zeros(fun.size1_in(0))
-        self.u = np.zeros(fun.size1_in(1))
-        self.y = np.zeros(fun.size1_out(0))
+        self.u = np.zeros(nu)
+        self.active = np.array(active, dtype=int)
+        self.every = active == tuple(range(nu))
+        self.out = tuple(np.zeros(shape) for shape in shapes)
         self.buf, self.run = fun.buffer()
         self.buf.set_arg(0, memoryview(self.x))
         self.buf.set_arg(1, memoryview(self.u))
-        self.buf.set_res(0, memoryview(self.y))
+        for k, a in enumerate(self.out):
+            self.buf.set_res(k, memoryview(a.reshape(-1)))
+
+    def set(self, x: np.ndarray, u: np.ndarray) -> None:
+        """Copy ``x`` and the selected inputs ``u`` into the bound arrays."""
+        self.x[:] = x
+        if self.every:
+            self.u[:] = u
+        else:
+            self.u[self.active] = u
 
 
 class MjcfPlant(Plant):
@@ -160,10 +309,25 @@ class MjcfPlant(Plant):
 
     The file's kind is read from its content (``<mujoco>`` or ``<robot>``),
     whatever its name. Everything in it the plant cannot model (free or ball
-    joints, equality constraints, spatial tendons that act, fluid forces, an
-    unsupported actuator ...) and every invalid number (a ``NaN`` gravity, an
-    infinite mass) is refused in one error that lists them all by element
-    name, with the reason and the fix where one exists.
+    joints, tendon or inactive equality constraints, spatial tendons that act,
+    fluid forces, an unsupported actuator ...) and every invalid number (a
+    ``NaN`` gravity, an infinite mass) is refused in one error that lists them
+    all by element name, with the reason and the fix where one exists.
+
+    Equality constraints (``<joint>`` couplings and URDF ``<mimic>``,
+    ``<connect>``, ``<weld>``) are exact constrained dynamics, held in
+    :attr:`constraints` (a :class:`~shinro_ctrl.multibody.constraints.ConstrainedDynamics`,
+    None without equalities) and delegated to: the state is then
+    ``[q_I; q̇_I]``, the *independent* joints chosen at the reference
+    configuration (first keyframe, else ``qpos0``, projected onto the
+    constraints), named after them; :meth:`dynamics` completes the dependent
+    joints by Newton and solves the KKT system; :meth:`linearize` gives the
+    exact Jacobians by the implicit function theorem; :meth:`symbolic`
+    unrolls the Newton steps in ``SX``; the engine hooks read the independent
+    joints and complete the dependent ones when writing. ``x0`` may then be
+    ``[q_I; q̇_I]`` or a full ``[qpos; qvel]`` that satisfies the constraints;
+    the keyframe is projected onto them (refused, naming the constraint, when
+    it cannot be). ``engine_state_map`` (``crosscheck``) does not apply.
 
     A URDF file carries no actuators: its inputs are joint torques (forces
     for prismatic joints), one motor per joint named after the joint, in an
@@ -181,9 +345,9 @@ class MjcfPlant(Plant):
 
     Threads: :meth:`dynamics`, :meth:`linearize`, :meth:`equilibrium_input`
     and the other model methods may be called from any number of threads at
-    once: each thread evaluates the compiled dynamics in its own buffer
-    (created on its first call), and the exact Jacobian's one buffer is
-    behind a lock. :meth:`step` and the state belong to one thread (see
+    once: each thread evaluates the compiled dynamics and the compiled exact
+    Jacobians in its own buffers (created on its first call; the first
+    compilation is behind a lock). :meth:`step` and the state belong to one thread (see
     :class:`~shinro_ctrl.plants.base.Plant`).
 
     Args:
@@ -211,7 +375,7 @@ class MjcfPlant(Plant):
             load; unsupported features or invalid numbers (all listed at
             once); no actuators, an unknown actuator name; a bad ``dt`` or
             ``u0``; an ``x0`` (or keyframe) outside a joint's range (naming
-            the joint).
+            the joint) or off the equality constraints (naming the constraint).
     """
 
     def __init__(
@@ -251,26 +415,47 @@ class MjcfPlant(Plant):
                 raise InvalidArgument(f"actuators lists a name twice: {list(actuators)!r}")
             active = tuple(active_list)
         self.tree, self.rigid_body_tree = tree, rb
-        self._fun = _function(str(source), mtime, active)
         self.source_path = str(robot.source)  # the user's file (a URDF itself for a URDF)
+        self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
+        self.constraints: ConstrainedDynamics | None = None
+        if tree.equalities and tree.na:
+            dyn = ", ".join(f"'{a.name or f'u{k}'}' ({a.dyntype})" for k, a in enumerate(tree.actuators) if a.act >= 0)
+            raise InvalidArgument(
+                f"{self._label()}: activation dynamics on actuators {dyn} with equality constraints are not "
+                'supported yet; give those actuators dyntype="none" or remove the equality constraints'
+            )
+        if tree.equalities:  # exact constrained dynamics in the independent coordinates (class docstring)
+            ref, key = self._default_x0(robot.keyframe), robot.keyframe
+            what = f"{self._label()}: " + (f"keyframe '{key[0]}'" if key and key[0] else "the reference (qpos0)")
+            self.constraints = _constrained(str(source), mtime, active, tuple(ref[: tree.nq]), what)
+        else:
+            self._fun = _function(str(source), mtime)  # compiled: u_all, every actuator's control
         self.model_path = str(robot.path)  # the file plant and engine load (a URDF's translation)
         self.asset = self.model_path  # the engine loads the same file
         self.active_actuators = active
         nq = tree.nq
-        self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
+        free = self.constraints.independent if self.constraints else range(nq)
         acts = sorted((a.act, a.name or f"u{k}") for k, a in enumerate(tree.actuators) if a.act >= 0)
         self.state_names = (
-            *self.joint_names,
-            *(f"{j}_dot" for j in self.joint_names),
+            *(self.joint_names[i] for i in free),
+            *(f"{self.joint_names[i]}_dot" for i in free),
             *(f"{name}_act" for _, name in acts),
         )
+        nq = len(free)  # the design coordinates
         self.input_names = tuple(names[k] or f"u{k}" for k in active)
         self.position_indices = tuple(range(nq))
         self.velocity_indices = tuple(range(nq, 2 * nq))
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self.state_bounds = self._joint_range_bounds()
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
-        if x0 is None:
+        self._key = (str(source), mtime, active)
+        self._jacobian: _CompiledJacobian | None = None
+        if self.constraints is None:  # compiled at the first linearize (a constrained model: see linearize)
+            self._jacobian = _CompiledJacobian(str(source), mtime, self.state_dim, tree.nu, active)
+            self._exact = self._jacobian  # what Plant.linearize's general path calls
+        if self.constraints is not None:
+            self._x0 = self._constrained_x0(robot.keyframe, x0)
+        elif x0 is None:
             self._x0 = self._default_x0(robot.keyframe)
             held = self._hold_activations(self._x0) if tree.na and robot.keyframe is None else None
             if held is not None:
@@ -358,13 +543,33 @@ class MjcfPlant(Plant):
         return x, u
 
     def _joint_range_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Joint ranges of limited joints for the positions; ±inf elsewhere (velocities, activations)."""
+        """Joint ranges of limited joints for the positions; ±inf elsewhere (velocities, activations).
+
+        With equality constraints, the positions are the independent joints'.
+        """
         lo = np.full(self.state_dim, -np.inf)
         hi = np.full(self.state_dim, np.inf)
-        for i, j in enumerate(self.tree.joints):
-            if j.limited:
-                lo[i], hi[i] = j.range
+        free = self.constraints.independent if self.constraints else range(self.tree.nq)
+        for k, i in enumerate(free):
+            if self.tree.joints[i].limited:
+                lo[k], hi[k] = self.tree.joints[i].range
         return lo, hi
+
+    def _constrained_x0(self, keyframe: tuple[str, np.ndarray] | None, x0: ArrayLike | None) -> np.ndarray:
+        """The design operating state: the keyframe projected onto the constraints, or the user's ``x0``.
+
+        A user's ``x0`` is either the design state ``[q_I; q̇_I]`` (completed) or a full ``[q; q̇]`` (checked).
+        """
+        cd, nq = self.constraints, self.tree.nq
+        if x0 is None:
+            what = f"keyframe '{keyframe[0]}'" if keyframe and keyframe[0] else "the default operating point"
+            full = cd.project_state(self._default_x0(keyframe), f"{self._label()}: {what}")
+        elif np.size(x0) == 2 * nq and nq != cd.ni:
+            full = cd.check_full(as_vector("x0", x0, 2 * nq), f"{self._label()}: x0")
+        else:
+            full = cd.complete(as_vector("x0", x0, 2 * cd.ni), what=f"{self._label()}: x0")
+        self._check_in_range(full, "x0")
+        return cd.reduce(full)
 
     def _check_in_range(self, x: np.ndarray, what: str) -> None:
         """Raise InvalidArgument naming every joint of ``x`` outside its range."""
@@ -412,7 +617,7 @@ class MjcfPlant(Plant):
             NonFiniteError: the accelerations at ``x`` overflow float64.
         """
         x = as_vector("x", x, self.state_dim)
-        nq = self.tree.nq
+        nq = len(self.position_indices)
         u0 = np.zeros(self.input_dim)
         a0 = self._eval_one(x, u0)[nq:]  # q̈ and ȧ
         Bq = np.column_stack([self._eval_one(x, e)[nq:] - a0 for e in np.eye(self.input_dim)])
@@ -457,15 +662,24 @@ class MjcfPlant(Plant):
 
     # -------------------------------------------------------------- dynamics
     def _eval_one(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``ẋ (2nq,)`` at one ``x``, ``u`` through this thread's buffer."""
+        """``ẋ (nx,)`` at one ``x``, ``u`` through this thread's buffer (constrained: Newton, then the KKT system)."""
+        if self.constraints is not None:
+            return self.constraints.xdot(x, u)
+        return self._eval_checked(x, u)[0]
+
+    def _eval_checked(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, float]:
+        """``(ẋ, s)`` with ``s`` the sum of ``x``, ``u`` and ``ẋ`` computed in C (see :func:`_function`)."""
+        if self.constraints is not None:
+            xd = self.constraints.xdot(x, u)
+            return xd, float(np.sum(x) + np.sum(u) + np.sum(xd))
         try:
             b = self._local.buffers
         except AttributeError:
-            b = self._local.buffers = _Buffers(self._fun)
-        b.x[:] = x
-        b.u[:] = u
+            shapes = ((self.state_dim,), (1,))
+            b = self._local.buffers = _Buffers(self._fun, self.tree.nu, self.active_actuators, shapes)
+        b.set(x, u)
         b.run()
-        return b.y.copy()
+        return b.out[0].copy(), float(b.out[1][0])
 
     def dynamics(self, state: ArrayLike, control: ArrayLike, params: dict[str, ArrayLike] | None = None) -> np.ndarray:
         """``ẋ = f(x, u)`` (see :meth:`Plant.dynamics`).
@@ -474,6 +688,19 @@ class MjcfPlant(Plant):
             InvalidArgument: wrong shapes.
             NonFiniteError: ``x`` or ``u`` holds NaN or inf, or ``ẋ`` overflows float64.
         """
+        if (  # fast path: one float64 state and input, straight into this thread's compiled-function buffer
+            params is None
+            and type(state) is np.ndarray
+            and type(control) is np.ndarray
+            and state.shape == (self.state_dim,)
+            and control.shape == (self.input_dim,)
+            and state.dtype == np.float64
+            and control.dtype == np.float64
+        ):
+            self.check_model_domain(state)
+            xdot, total = self._eval_checked(state, control)
+            if math.isfinite(total):  # no NaN or inf in x, u or ẋ (or an overflow: the general path decides)
+                return xdot
         for what, v, names in (("x", state, self.state_names), ("u", control, self.input_names)):
             a = np.asarray(v, dtype=float)
             if not np.isfinite(a).all():
@@ -484,12 +711,47 @@ class MjcfPlant(Plant):
                 )
         return super().dynamics(state, control, params)
 
+    def linearize(
+        self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous-time Jacobians ``(A_c, B_c)`` at ``(x0, u0)`` (see :meth:`Plant.linearize`).
+
+        ``"exact"`` evaluates the compiled Jacobian function. A fast path for
+        one float64 ``x0`` and ``u0``: finiteness is checked on one sum of
+        ``x0``, ``u0``, ``A`` and ``B`` computed in C (the general path, with
+        every check and message, decides whenever it is not finite). A
+        constrained model's exact Jacobians come from the implicit function
+        theorem (:meth:`ConstrainedDynamics.jacobians`), not compiled.
+        """
+        if self.constraints is not None:
+            if method != "exact":
+                return super().linearize(x0, u0, method=method, eps=eps)
+            x0, u0 = self.operating_point(x0, u0)
+            A, B = self.constraints.jacobians(x0, u0)
+            where = f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}"
+            self._check_finite_model(A, B, where)
+            return A, B
+        if (
+            method == "exact"
+            and type(x0) is np.ndarray
+            and type(u0) is np.ndarray
+            and x0.shape == (self.state_dim,)
+            and u0.shape == (self.input_dim,)
+            and x0.dtype == np.float64
+            and u0.dtype == np.float64
+        ):
+            self.check_model_domain(x0)
+            A, B, total = self._jacobian.evaluate(x0, u0)
+            if math.isfinite(total):
+                return A, B
+        return super().linearize(x0, u0, method=method, eps=eps)
+
     def equations(
         self, bk: ArrayBackend, x: np.ndarray | cs.SX, u: np.ndarray | cs.SX, p: dict[str, float]
     ) -> np.ndarray | cs.SX | list[float]:
         """``ẋ``: the model's SX expression for the CasADi backend, the compiled function otherwise."""
         if isinstance(bk, CasadiBackend):
-            return self._fun(x, u)
+            return self.symbolic()(x, u)
         if np.iscomplexobj(x) or np.iscomplexobj(u):  # complex step: the scalar algorithms on complex numbers
             return self._f_complex(np.asarray(x), np.asarray(u))
         x = np.asarray(x, dtype=float)
@@ -511,19 +773,43 @@ class MjcfPlant(Plant):
         xb = np.broadcast_to(x, (*lead, x.shape[-1])).reshape(-1, x.shape[-1])
         ub = np.broadcast_to(u, (*lead, u.shape[-1])).reshape(-1, u.shape[-1])
         rb, active = self.rigid_body_tree, self.active_actuators
+        if self.constraints is not None:
+            raise InvalidArgument(
+                f"{self._label()}: no complex-step evaluation of a constrained model (use method='fd')"
+            )
         out = np.array([rb.xdot_numpy(xb[k], ub[k], active) for k in range(xb.shape[0])], dtype=complex)
         return out.reshape(*lead, x.shape[-1])
+
+    def compiled_functions(self) -> tuple[cs.Function, cs.Function]:
+        """The compiled functions behind :meth:`dynamics` and :meth:`linearize` (the Jacobians built on first call).
+
+        ``f(x, u_all) -> (ẋ, sum)`` and ``jac(x, u_all) -> (Aᵀ, B_allᵀ,
+        sum)``, where ``u_all`` holds every actuator's control in the model's
+        order (one library serves every actuator selection), the Jacobians
+        come transposed (dense, so their column-major nonzeros are ``A``'s and
+        ``B_all``'s row-major entries) and ``sum`` adds up every input and
+        output entry (the fast paths' finiteness check). CasADi's
+        virtual-machine functions when no compiler could build them. For callers that bind their own
+        ``Function.buffer()``; the plant's methods need none of this.
+        """
+        if self.constraints is not None:
+            raise InvalidArgument(
+                f"{self._label()}: a constrained model's dynamics are not compiled (they complete the dependent "
+                "joints by Newton's method first); use dynamics() and linearize()"
+            )
+        return self._fun, _jacobian_function(*self._key[:2])
 
     def symbolic(self, params: bool = False) -> cs.Function:
         """The dynamics as a CasADi ``Function`` ``f(x, u)`` (``params=True``: ``f(x, u, p)`` with an empty ``p``)."""
         if params not in self._symbolic:
+            f = self.constraints.symbolic_function() if self.constraints is not None else _symbolic(*self._key)
             if not params:
-                self._symbolic[False] = self._fun
+                self._symbolic[False] = f
             else:
                 x = cs.SX.sym("x", self.state_dim)
                 u = cs.SX.sym("u", self.input_dim)
                 p = cs.SX.sym("p", 0)
-                self._symbolic[True] = cs.Function("f", [x, u, p], [self._fun(x, u)], ["x", "u", "p"], ["xdot"])
+                self._symbolic[True] = cs.Function("f", [x, u, p], [f(x, u)], ["x", "u", "p"], ["xdot"])
         return self._symbolic[params]
 
     def integrate(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -534,7 +820,7 @@ class MjcfPlant(Plant):
         steps them (MuJoCo's ``actrange`` clamp is its loop's only). The joint
         ranges act as inelastic stops (:meth:`clip_state`).
         """
-        nq = self.tree.nq
+        nq = len(self.position_indices)
         xd = self._eval_one(x, u)
         new = x.copy()
         new[nq : 2 * nq] += self.dt * xd[nq : 2 * nq]
@@ -550,11 +836,11 @@ class MjcfPlant(Plant):
         the joints and MuJoCo's own activation update, exact for ``filterexact`` and Euler for
         ``filter`` and ``integrator``.
         """
-        nq, na = self.tree.nq, self.tree.na
+        nq, na = len(self.position_indices), self.tree.na
         x = cs.SX.sym("x", self.state_dim)
         u = cs.SX.sym("u", self.input_dim)
         p = cs.SX.sym("p", 0)
-        xd = self._fun(x, u)
+        xd = self.symbolic()(x, u)
         v = x[nq : 2 * nq] + self.dt * xd[nq : 2 * nq]
         parts = [x[:nq] + self.dt * v, v]
         if na:
@@ -589,16 +875,19 @@ class MjcfPlant(Plant):
 
     def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`)."""
+        if self.constraints is not None:
+            raise NotImplementedError(f"{self._label()}: a constrained model's state is its independent coordinates")
         n = self.state_dim
         return np.eye(n), np.arange(n)
 
     def engine_read(self, engine: MujocoEngine) -> np.ndarray:
-        """The state ``[qpos; qvel; act]`` read from the engine."""
-        return engine.get_state_vector()
+        """The state ``[qpos; qvel; act]`` read from the engine (constrained: its independent coordinates)."""
+        x = engine.get_state_vector()
+        return x if self.constraints is None else self.constraints.reduce(x)
 
     def engine_write(self, engine: MujocoEngine, x: np.ndarray) -> None:
-        """Write ``[qpos; qvel; act]`` into the engine."""
-        engine.set_state_vector(x)
+        """Write ``[qpos; qvel; act]`` into the engine (constrained: the dependent coordinates completed)."""
+        engine.set_state_vector(x if self.constraints is None else self.constraints.complete(x))
 
     def engine_apply(self, engine: MujocoEngine, u: np.ndarray) -> None:
         """Set the selected actuators' controls (the others stay 0)."""
