@@ -35,7 +35,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from shinro_ctrl.codegen import DEFAULT_FLAGS
+from shinro_ctrl.codegen import default_flags
 from shinro_ctrl.linearization import ExactJacobian
 from shinro_ctrl.plants import MjcfPlant
 from shinro_ctrl.resources import asset_path
@@ -207,7 +207,7 @@ def bench_model(name: str, folder: Path) -> dict:
 
 def main() -> None:
     print(
-        f"compiled with {' '.join(DEFAULT_FLAGS)}; CasADi {cs.__version__}, MuJoCo {mujoco.__version__}, "
+        f"compiled with {' '.join(default_flags())}; CasADi {cs.__version__}, MuJoCo {mujoco.__version__}, "
         f"Pinocchio {pin.__version__}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
     )
     print(f"per call: median of {CALLS} calls after {WARMUP} warm-up, min over {REPEATS} repeats [µs]\n")

@@ -31,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -41,11 +42,31 @@ from pathlib import Path
 
 import casadi as cs
 
-__all__ = ["CompilerUnavailable", "cache_dir", "compiled", "compiled_by_key", "find_compiler"]
+__all__ = [
+    "DEFAULT_FLAGS",
+    "CompilerUnavailable",
+    "cache_dir",
+    "compiled",
+    "compiled_by_key",
+    "default_flags",
+    "find_compiler",
+]
 
 #: Default optimization flags: ``-O1`` compiles large generated Jacobians several times faster than ``-O3`` and runs
 #: them about as fast (the generated code is straight-line arithmetic with little left to optimize).
 DEFAULT_FLAGS: tuple[str, ...] = ("-O1",)
+
+
+def default_flags() -> tuple[str, ...]:
+    """``$SHINRO_CTRL_CFLAGS`` split like a shell would (e.g. ``"-O2 -march=native"``), else :data:`DEFAULT_FLAGS`.
+
+    The flags are part of every cache key, so libraries built with other flags are never mixed up. The test suite
+    sets ``-O0`` (a quarter of the compile time, the same arithmetic: no fast-math, no FMA contraction on the default
+    target), since it compiles every model it loads once and calls each only a few times.
+    """
+    env = os.environ.get("SHINRO_CTRL_CFLAGS", "").strip()
+    return tuple(shlex.split(env)) if env else DEFAULT_FLAGS
+
 
 _lock = threading.Lock()
 _warned: set[str] = set()
@@ -156,14 +177,14 @@ def _digest(*parts: str) -> str:
     return hashlib.sha256("\0".join(parts).encode()).hexdigest()[:24]
 
 
-def compiled(fun: cs.Function, *, flags: Sequence[str] = DEFAULT_FLAGS, folder: Path | None = None) -> cs.Function:
+def compiled(fun: cs.Function, *, flags: Sequence[str] | None = None, folder: Path | None = None) -> cs.Function:
     """``fun`` as compiled machine code, built once and cached on disk.
 
     Args:
         fun: Any CasADi function that supports code generation (``SX``
             functions and ``MX`` functions of such); its name becomes the C
             symbol, so give distinct functions distinct names.
-        flags: Compiler flags besides ``-shared -fPIC`` (part of the cache key).
+        flags: Compiler flags besides ``-shared -fPIC`` (part of the cache key); default :func:`default_flags`.
         folder: The cache folder; default :func:`cache_dir`.
 
     Returns:
@@ -175,6 +196,7 @@ def compiled(fun: cs.Function, *, flags: Sequence[str] = DEFAULT_FLAGS, folder: 
     if cc is None:
         _note(_no_compiler())
         return fun
+    flags = default_flags() if flags is None else tuple(flags)
     src = _source(fun)
     lib = _link(fun.name(), _digest(src, cc, *flags), lambda: src, flags, folder)
     return fun if lib is None else cs.external(fun.name(), str(lib))
@@ -185,7 +207,7 @@ def compiled_by_key(
     key: str,
     build: Callable[[], cs.Function],
     *,
-    flags: Sequence[str] = DEFAULT_FLAGS,
+    flags: Sequence[str] | None = None,
     folder: Path | None = None,
 ) -> cs.Function:
     """A compiled function found by a key the caller computes, built (by ``build()``) only when not cached.
@@ -204,7 +226,7 @@ def compiled_by_key(
             the code that builds the expression.
         build: Returns the CasADi function; called on a cache miss, and when no
             compiler can build it (the virtual-machine fallback).
-        flags: Compiler flags besides ``-shared -fPIC``.
+        flags: Compiler flags besides ``-shared -fPIC``; default :func:`default_flags`.
         folder: The cache folder; default :func:`cache_dir`.
 
     Returns:
@@ -220,6 +242,7 @@ def compiled_by_key(
         return _source(built[0])
 
     cc = find_compiler() or ""
+    flags = default_flags() if flags is None else tuple(flags)
     lib = _link(name, _digest(key, cc, *flags, cs.__version__), source, flags, folder)
     if lib is None:
         return built[0] if built else build()

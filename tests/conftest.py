@@ -20,11 +20,14 @@ def pytest_configure(config: pytest.Config) -> None:
     """Compiled dynamics (shinro_ctrl.codegen) go to a fresh folder shared by the session's xdist workers.
 
     Set in the controlling process before the workers start, so they inherit it and each library is compiled once
-    per session (the others wait on its lock); a SHINRO_CTRL_CACHE the caller set is kept.
+    per session (the others wait on its lock); a SHINRO_CTRL_CACHE (or SHINRO_CTRL_CFLAGS) the caller set is kept.
     """
     if "SHINRO_CTRL_CACHE" not in os.environ:
         os.environ["SHINRO_CTRL_CACHE"] = tempfile.mkdtemp(prefix="shinro-ctrl-test-cache-")
         os.environ[_OWN_CACHE] = str(os.getpid())
+    # the suite compiles every model it loads once and calls each a few times: -O0 compiles in a quarter of -O1's
+    # time with the same arithmetic (shinro_ctrl.codegen.default_flags); benchmarks measure the shipped -O1
+    os.environ.setdefault("SHINRO_CTRL_CFLAGS", "-O0")
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:

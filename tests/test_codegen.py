@@ -18,7 +18,14 @@ import casadi as cs
 import numpy as np
 import pytest
 
-from shinro_ctrl.codegen import CompilerUnavailable, compiled, compiled_by_key, find_compiler
+from shinro_ctrl.codegen import (
+    DEFAULT_FLAGS,
+    CompilerUnavailable,
+    compiled,
+    compiled_by_key,
+    default_flags,
+    find_compiler,
+)
 
 
 def _fun(name: str = "cg_f", power: float = 3.0) -> cs.Function:
@@ -144,3 +151,16 @@ def test_two_processes_building_the_same_function_compile_once_and_both_load_it(
     np.testing.assert_allclose(values[0], expected, rtol=1e-15)
     assert len(_libraries(tmp_path / "cache")) == 1
     assert len(log.read_text().split()) == 1  # the second process waited on the lock and loaded the first's library
+
+
+def test_flags_from_the_environment_are_part_of_the_key(tmp_path, monkeypatch):
+    f = _fun("cg_env")
+    monkeypatch.setenv("SHINRO_CTRL_CFLAGS", "-O0 -g0")
+    assert default_flags() == ("-O0", "-g0")
+    low = compiled(f, folder=tmp_path)
+    monkeypatch.setenv("SHINRO_CTRL_CFLAGS", "-O1")
+    high = compiled(f, folder=tmp_path)
+    assert len(_libraries(tmp_path)) == 2  # one library per set of flags, never mixed up
+    np.testing.assert_array_equal(np.asarray(low(X)), np.asarray(high(X)))  # the same arithmetic
+    monkeypatch.delenv("SHINRO_CTRL_CFLAGS")
+    assert default_flags() == DEFAULT_FLAGS
