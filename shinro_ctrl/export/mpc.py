@@ -31,7 +31,7 @@ from shinro_ctrl.export.parts import CArray, CField, Part
 from shinro_ctrl.export.qp_c import ldp_fields, ldp_solver_code
 from shinro_ctrl.export.registry import ExportContext, register_exporter
 
-__all__ = ["MAX_ITER", "LinearMPCExporter", "MPCTables"]
+__all__ = ["MAX_ITER", "MAX_ROWS", "LinearMPCExporter", "MPCTables"]
 
 #: Active-set iterations per step before the exported solver gives up (status SOLVER_MAX_ITER).
 MAX_ITER = 1000
@@ -102,6 +102,10 @@ class MPCTables:
         self.primal_tol = float(dq.settings["primal_tol"])
 
 
+#: Largest number of constraint rows exported (the Gram table holds mt² doubles: 2,000 rows are 32 MB).
+MAX_ROWS = 2000
+
+
 def _check(ctrl: LinearMPC, ctx: ExportContext) -> None:
     if ctrl.solver != "daqp" or ctrl.dense is None:
         raise ExportError(
@@ -141,6 +145,11 @@ class LinearMPCExporter:
         assert isinstance(obj, LinearMPC)
         _check(obj, ctx)
         t = MPCTables(obj)
+        if t.mt > MAX_ROWS:
+            raise ExportError(
+                f"cannot export this LinearMPC: its condensed QP has {t.mt} constraint rows and the exported solver "
+                f"holds their Gram matrix as a table (at most {MAX_ROWS} rows); shorten the horizon"
+            )
         n, m, nz, mt = t.n, t.m, t.nz, t.mt
         opts = obj.options
         tables = [
@@ -149,7 +158,6 @@ class LinearMPCExporter:
             CArray("u_hi", obj.u_max, "upper input bounds"),
             CArray("Te", t.Te, "first input: dependence on e0 = x - x0 (m x n)"),
             CArray("Tr", t.Tr, "first input: dependence on rho = r - x0 (m x n)"),
-            CArray("Tw", t.Tw, "first input: dependence on the least-distance variable w (m x nz)"),
             CArray("tc", t.tc, "first input: constant part (m)"),
         ]
         fields = [
@@ -161,14 +169,15 @@ class LinearMPCExporter:
         solve = ""
         if mt:
             tables += [
-                CArray("M", t.M, "rows of the least-distance QP, M = A L^-T (mt x nz)"),
+                CArray("gram", t.M @ t.M.T, "Gram matrix M M^T of the least-distance QP's rows (mt x mt)"),
+                CArray("TM", t.M @ t.Tw.T, "first input per unit multiplier: M T_w^T (mt x m)"),
                 CArray("lo", t.lo, "constant lower row bounds (mt)"),
                 CArray("hi", t.hi, "constant upper row bounds (mt)"),
                 CArray("De", t.De, "row bounds: dependence on e0 (mt x n)"),
                 CArray("Dr", t.Dr, "row bounds: dependence on rho (mt x n)"),
                 CArray("dc", t.dc, "row bounds: constant shift A H^-1 f_c (mt)"),
             ]
-            fields += ldp_fields(nz, mt)
+            fields += ldp_fields(mt, m, min(nz, mt))
             nr = int(t.rate_rows.size)
             if nr:
                 tables += [
@@ -205,7 +214,7 @@ class LinearMPCExporter:
     }}
 """
                 + rate
-                + """    rc = @N@_ctl_ldp(ws);
+                + """    rc = @N@_ctl_ldp(ws, u);
     if (rc == 1) {
         return @U@_QP_INFEASIBLE;
     }
@@ -213,7 +222,6 @@ class LinearMPCExporter:
         status |= @U@_SOLVER_MAX_ITER;
     }
 """
-                + _mv_code("@N@_ctl_Tw", m, nz, "ws->ctl_w", "u")
             )
         du = obj.du_max
         clip = []
@@ -232,11 +240,14 @@ class LinearMPCExporter:
             f"    for (i = 0; i < {m}; ++i) {{",
             "        if (u[i] > @N@_ctl_u_hi[i]) { u[i] = @N@_ctl_u_hi[i]; }",
             "        if (u[i] < @N@_ctl_u_lo[i]) { u[i] = @N@_ctl_u_lo[i]; }",
-            "        if (u[i] <= @N@_ctl_u_lo[i] || u[i] >= @N@_ctl_u_hi[i]) { status |= @U@_INPUT_CLAMPED; }",
+            "        if (u[i] <= @N@_ctl_u_lo[i] + 1e-9 * (1.0 + fabs(@N@_ctl_u_lo[i])) ||",
+            "            u[i] >= @N@_ctl_u_hi[i] - 1e-9 * (1.0 + fabs(@N@_ctl_u_hi[i]))) {",
+            "            status |= @U@_INPUT_CLAMPED; /* on a bound (to the QP's primal tolerance) */",
+            "        }",
             "    }",
         ]
         code = (
-            (ldp_solver_code(nz, mt, primal_tol=t.primal_tol, max_iter=MAX_ITER) if mt else "")
+            (ldp_solver_code(mt, m, min(nz, mt), primal_tol=t.primal_tol, max_iter=MAX_ITER) if mt else "")
             + "\nvoid @N@_ctl_reset(@N@_workspace *ws) {\n    ws->ctl_has_uprev = 0;\n"
             + ("    ws->ctl_nW = 0;\n" if mt else "")
             + "}\n\n"

@@ -35,77 +35,58 @@ from shinro_ctrl.export.parts import CField
 __all__ = ["ldp_fields", "ldp_solver_code"]
 
 
-def ldp_fields(nz: int, mt: int) -> tuple[CField, ...]:
-    """Workspace fields of the solver for ``nz`` variables and ``mt`` constraint rows."""
-    k = min(nz, mt)
+def ldp_fields(mt: int, m: int, kmax: int) -> tuple[CField, ...]:
+    """Workspace fields of the solver for ``mt`` constraint rows, ``m`` outputs, at most ``kmax`` active."""
+    k = kmax
     return (
-        CField("w", nz, "least-distance variable w of the QP"),
+        CField("mw", mt, "M w: the constraint rows at the current iterate"),
         CField("blo", mt, "lower bounds of M w at this step"),
         CField("bhi", mt, "upper bounds of M w at this step"),
         CField("W", k, "working set: constraint rows", ctype="int"),
         CField("Ws", k, "working set: +1 upper bound, -1 lower bound", ctype="int"),
         CField("nW", 0, "size of the working set (kept between steps: the warm start)", ctype="int"),
         CField("lam", k, "multipliers of the working set (>= 0)"),
-        CField("gram", k * k, "Gram matrix A_W A_W^T of the working set"),
-        CField("chol", k * k, "its Cholesky factor (lower)"),
+        CField("chol", k * k, "Cholesky factor (lower) of the working set's Gram matrix A_W A_W^T"),
+        CField("y", k, "solve buffer"),
         CField("r", k, "solve buffer"),
-        CField("zd", nz, "step direction"),
         CField("iters", 0, "active-set iterations of the last solve", ctype="int"),
     )
 
 
-def ldp_solver_code(nz: int, mt: int, *, primal_tol: float, max_iter: int, tag: str = "ctl") -> str:
-    """The static C functions of the solver; the caller fills ``ws->{tag}_blo``/``bhi`` and calls
-    ``@N@_{tag}_ldp(ws)``, which returns 0 (optimal, ``ws->{tag}_w``), 1 (infeasible) or 2 (iteration limit).
+def ldp_solver_code(mt: int, m: int, kmax: int, *, primal_tol: float, max_iter: int, tag: str = "ctl") -> str:
+    """The static C functions of the solver (module docstring).
 
-    Reads the table ``@N@_{tag}_M`` (``mt × nz``, row-major).
+    The caller fills ``ws->{tag}_blo``/``bhi`` and calls ``@N@_{tag}_ldp(ws, out)``, which returns 0
+    (optimal), 1 (infeasible) or 2 (iteration limit) and adds ``T w`` (``m`` values) to ``out``.
+    Reads the tables ``@N@_{tag}_gram`` (``mt × mt``: ``M Mᵀ``, row-major) and ``@N@_{tag}_TM``
+    (``mt × m``: ``M Tᵀ``), so ``M`` itself is never needed: with ``w = −A_Wᵀλ`` every quantity of
+    the method is a combination of Gram rows.
     """
-    k = min(nz, mt)
+    k = kmax
     t = tag
     return f"""/* ---- exact QP: dual active-set method on the least-distance problem (see README) ---- */
-#define @U@_{t.upper()}_NZ {nz}
-#define @U@_{t.upper()}_MT {mt}
-#define @U@_{t.upper()}_KMAX {k}
+#define @N@_{t}_G(i, j) (@N@_{t}_gram[(long)(i) * {mt} + (j)])
 
-static double @N@_{t}_rowdot(int i, const double *v) {{
-    const double *a = @N@_{t}_M + (long)i * {nz};
-    double s = 0.0;
-    int j;
-    for (j = 0; j < {nz}; ++j) {{
-        s += a[j] * v[j];
-    }}
-    return s;
-}}
-
-static double @N@_{t}_rowrow(int i, int l) {{
-    const double *a = @N@_{t}_M + (long)i * {nz};
-    const double *b = @N@_{t}_M + (long)l * {nz};
-    double s = 0.0;
-    int j;
-    for (j = 0; j < {nz}; ++j) {{
-        s += a[j] * b[j];
-    }}
-    return s;
-}}
-
-/* the signed bound b_i of constraint (row, sign): a_i w <= b_i with a_i = sign * M_row */
+/* the signed bound b of constraint (row, sign): sign * M_row w <= b */
 static double @N@_{t}_bound(const @N@_workspace *ws, int row, int sign) {{
     return sign > 0 ? ws->{t}_bhi[row] : -ws->{t}_blo[row];
 }}
 
-/* Cholesky factor of the Gram matrix of the first k constraints of W; 0 on success */
-static int @N@_{t}_factor(@N@_workspace *ws, int k) {{
-    int i, j, l;
+/* Cholesky factor of the working set's Gram matrix, from scratch; 0 on success */
+static int @N@_{t}_factor(@N@_workspace *ws) {{
+    int i, j, l, k = ws->{t}_nW;
     double *L = ws->{t}_chol;
-    const double *G = ws->{t}_gram;
     for (i = 0; i < k; ++i) {{
         for (j = 0; j <= i; ++j) {{
-            double s = G[i * {k} + j];
+            double s = @N@_{t}_G(ws->{t}_W[i], ws->{t}_W[j]);
+            if (ws->{t}_Ws[i] != ws->{t}_Ws[j]) {{
+                s = -s;
+            }}
             for (l = 0; l < j; ++l) {{
                 s -= L[i * {k} + l] * L[j * {k} + l];
             }}
             if (i == j) {{
-                if (!(s > 1e-14 * (G[i * {k} + i] + 1e-300))) {{
+                if (!(s > 1e-12 * @N@_{t}_G(ws->{t}_W[i], ws->{t}_W[i]))) {{
                     return 1;
                 }}
                 L[i * {k} + i] = sqrt(s);
@@ -117,17 +98,22 @@ static int @N@_{t}_factor(@N@_workspace *ws, int k) {{
     return 0;
 }}
 
-/* x = (L L^T)^{{-1}} b for the first k rows (in place in x) */
-static void @N@_{t}_cholsolve(const @N@_workspace *ws, int k, double *x) {{
+/* y = L^-1 b (forward), then x = L^-T y (backward), first k rows */
+static void @N@_{t}_forward(const @N@_workspace *ws, int k, double *y) {{
     int i, l;
     const double *L = ws->{t}_chol;
     for (i = 0; i < k; ++i) {{
-        double s = x[i];
+        double s = y[i];
         for (l = 0; l < i; ++l) {{
-            s -= L[i * {k} + l] * x[l];
+            s -= L[i * {k} + l] * y[l];
         }}
-        x[i] = s / L[i * {k} + i];
+        y[i] = s / L[i * {k} + i];
     }}
+}}
+
+static void @N@_{t}_backward(const @N@_workspace *ws, int k, double *x) {{
+    int i, l;
+    const double *L = ws->{t}_chol;
     for (i = k - 1; i >= 0; --i) {{
         double s = x[i];
         for (l = i + 1; l < k; ++l) {{
@@ -137,81 +123,81 @@ static void @N@_{t}_cholsolve(const @N@_workspace *ws, int k, double *x) {{
     }}
 }}
 
-/* the Gram row of working-set entry p against entries 0..p (symmetric fill); the signs flip the entry when
-   one constraint is an upper and the other a lower bound */
-static void @N@_{t}_gram_row(double *gram, const int *W, const int *Ws, int p) {{
-    int q;
-    for (q = 0; q <= p; ++q) {{
-        double g = @N@_{t}_rowrow(W[p], W[q]);
-        if (Ws[p] != Ws[q]) {{
-            g = -g;
-        }}
-        gram[p * {k} + q] = g;
-        gram[q * {k} + p] = g;
-    }}
-}}
-
-/* w = -A_W^T lam */
-static void @N@_{t}_primal(@N@_workspace *ws) {{
-    int p, j;
-    double *w = ws->{t}_w;
-    for (j = 0; j < {nz}; ++j) {{
-        w[j] = 0.0;
-    }}
-    for (p = 0; p < ws->{t}_nW; ++p) {{
-        const double *a = @N@_{t}_M + (long)ws->{t}_W[p] * {nz};
-        double c = ws->{t}_lam[p] * ws->{t}_Ws[p];
-        for (j = 0; j < {nz}; ++j) {{
-            w[j] -= c * a[j];
-        }}
-    }}
-}}
-
-/* lam = -(A_W A_W^T)^{{-1}} b_W on the current (factored) working set; 1 if some lam < 0 */
-static int @N@_{t}_multipliers(@N@_workspace *ws) {{
-    int p, k = ws->{t}_nW, neg = 0;
+/* lam = -(A_W A_W^T)^-1 b_W on the factored working set */
+static void @N@_{t}_multipliers(@N@_workspace *ws) {{
+    int p, k = ws->{t}_nW;
     for (p = 0; p < k; ++p) {{
         ws->{t}_lam[p] = -@N@_{t}_bound(ws, ws->{t}_W[p], ws->{t}_Ws[p]);
     }}
-    @N@_{t}_cholsolve(ws, k, ws->{t}_lam);
-    for (p = 0; p < k; ++p) {{
-        if (ws->{t}_lam[p] < 0.0) {{
-            neg = 1;
-        }}
-    }}
-    return neg;
+    @N@_{t}_forward(ws, k, ws->{t}_lam);
+    @N@_{t}_backward(ws, k, ws->{t}_lam);
 }}
 
-static int @N@_{t}_ldp(@N@_workspace *ws) {{
-    int p, j, it = 0;
-    double *w = ws->{t}_w, *zd = ws->{t}_zd, *r = ws->{t}_r;
-    /* warm start: the previous working set, if it is dual feasible here */
-    if (ws->{t}_nW > 0) {{
-        for (p = 0; p < ws->{t}_nW; ++p) {{
-            @N@_{t}_gram_row(ws->{t}_gram, ws->{t}_W, ws->{t}_Ws, p);
+/* drop working-set entry q */
+static void @N@_{t}_drop(@N@_workspace *ws, int q) {{
+    int p;
+    for (p = q; p < ws->{t}_nW - 1; ++p) {{
+        ws->{t}_W[p] = ws->{t}_W[p + 1];
+        ws->{t}_Ws[p] = ws->{t}_Ws[p + 1];
+        ws->{t}_lam[p] = ws->{t}_lam[p + 1];
+    }}
+    ws->{t}_nW -= 1;
+}}
+
+/* M w = -sum_p lam_p s_p Gram[W_p, :] */
+static void @N@_{t}_rows(@N@_workspace *ws) {{
+    int i, p;
+    double *mw = ws->{t}_mw;
+    for (i = 0; i < {mt}; ++i) {{
+        mw[i] = 0.0;
+    }}
+    for (p = 0; p < ws->{t}_nW; ++p) {{
+        const double *g = @N@_{t}_gram + (long)ws->{t}_W[p] * {mt};
+        double c = ws->{t}_Ws[p] > 0 ? -ws->{t}_lam[p] : ws->{t}_lam[p];
+        for (i = 0; i < {mt}; ++i) {{
+            mw[i] += c * g[i];
         }}
-        if (@N@_{t}_factor(ws, ws->{t}_nW) != 0 || @N@_{t}_multipliers(ws) != 0) {{
+    }}
+}}
+
+static int @N@_{t}_ldp(@N@_workspace *ws, double *out) {{
+    int p, i, it = 0, rc = 0;
+    double *mw = ws->{t}_mw, *y = ws->{t}_y, *r = ws->{t}_r;
+    /* warm start: the previous working set, less the constraints whose multipliers are negative here */
+    if (ws->{t}_nW > 0 && @N@_{t}_factor(ws) != 0) {{
+        ws->{t}_nW = 0;
+    }}
+    while (ws->{t}_nW > 0) {{
+        int q = -1;
+        double most = 0.0;
+        @N@_{t}_multipliers(ws);
+        for (p = 0; p < ws->{t}_nW; ++p) {{
+            if (ws->{t}_lam[p] < most) {{
+                most = ws->{t}_lam[p];
+                q = p;
+            }}
+        }}
+        if (q < 0) {{
+            break;
+        }}
+        @N@_{t}_drop(ws, q);
+        if (@N@_{t}_factor(ws) != 0) {{
             ws->{t}_nW = 0;
         }}
     }}
-    @N@_{t}_primal(ws);
+    @N@_{t}_rows(ws);
     for (;;) {{
         int jr = -1, js = 0, k;
-        double worst = {primal_tol!r}, aw, bj, zz, t1, t2, tstep, lamj = 0.0;
-        if (it >= {max_iter}) {{
-            ws->{t}_iters = it;
-            return 2;
-        }}
-        for (j = 0; j < {mt}; ++j) {{
-            double mw = @N@_{t}_rowdot(j, w);
-            if (mw - ws->{t}_bhi[j] > worst) {{
-                worst = mw - ws->{t}_bhi[j];
-                jr = j;
+        double worst = {primal_tol!r}, bj, lamj = 0.0;
+        for (i = 0; i < {mt}; ++i) {{
+            if (mw[i] - ws->{t}_bhi[i] > worst) {{
+                worst = mw[i] - ws->{t}_bhi[i];
+                jr = i;
                 js = 1;
             }}
-            if (ws->{t}_blo[j] - mw > worst) {{
-                worst = ws->{t}_blo[j] - mw;
-                jr = j;
+            if (ws->{t}_blo[i] - mw[i] > worst) {{
+                worst = ws->{t}_blo[i] - mw[i];
+                jr = i;
                 js = -1;
             }}
         }}
@@ -219,107 +205,101 @@ static int @N@_{t}_ldp(@N@_workspace *ws) {{
             break; /* no constraint violated: optimal */
         }}
         bj = @N@_{t}_bound(ws, jr, js);
-        for (;;) {{ /* raise lam_j (partial steps drop blocking constraints) */
-            ++it;
-            k = ws->{t}_nW;
-            for (p = 0; p < k; ++p) {{
-                r[p] = ws->{t}_Ws[p] * js * @N@_{t}_rowrow(ws->{t}_W[p], jr);
-            }}
-            if (k > 0) {{
-                @N@_{t}_cholsolve(ws, k, r);
-            }}
-            {{
-                const double *aj = @N@_{t}_M + (long)jr * {nz};
-                for (j = 0; j < {nz}; ++j) {{
-                    zd[j] = js * aj[j];
-                }}
-                for (p = 0; p < k; ++p) {{
-                    const double *a = @N@_{t}_M + (long)ws->{t}_W[p] * {nz};
-                    double c = r[p] * ws->{t}_Ws[p];
-                    for (j = 0; j < {nz}; ++j) {{
-                        zd[j] -= c * a[j];
-                    }}
-                }}
-                zz = 0.0;
-                aw = 0.0;
-                for (j = 0; j < {nz}; ++j) {{
-                    zz += js * aj[j] * zd[j];
-                    aw += js * aj[j] * w[j];
-                }}
-            }}
-            t2 = (zz > 1e-14) ? (aw - bj) / zz : HUGE_VAL;
-            t1 = HUGE_VAL;
-            {{
-                int q = -1;
-                for (p = 0; p < k; ++p) {{
-                    if (r[p] > 1e-14 && ws->{t}_lam[p] / r[p] < t1) {{
-                        t1 = ws->{t}_lam[p] / r[p];
-                        q = p;
-                    }}
-                }}
-                if (t1 == HUGE_VAL && t2 == HUGE_VAL) {{
-                    ws->{t}_iters = it;
-                    ws->{t}_nW = 0;
-                    return 1; /* no step satisfies constraint j: infeasible */
-                }}
-                tstep = t1 < t2 ? t1 : t2;
-                for (j = 0; j < {nz}; ++j) {{
-                    w[j] -= tstep * zd[j];
-                }}
-                for (p = 0; p < k; ++p) {{
-                    ws->{t}_lam[p] -= tstep * r[p];
-                }}
-                lamj += tstep;
-                if (t1 < t2) {{ /* partial step: drop q, keep raising lam_j */
-                    int a, b;
-                    for (p = q; p < k - 1; ++p) {{
-                        ws->{t}_W[p] = ws->{t}_W[p + 1];
-                        ws->{t}_Ws[p] = ws->{t}_Ws[p + 1];
-                        ws->{t}_lam[p] = ws->{t}_lam[p + 1];
-                    }}
-                    for (a = 0; a < k - 1; ++a) {{
-                        for (b = 0; b < k - 1; ++b) {{
-                            ws->{t}_gram[a * {k} + b] = ws->{t}_gram[(a + (a >= q)) * {k} + b + (b >= q)];
-                        }}
-                    }}
-                    ws->{t}_nW = k - 1;
-                    if (k - 1 > 0 && @N@_{t}_factor(ws, k - 1) != 0) {{
-                        ws->{t}_iters = it;
-                        ws->{t}_nW = 0;
-                        return 1;
-                    }}
-                    if (it >= {max_iter}) {{
-                        ws->{t}_iters = it;
-                        return 2;
-                    }}
-                    continue;
-                }}
-                /* full step: constraint j joins the working set */
-                if (k >= {k}) {{
-                    ws->{t}_iters = it;
-                    ws->{t}_nW = 0;
-                    return 1;
-                }}
-                ws->{t}_W[k] = jr;
-                ws->{t}_Ws[k] = js;
-                ws->{t}_lam[k] = lamj;
-                ws->{t}_nW = k + 1;
-                @N@_{t}_gram_row(ws->{t}_gram, ws->{t}_W, ws->{t}_Ws, k);
-                if (@N@_{t}_factor(ws, k + 1) != 0) {{
-                    ws->{t}_iters = it;
-                    ws->{t}_nW = 0;
-                    return 1;
-                }}
+        for (;;) {{ /* raise lam_j; a partial step drops the blocking constraint */
+            const double *gj = @N@_{t}_gram + (long)jr * {mt};
+            double zz, t1 = HUGE_VAL, t2 = HUGE_VAL, step;
+            int q = -1;
+            if (++it > {max_iter}) {{
+                rc = 2;
                 break;
             }}
+            k = ws->{t}_nW;
+            for (p = 0; p < k; ++p) {{
+                double g = gj[ws->{t}_W[p]];
+                y[p] = (ws->{t}_Ws[p] == js) ? g : -g;
+            }}
+            @N@_{t}_forward(ws, k, y);
+            zz = gj[jr];
+            for (p = 0; p < k; ++p) {{
+                zz -= y[p] * y[p];
+                r[p] = y[p];
+            }}
+            @N@_{t}_backward(ws, k, r);
+            if (zz > 1e-12 * gj[jr]) {{
+                t2 = (js * mw[jr] - bj) / zz;
+            }}
+            for (p = 0; p < k; ++p) {{
+                if (r[p] > 1e-14 && ws->{t}_lam[p] / r[p] < t1) {{
+                    t1 = ws->{t}_lam[p] / r[p];
+                    q = p;
+                }}
+            }}
+            if (t1 == HUGE_VAL && t2 == HUGE_VAL) {{
+                rc = 1; /* no step satisfies constraint j: infeasible */
+                break;
+            }}
+            step = t1 < t2 ? t1 : t2;
+            /* M w -= step * M (I - A_W^T G_W^-1 A_W) a_j^T, in Gram rows */
+            for (i = 0; i < {mt}; ++i) {{
+                mw[i] -= step * js * gj[i];
+            }}
+            for (p = 0; p < k; ++p) {{
+                const double *g = @N@_{t}_gram + (long)ws->{t}_W[p] * {mt};
+                double c = step * r[p] * ws->{t}_Ws[p];
+                for (i = 0; i < {mt}; ++i) {{
+                    mw[i] += c * g[i];
+                }}
+                ws->{t}_lam[p] -= step * r[p];
+            }}
+            lamj += step;
+            if (t1 < t2) {{
+                @N@_{t}_drop(ws, q);
+                if (@N@_{t}_factor(ws) != 0) {{
+                    rc = 1;
+                    break;
+                }}
+                continue;
+            }}
+            if (k >= {k}) {{
+                rc = 1;
+                break;
+            }}
+            /* constraint j joins: its Cholesky row is y and sqrt(zz) */
+            for (p = 0; p < k; ++p) {{
+                ws->{t}_chol[k * {k} + p] = y[p];
+            }}
+            ws->{t}_chol[k * {k} + k] = sqrt(zz);
+            ws->{t}_W[k] = jr;
+            ws->{t}_Ws[k] = js;
+            ws->{t}_lam[k] = lamj;
+            ws->{t}_nW = k + 1;
+            break;
+        }}
+        if (rc != 0) {{
+            break;
         }}
     }}
-    /* polish: the multipliers and w of the final working set, from its equations */
-    if (ws->{t}_nW > 0) {{
-        (void)@N@_{t}_multipliers(ws);
-        @N@_{t}_primal(ws);
-    }}
     ws->{t}_iters = it;
-    return 0;
+    if (rc == 1) {{
+        ws->{t}_nW = 0;
+        return 1;
+    }}
+    /* polish: the multipliers of the final working set from its own equations */
+    if (ws->{t}_nW > 0) {{
+        if (@N@_{t}_factor(ws) != 0) {{
+            ws->{t}_nW = 0;
+            return 1;
+        }}
+        @N@_{t}_multipliers(ws);
+    }}
+    /* T w = -sum_p lam_p s_p T M_{{W_p}}^T */
+    for (p = 0; p < ws->{t}_nW; ++p) {{
+        const double *tm = @N@_{t}_TM + (long)ws->{t}_W[p] * {m};
+        double c = ws->{t}_Ws[p] > 0 ? -ws->{t}_lam[p] : ws->{t}_lam[p];
+        for (i = 0; i < {m}; ++i) {{
+            out[i] += c * tm[i];
+        }}
+    }}
+    return rc;
 }}
 """
