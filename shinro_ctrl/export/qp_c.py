@@ -163,25 +163,24 @@ static void @N@_{t}_rows(@N@_workspace *ws) {{
 static int @N@_{t}_ldp(@N@_workspace *ws, double *out) {{
     int p, i, it = 0, rc = 0;
     double *mw = ws->{t}_mw, *y = ws->{t}_y, *r = ws->{t}_r;
-    /* warm start: the previous working set, less the constraints whose multipliers are negative here */
-    if (ws->{t}_nW > 0 && @N@_{t}_factor(ws) != 0) {{
-        ws->{t}_nW = 0;
-    }}
-    while (ws->{t}_nW > 0) {{
-        int q = -1;
-        double most = 0.0;
+    /* warm start: the previous working set (its Cholesky factor is still valid: the Gram matrix is constant),
+       less the constraints whose multipliers are negative at this step's bounds */
+    while (ws->{t}_nW > 0) {{ /* drop every negative multiplier, refactor, repeat */
+        int kept = 0;
         @N@_{t}_multipliers(ws);
         for (p = 0; p < ws->{t}_nW; ++p) {{
-            if (ws->{t}_lam[p] < most) {{
-                most = ws->{t}_lam[p];
-                q = p;
+            if (ws->{t}_lam[p] >= -1e-12) {{ /* DAQP's dual tolerance: a rounding-level negative is zero */
+                ws->{t}_lam[kept] = ws->{t}_lam[p] > 0.0 ? ws->{t}_lam[p] : 0.0;
+                ws->{t}_W[kept] = ws->{t}_W[p];
+                ws->{t}_Ws[kept] = ws->{t}_Ws[p];
+                ++kept;
             }}
         }}
-        if (q < 0) {{
+        if (kept == ws->{t}_nW) {{
             break;
         }}
-        @N@_{t}_drop(ws, q);
-        if (@N@_{t}_factor(ws) != 0) {{
+        ws->{t}_nW = kept;
+        if (kept > 0 && @N@_{t}_factor(ws) != 0) {{
             ws->{t}_nW = 0;
         }}
     }}
@@ -286,10 +285,6 @@ static int @N@_{t}_ldp(@N@_workspace *ws, double *out) {{
     }}
     /* polish: the multipliers of the final working set from its own equations */
     if (ws->{t}_nW > 0) {{
-        if (@N@_{t}_factor(ws) != 0) {{
-            ws->{t}_nW = 0;
-            return 1;
-        }}
         @N@_{t}_multipliers(ws);
     }}
     /* T w = -sum_p lam_p s_p T M_{{W_p}}^T */
