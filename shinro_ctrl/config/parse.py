@@ -76,7 +76,7 @@ def parse_scenario(doc: Mapping[str, Any], *, source: str = "<dict>", path: Path
     _check_tables(ctx, doc)
     plant_cfg, probe = _parse_plant(ctx, doc, path)
     engine_cfg = _parse_engine(ctx, doc, plant_cfg, probe)
-    controller_cfg = _parse_controller(ctx, doc, probe)
+    controller_cfg = _parse_controller(ctx, doc, probe, path)
     plan_cfg = _parse_plan(ctx, doc, controller_cfg, probe)
     sim = _parse_sim(ctx, doc, probe)
     estimator_cfg = _parse_estimator(ctx, doc, sim, probe)
@@ -161,8 +161,9 @@ def _parse_engine(ctx: _Ctx, doc: Mapping[str, Any], plant: PlantConfig, probe: 
     return engine_cfg
 
 
-def _parse_controller(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> ControllerConfig:
-    """``[controller]``: the class, its keys (``from_plant``'s keywords) and types, Bryson weights, ``x0``/``u0``."""
+def _parse_controller(ctx: _Ctx, doc: Mapping[str, Any], probe: Any, path: Path | None = None) -> ControllerConfig:
+    """``[controller]``: the class, its keys (``from_plant``'s keywords) and types, Bryson weights, ``x0``/``u0``;
+    an ``Exported`` controller's relative ``path`` is found beside the scenario file first."""
     n = probe.state_dim
     if "controller" not in doc:
         raise ctx.error("", "missing required table [controller]")
@@ -183,6 +184,10 @@ def _parse_controller(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> Controll
     for key in ("x0", "u0"):
         if key in ct:
             ctx.vector("controller", key, ct[key], n if key == "x0" else probe.input_dim)
+    if ccls.__name__ == "Exported" and path is not None and isinstance(ct.get("path"), str):
+        beside = path.parent / ct["path"]  # an exported folder relative to the scenario file
+        if not Path(ct["path"]).is_absolute() and beside.is_dir():
+            ct["path"] = str(beside.resolve())
     return ControllerConfig(ccls.__name__, {k: v for k, v in ct.items() if k != "type"})
 
 

@@ -24,11 +24,11 @@ from shinro_ctrl.controllers.tvlqr import TVLQR
 __all__ = [
     "CONTROLLERS",
     "CONTROLLER_REGISTRY",
-    "Exported",
     "IKQP",
     "LQR",
     "TVLQR",
     "Controller",
+    "Exported",
     "LinearMPC",
     "NonlinearMPC",
     "controller_class",

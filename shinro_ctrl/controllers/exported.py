@@ -60,6 +60,7 @@ class Exported(Controller):
         name: The C name.
         measured: Indices of the measured states (the entries of ``x`` passed to ``NAME_step``).
         manifest: The folder's ``export.json``.
+        x0, u0, u_min, u_max: The exported controller's operating point and input bounds (from ``export.json``).
         last_status: Status code of the last step.
     """
 
@@ -80,6 +81,10 @@ class Exported(Controller):
         self.state_dim, self.input_dim, self._p = int(dims["n"]), int(dims["m"]), int(dims["p"])
         names = list(manifest["state_names"])
         self.measured = tuple(names.index(s) for s in manifest["measured"])
+        design = manifest.get("design") or {}
+        for key in ("x0", "u0", "u_min", "u_max"):  # the design's operating point and bounds, as the loop reads them
+            if design.get(key) is not None:
+                setattr(self, key, np.asarray(design[key], dtype=float))
         self._lib = ctypes.CDLL(str(_library(folder, name, build).resolve()))
         size = self._lib[f"{name}_workspace_size"]
         size.argtypes, size.restype = [], ctypes.c_ulong

@@ -73,6 +73,8 @@ class Unit:
         scenario_text: The scenario file's text; scenario_name its file name.
         versions: Package versions.
         tolerance: Agreement the test program demands.
+        design: The controller's ``x0``, ``u0``, ``u_min``, ``u_max`` (lists or None), recorded in ``export.json``
+            so that the software-in-the-loop controller reports the same operating point and bounds.
     """
 
     name: str
@@ -92,6 +94,7 @@ class Unit:
     scenario_name: str
     versions: dict[str, str]
     tolerance: float = 1e-9
+    design: dict[str, list[float] | None] | None = None
 
     @property
     def scenario_hash(self) -> str:
@@ -619,7 +622,7 @@ or `cmake -S . -B build && cmake --build build && (cd build && ctest)`. Add the 
 as they are; compile them without `-ffast-math` (it would change the arithmetic the test checks).
 
 The recorded data ({loops}) holds each step's measurement, reference and the Python controller's input;
-the test program demands `|u_C − u_Python| ≤ {c_number(u.tolerance)} · max(1, |u_Python|)` at every step, and
+the test program demands `|u_C − u_Python| ≤ {u.tolerance:g} · max(1, |u_Python|)` at every step, and
 refuses data recorded for other constants (the data hash `{dhash[:16]}…` covers the scenario and every
 table compiled in).
 
@@ -668,6 +671,7 @@ def assemble(unit: Unit, recordings: list[Recording]) -> dict[str, str]:
         "recorded": {r.label: int(r.y.shape[0]) for r in recordings},
         "tolerance": unit.tolerance,
         "versions": dict(sorted(unit.versions.items())),
+        "design": dict(sorted((unit.design or {}).items())),
         "files": {k: hashlib.sha256(v.encode("utf-8")).hexdigest() for k, v in sorted(files.items())},
     }
     files["export.json"] = json.dumps(manifest, indent=2, sort_keys=True) + "\n"

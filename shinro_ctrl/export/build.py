@@ -100,7 +100,7 @@ def build_and_verify(folder: Path, name: str, *, cflags: str = "-O2", time_step:
     with tempfile.TemporaryDirectory(prefix="shinro_export_build_") as tmp:
         work = Path(tmp) / folder.name
         shutil.copytree(folder, work)
-        make(work, "all", cflags=cflags)
+        make(work, f"{name}_test", cflags=cflags)  # the objects, the static library and the test program
         objs = sorted(p for p in work.glob("*.o") if p.name != f"{name}_test.o")
         heap = heap_symbols(objs)
         args = [str(work / f"{name}_test"), str(work / f"{name}_data.txt")]

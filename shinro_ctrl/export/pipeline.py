@@ -32,7 +32,7 @@ from shinro_ctrl.export.registry import ExportContext, exporter_for
 if TYPE_CHECKING:
     from shinro_ctrl.sim import RobotSim
 
-__all__ = ["MIN_STEPS", "ExportReport", "check_name", "export_scenario", "prepare"]
+__all__ = ["MIN_STEPS", "ExportReport", "check_name", "export_scenario", "prepare", "record_run", "replay_drift"]
 
 #: Closed-loop steps recorded in all (split over the loops).
 MIN_STEPS = 1000
@@ -115,7 +115,8 @@ def _initial_estimate(sim: RobotSim, x_start: np.ndarray) -> np.ndarray:
     return np.asarray(x0, dtype=float)[: sim.plant.state_dim].copy()
 
 
-def _record(sim: RobotSim, steps: int, label: str) -> Recording:
+def record_run(sim: RobotSim, steps: int, label: str) -> Recording:
+    """Run ``sim``'s closed loop with the Python controller for ``steps`` steps and keep what the C replays."""
     res = sim.run(steps * sim.plant.dt, progress=False)
     return Recording(label, _initial_estimate(sim, res.x[0]), res.y[:-1].copy(), res.ref[:-1].copy(), res.u.copy())
 
@@ -135,7 +136,7 @@ def _saturating_run(sim: RobotSim, steps: int) -> Recording | None:
     for scale in (2.0, 4.0, 8.0):
         sim.initial_state = op + scale * (start - op)
         try:
-            rec = _record(sim, steps, f"standalone_x{scale:g}")
+            rec = record_run(sim, steps, f"standalone_x{scale:g}")
         except ShinroError:
             continue
         finally:
@@ -162,6 +163,34 @@ def _python_step_time(sim: RobotSim, rec: Recording) -> float:
     return statistics.median(times)
 
 
+def _replay(sim: RobotSim, rec: Recording, x_hat0: np.ndarray) -> np.ndarray:
+    """The Python estimator and controller replaying ``rec`` open loop from ``x_hat0``: the inputs ``(T, m)``."""
+    est, ctrl = sim.estimator, sim.controller
+    ctrl.reset()
+    est.reset(x_hat0, sim.initial_covariance)
+    u_prev = _u_init(sim)
+    out = np.empty_like(rec.u)
+    for k in range(rec.y.shape[0]):
+        u_prev = out[k] = ctrl(est.update(rec.y[k], u_prev), rec.ref[k])
+    return out
+
+
+def replay_drift(sim: RobotSim, recordings: list[Recording], *, eps: float = 1e-15) -> float:
+    """How far the Python replay drifts when its initial estimate moves by ``eps`` (relative): its own sensitivity.
+
+    An estimator and controller whose combined (open-loop) dynamics have an unstable mode (an LQG compensator
+    often has one) amplify a rounding difference by that mode every step; the C replays the recording open
+    loop too, so C and Python then drift apart although both compute the same law. Returns
+    ``max |Δu| / max(1, |u|)`` over the recordings.
+    """
+    worst = 0.0
+    for rec in recordings:
+        base = _replay(sim, rec, rec.x_hat0)
+        moved = _replay(sim, rec, rec.x_hat0 + eps * np.maximum(1.0, np.abs(rec.x_hat0)))
+        worst = max(worst, float(np.max(np.abs(moved - base) / np.maximum(1.0, np.abs(base)))))
+    return worst
+
+
 def _u_init(sim: RobotSim) -> np.ndarray:
     """The input the loop assumes before the first step: the controller's ``u0``, else the plant's equilibrium."""
     u0 = sim.controller.u0
@@ -170,11 +199,11 @@ def _u_init(sim: RobotSim) -> np.ndarray:
     return np.asarray(sim.plant.equilibrium()[1], dtype=float).copy()
 
 
-def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Recording], float, int]:
+def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Recording], float, int, RobotSim]:
     """Record the loops and build the :class:`Unit` (no file written).
 
     Returns:
-        ``(unit, recordings, python_step_s, clamped_steps)``.
+        ``(unit, recordings, python_step_s, clamped_steps, sim)`` (``sim``: the standalone sim recorded from).
 
     Raises:
         ExportError: the controller or estimator cannot be exported (why, in one line).
@@ -201,7 +230,7 @@ def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Rec
     recordings = []
     for s in sims:
         steps = max(per_loop, round(s.scenario.sim.duration / s.plant.dt))
-        recordings.append(_record(s, steps, s.loop))
+        recordings.append(record_run(s, steps, s.loop))
     clamped = sum(_clamped(r, ctrl.u_min, ctrl.u_max) for r in recordings)
     if clamped == 0 and ctrl.u_min is not None and np.any(np.isfinite(np.r_[ctrl.u_min, ctrl.u_max])):
         extra = _saturating_run(sim, min(per_loop, 500))
@@ -234,8 +263,13 @@ def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Rec
         scenario_text=text,
         scenario_name=Path(str(path)).name if path is not None else scenario.name,
         versions=_versions(),
+        design={key: _listed(getattr(ctrl, key, None)) for key in ("x0", "u0", "u_min", "u_max")},
     )
-    return unit, recordings, py_time, clamped
+    return unit, recordings, py_time, clamped, sim
+
+
+def _listed(value: object) -> list[float] | None:
+    return None if value is None else [float(v) for v in np.asarray(value, dtype=float).reshape(-1)]
 
 
 def is_export_folder(path: Path) -> bool:
@@ -274,7 +308,7 @@ def export_scenario(
     out = Path(out)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_export_folder(out))):
         raise ExportError(f"--out {out} exists and is not an exported folder: refusing to overwrite it")
-    unit, recordings, py_time, clamped = prepare(config, name)
+    unit, recordings, py_time, clamped, sim = prepare(config, name)
     files = assemble(unit, recordings)
     parent = out.resolve().parent
     parent.mkdir(parents=True, exist_ok=True)
@@ -284,7 +318,17 @@ def export_scenario(
             (tmp / fname).write_text(text, encoding="utf-8")
         result = build_and_verify(tmp, unit.name, cflags=cflags, time_step=time_step) if verify else None
         if result is not None and not result.ok:
-            raise ExportError(f"the exported C does not reproduce the Python controller: {result.summary()}")
+            why = ""
+            if not result.heap and result.errors == 0:
+                drift = replay_drift(sim, recordings)
+                if drift > 0.1 * unit.tolerance:
+                    why = (
+                        f"; the estimator and controller together amplify rounding differences (the Python replay "
+                        f"itself moves by {drift:.1e} when its initial estimate moves by 1e-15): their combined "
+                        "dynamics have an unstable mode, so an open-loop replay cannot hold C to Python; check it in "
+                        'the loop instead (--no-verify, then [controller] type = "Exported")'
+                    )
+            raise ExportError(f"the exported C does not reproduce the Python controller: {result.summary()}{why}")
         _replace(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
