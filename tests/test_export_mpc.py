@@ -1,0 +1,127 @@
+"""C export of LinearMPC (issue 27): the exported exact QP solver reproduces the Python controller's DAQP solve.
+
+Each module-scoped fixture records a scenario once, writes its folder, builds it with gcc (``-O1``, untimed) and
+replays the recording in C. The reference is the Python controller on its DAQP backend (DAQP's own dual
+active-set code, not ours): every recorded step must agree to 1e-9; the recordings are checked to contain
+steps with active bounds and changes of the optimal active set (read from DAQP's multipliers).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shinro_ctrl.errors import ExportError
+from shinro_ctrl.export import pipeline
+from shinro_ctrl.export.assemble import assemble
+from shinro_ctrl.export.build import build_and_verify
+from shinro_ctrl.resources import config_path
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None or shutil.which("make") is None, reason="needs gcc")
+
+
+def _build(tmp: Path, config: str | Path, name: str):
+    unit, recordings, _, clamped, sim = pipeline.prepare(config, name)
+    out = tmp / name
+    out.mkdir()
+    for fname, text in assemble(unit, recordings).items():
+        (out / fname).write_text(text, encoding="utf-8")
+    return build_and_verify(out, name, cflags="-O1", time_step=False), recordings, clamped, sim, out
+
+
+def _active_sets(sim, recordings) -> tuple[int, int]:
+    """Replay the Python controller on the recorded states: (steps with an active constraint, active-set changes)."""
+    ctrl = sim.controller
+    n_active = changes = 0
+    for rec in recordings:
+        ctrl.reset()
+        prev = None
+        for y, r in zip(rec.y, rec.ref, strict=True):
+            ctrl(y, r)  # full-state feedback: the measurement is the state
+            act = frozenset(np.flatnonzero(ctrl.dense.lam))
+            n_active += bool(act)
+            changes += prev is not None and act != prev
+            prev = act
+    return n_active, changes
+
+
+@pytest.fixture(scope="module")
+def cartpole(tmp_path_factory):
+    """Cart-pole LinearMPC N = 50, |F| <= 3 N, |x| <= 0.6 m, recorded in both loops (1,000 steps)."""
+    return _build(tmp_path_factory.mktemp("mpc"), config_path("cartpole_mpc_mujoco.toml"), "cp_mpc")
+
+
+def test_cartpole_mpc_c_equals_python_on_both_loops_with_active_bounds(cartpole):
+    res, recordings, clamped, sim, _ = cartpole
+    assert res.ok, res.summary()
+    assert res.steps >= 1000 and {"standalone", "mujoco"} <= {r.label for r in recordings}
+    assert res.max_rel_err <= 1e-9 and res.disagreements == 0 and res.errors == 0
+    assert clamped > 0 and res.clamped > 0  # the input bound is reached, and C flags it
+    n_active, changes = _active_sets(sim, recordings)
+    assert n_active >= 20 and changes >= 10, (n_active, changes)
+
+
+def test_exported_mpc_uses_no_heap_and_static_sizes(cartpole):
+    res, _, _, _, out = cartpole
+    assert res.heap == ()
+    src = (out / "cp_mpc_ctl.c").read_text()
+    for word in ("malloc", "calloc", "realloc", "free("):
+        assert word not in src
+    assert "static const double cp_mpc_ctl_gram[10000]" in src  # 100 rows: input and cart bounds over N = 50
+
+
+QUAD = """
+[plant]
+type = "Quadrotor"
+mass = 0.5
+inertia = [3.0e-3, 3.0e-3, 5.0e-3]
+dt = 0.01
+
+[engine]
+type = "mujoco"
+
+[controller]
+type = "LinearMPC"
+horizon = 30
+Q = [10, 10, 10, 2, 2, 2, 1, 1, 1, 0.1, 0.1, 0.1]
+R = [0.1, 200, 200, 200]
+u_min = [0.0, -0.05, -0.05, -0.05]
+u_max = [9.81, 0.05, 0.05, 0.05]
+x_min = [-inf, -inf, -inf, -0.5, -0.5, -inf, -inf, -inf, -inf, -inf, -inf, -inf]
+x_max = [inf, inf, inf, 0.5, 0.5, inf, inf, inf, inf, inf, inf, inf]
+soft = true
+
+[sim]
+duration = 0.6
+initial_state = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+reference = { kind = "constant", value = [1.0, -0.5, 1.5, 0, 0, 0, 0, 0, 0, 0, 0, 0] }
+track = ["x", "y", "z"]
+"""
+
+
+def test_quadrotor_mpc_with_soft_bounds(tmp_path, monkeypatch):
+    """configs/quadrotor_mpc_mujoco.toml's controller (soft tilt bounds: slacks) toward a constant set-point."""
+    cfg = tmp_path / "quad_mpc.toml"
+    cfg.write_text(QUAD)
+    monkeypatch.setattr(pipeline, "MIN_STEPS", 120)  # a short recording: 60 steps per loop
+    res, recordings, clamped, sim, _ = _build(tmp_path, cfg, "quad_mpc")
+    assert sim.controller.soft and sim.controller.dense.n_slack == 60
+    assert res.ok and res.max_rel_err <= 1e-9 and res.errors == 0, res.summary()
+    assert {"standalone", "mujoco"} <= {r.label for r in recordings}
+    assert clamped > 0  # the thrust bound binds during the climb
+
+
+@pytest.mark.parametrize(
+    ("extra", "why"),
+    [('solver = "osqp"', "backend"), ('fallback = "shift"', "fallback")],
+)
+def test_unexported_mpc_options_are_refused_in_one_line(tmp_path, extra, why):
+    text = config_path("cartpole_mpc.toml").read_text().replace("horizon = 50", f"horizon = 10\n{extra}")
+    cfg = tmp_path / "cp.toml"
+    cfg.write_text(text)
+    with pytest.raises(ExportError, match=why) as err:
+        pipeline.prepare(cfg, "cp")
+    assert "\n" not in str(err.value)
