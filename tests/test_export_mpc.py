@@ -125,3 +125,25 @@ def test_unexported_mpc_options_are_refused_in_one_line(tmp_path, extra, why):
     with pytest.raises(ExportError, match=why) as err:
         pipeline.prepare(cfg, "cp")
     assert "\n" not in str(err.value)
+
+
+def test_rate_bounds_terminal_cost_input_reference_and_slacks(tmp_path, monkeypatch):
+    """du bounds (the first stage's rows move with the previous input), terminal cost Q (a dense Hessian), an input
+    reference, and soft cart bounds the loop must violate (slacks), in one short recording of both loops."""
+    extra = 'du_max = [0.2]\nterminal_cost = "Q"\nu_ref = [0.2]\nsoft = true\nsoft_weight_l1 = 50.0'
+    text = config_path("cartpole_mpc.toml").read_text().replace("horizon = 50", f"horizon = 25\n{extra}")
+    text = text.replace("duration = 6.0", "duration = 1.2").replace("x_max = [0.6", "x_max = [0.05")
+    cfg = tmp_path / "cp_var.toml"
+    cfg.write_text(text)
+    monkeypatch.setattr(pipeline, "MIN_STEPS", 120)
+    res, recordings, _, sim, _ = _build(tmp_path, cfg, "cp_var")
+    assert res.ok and res.max_rel_err <= 1e-9 and res.errors == 0, res.summary()
+    n_active, changes = _active_sets(sim, recordings)
+    assert n_active > 0 and changes > 0, (n_active, changes)
+    ctrl, rec, binding = sim.controller, recordings[0], 0
+    ctrl.reset()
+    for y, r in zip(rec.y, rec.ref, strict=True):
+        ctrl(y, r)
+        binding += np.max(np.abs(np.diff(ctrl.last.inputs[:, 0]))) >= 0.2 - 1e-9  # the plan rides the rate bound
+    assert binding >= 5
+    assert max(r.y[:, 0].max() for r in recordings) > 0.05 + 1e-3  # the soft cart bound is violated: slacks > 0
