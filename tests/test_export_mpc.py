@@ -147,3 +147,25 @@ def test_rate_bounds_terminal_cost_input_reference_and_slacks(tmp_path, monkeypa
         binding += np.max(np.abs(np.diff(ctrl.last.inputs[:, 0]))) >= 0.2 - 1e-9  # the plan rides the rate bound
     assert binding >= 5
     assert max(r.y[:, 0].max() for r in recordings) > 0.05 + 1e-3  # the soft cart bound is violated: slacks > 0
+
+
+def test_loaded_mpc_matches_python_and_reports_infeasibility_as_python_does(cartpole):
+    """The folder through ``export.load`` (ctypes): the same input as Python at a bound-active state, and
+    ``MPCInfeasible`` where the Python controller raises it (status QP_INFEASIBLE, the previous input held)."""
+    from shinro_ctrl.errors import MPCInfeasible
+    from shinro_ctrl.export import load
+
+    _, _, _, sim, out = cartpole
+    py, c = sim.controller, load(out)
+    py.reset()
+    c.reset()
+    x = np.array([0.1, 0.0, 0.3, 0.0])  # the force bound is active here
+    ref = np.zeros(4)
+    u_py, u_c = py(x, ref), c(x, ref)
+    assert abs(u_py[0]) == pytest.approx(3.0) and u_c == pytest.approx(u_py, rel=1e-9, abs=1e-12)
+    bad = np.array([0.5, 3.0, 0.0, 0.0])  # 3 m/s toward the 0.6 m bound: no force within 3 N stops the cart
+    with pytest.raises(MPCInfeasible):
+        py(bad, ref)
+    with pytest.raises(MPCInfeasible, match="QP is infeasible"):
+        c(bad, ref)
+    assert c.last_status & 128
