@@ -73,45 +73,26 @@ def test_exported_mpc_uses_no_heap_and_static_sizes(cartpole):
     assert "static const double cp_mpc_ctl_gram[10000]" in src  # 100 rows: input and cart bounds over N = 50
 
 
-QUAD = """
-[plant]
-type = "Quadrotor"
-mass = 0.5
-inertia = [3.0e-3, 3.0e-3, 5.0e-3]
-dt = 0.01
-
-[engine]
-type = "mujoco"
-
-[controller]
-type = "LinearMPC"
-horizon = 30
-Q = [10, 10, 10, 2, 2, 2, 1, 1, 1, 0.1, 0.1, 0.1]
-R = [0.1, 200, 200, 200]
-u_min = [0.0, -0.05, -0.05, -0.05]
-u_max = [9.81, 0.05, 0.05, 0.05]
-x_min = [-inf, -inf, -inf, -0.5, -0.5, -inf, -inf, -inf, -inf, -inf, -inf, -inf]
-x_max = [inf, inf, inf, 0.5, 0.5, inf, inf, inf, inf, inf, inf, inf]
-soft = true
-
-[sim]
-duration = 0.6
-initial_state = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
-reference = { kind = "constant", value = [1.0, -0.5, 1.5, 0, 0, 0, 0, 0, 0, 0, 0, 0] }
-track = ["x", "y", "z"]
-"""
-
-
-def test_quadrotor_mpc_with_soft_bounds(tmp_path, monkeypatch):
-    """configs/quadrotor_mpc_mujoco.toml's controller (soft tilt bounds: slacks) toward a constant set-point."""
-    cfg = tmp_path / "quad_mpc.toml"
-    cfg.write_text(QUAD)
-    monkeypatch.setattr(pipeline, "MIN_STEPS", 120)  # a short recording: 60 steps per loop
-    res, recordings, clamped, sim, _ = _build(tmp_path, cfg, "quad_mpc")
-    assert sim.controller.soft and sim.controller.dense.n_slack == 60
+def test_quadrotor_mpc_soft_bounds_offset_free_with_augmented_kalman_filter(tmp_path, monkeypatch):
+    """The quadrotor MPC of configs/quadrotor_mpc_mujoco.toml (soft tilt bounds; horizon 15: 30 slacks) as the offset-free
+    controller of configs/quadrotor_wind_mpc_mujoco.toml (u = clip(v - d_hat), d_hat from the exported augmented
+    Kalman filter), in wind, toward a set-point high enough that the thrust bound binds; a short recording."""
+    text = config_path("quadrotor_wind_mpc_mujoco.toml").read_text().replace("duration = 8.0", "duration = 0.5")
+    text = text.replace("horizon = 30", "horizon = 15")  # half the horizon: a quarter of the Gram table
+    soft = (
+        "x_min = [-inf, -inf, -inf, -0.5, -0.5, -inf, -inf, -inf, -inf, -inf, -inf, -inf]\n"
+        "x_max = [inf, inf, inf, 0.5, 0.5, inf, inf, inf, inf, inf, inf, inf]\nsoft = true\n"
+    )
+    text = text.replace('\ndisturbance_model = "input"', "\n" + soft + 'disturbance_model = "input"')
+    text = text.replace("time = 1.0", "time = 0.1").replace("value = [0, 0, 1.0,", "value = [0, 0, 3.0,")
+    cfg = tmp_path / "quad.toml"
+    cfg.write_text(text)
+    monkeypatch.setattr(pipeline, "MIN_STEPS", 100)
+    res, recordings, clamped, sim, _ = _build(tmp_path, cfg, "quad")
+    ctrl = sim.controller
+    assert ctrl.disturbance_model == "input" and ctrl.soft and ctrl.dense.n_slack == 30 and clamped > 0
     assert res.ok and res.max_rel_err <= 1e-9 and res.errors == 0, res.summary()
     assert {"standalone", "mujoco"} <= {r.label for r in recordings}
-    assert clamped > 0  # the thrust bound binds during the climb
 
 
 @pytest.mark.parametrize(

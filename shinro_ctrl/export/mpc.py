@@ -16,8 +16,9 @@ model is folded at export time into tables (``%.17g``): with ``e₀ = x̂ − x�
 A step computes the bounds (the first stage's rate rows moved by the previously applied input, or
 left out before the first input as Python does after a reset), solves the least-distance QP from the
 previous working set, maps ``w`` to ``u`` and clips it to the rate and input bounds
-(``clip_input``). What is not exported is refused in one line: the OSQP backend, an offset-free
-(disturbance-augmented) MPC, ``fallback = "shift"``.
+(``clip_input``). Offset-free (``disturbance_model = "input"``, ``controllers/offset_free.py``): the
+estimate is ``[x̂; d̂]`` and the input ``clip(v − d̂, u_min, u_max)``, ``v`` the MPC's. What is not
+exported is refused in one line: the OSQP backend, ``fallback = "shift"``.
 """
 
 from __future__ import annotations
@@ -112,8 +113,11 @@ def _check(ctrl: LinearMPC, ctx: ExportContext) -> None:
             f"cannot export a LinearMPC on the '{ctrl.solver}' backend: the exported C solves the condensed QP "
             "exactly, as the DAQP backend does; set solver = 'daqp' (the condensed QP must fit, see choose_solver)"
         )
-    if ctrl.disturbance_model is not None or ctx.x_hat_dim != ctrl.n:
-        raise ExportError("cannot export an offset-free LinearMPC (disturbance_model): only the plain state feedback")
+    if ctx.x_hat_dim != ctrl.n and not (ctrl.disturbance_model == "input" and ctx.x_hat_dim == ctrl.n + ctrl.m):
+        raise ExportError(
+            f"cannot export this LinearMPC: its estimator hands it {ctx.x_hat_dim} values, and the exported MPC "
+            f"takes the state ({ctrl.n}) or, offset-free with disturbance_model = 'input', [x; d] ({ctrl.n + ctrl.m})"
+        )
     if ctrl.fallback is not None:
         raise ExportError(
             "cannot export a LinearMPC with fallback = 'shift': the exported step reports an infeasible QP "
@@ -246,6 +250,18 @@ class LinearMPCExporter:
             "        }",
             "    }",
         ]
+        # offset-free (controllers/offset_free.py): u = clip(v - d_hat, u_min, u_max), v the MPC's input (its own
+        # previous input for the rate bounds stays v, as Python's)
+        offset_free = (
+            f"    status &= ~@U@_INPUT_CLAMPED;\n    for (i = 0; i < {m}; ++i) {{\n"
+            f"        u[i] -= x_hat[{n} + i];\n"
+            "        if (u[i] > @N@_ctl_u_hi[i]) { u[i] = @N@_ctl_u_hi[i]; }\n"
+            "        if (u[i] < @N@_ctl_u_lo[i]) { u[i] = @N@_ctl_u_lo[i]; }\n"
+            "        if (u[i] <= @N@_ctl_u_lo[i] + 1e-9 * (1.0 + fabs(@N@_ctl_u_lo[i])) ||\n"
+            "            u[i] >= @N@_ctl_u_hi[i] - 1e-9 * (1.0 + fabs(@N@_ctl_u_hi[i]))) {\n"
+            "            status |= @U@_INPUT_CLAMPED;\n"
+            "        }\n    }\n"
+        )
         code = (
             (ldp_solver_code(mt, m, min(nz, mt), primal_tol=t.primal_tol, max_iter=MAX_ITER) if mt else "")
             + "\nvoid @N@_ctl_reset(@N@_workspace *ws) {\n    ws->ctl_has_uprev = 0;\n"
@@ -264,7 +280,9 @@ class LinearMPCExporter:
             + solve
             + "\n".join(clip)
             + f"\n    memcpy(ws->ctl_uprev, u, {m} * sizeof(double));\n"
-            + "    ws->ctl_has_uprev = 1;\n    return status;\n}\n"
+            + "    ws->ctl_has_uprev = 1;\n"
+            + (offset_free if ctx.x_hat_dim == n + m else "")
+            + "    return status;\n}\n"
         )
         summary = (
             f"linear MPC, horizon {obj.N}: the condensed QP ({nz} variables, {mt} rows) solved exactly by a dual "
