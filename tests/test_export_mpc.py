@@ -74,9 +74,9 @@ def test_exported_mpc_uses_no_heap_and_static_sizes(cartpole):
 
 
 def test_quadrotor_mpc_soft_bounds_offset_free_with_augmented_kalman_filter(tmp_path, monkeypatch):
-    """The quadrotor MPC of configs/quadrotor_mpc_mujoco.toml (soft tilt bounds; horizon 15: 30 slacks) as the offset-free
-    controller of configs/quadrotor_wind_mpc_mujoco.toml (u = clip(v - d_hat), d_hat from the exported augmented
-    Kalman filter), in wind, toward a set-point high enough that the thrust bound binds; a short recording."""
+    """The quadrotor MPC of configs/quadrotor_mpc_mujoco.toml (soft tilt bounds; horizon 15: 30 slacks) as the
+    offset-free controller of configs/quadrotor_wind_mpc_mujoco.toml (u = clip(v - d_hat), d_hat from the exported
+    augmented Kalman filter), in wind, toward a set-point high enough that the thrust bound binds; a short recording."""
     text = config_path("quadrotor_wind_mpc_mujoco.toml").read_text().replace("duration = 8.0", "duration = 0.5")
     text = text.replace("horizon = 30", "horizon = 15")  # half the horizon: a quarter of the Gram table
     soft = (
