@@ -5,7 +5,8 @@ with ``-O2`` and runs its test program, which checks C against Python on every r
 times the step (median over repeated passes of the recording: wall time per step). The Python figure is
 the median of the estimator update plus the controller call replaying the same recording.
 
-Goals (issue 27): LQR step <= 0.2 µs; EKF step on the quadrotor <= 2 µs.
+Goals (issue 27): LQR step <= 0.2 µs; EKF step on the quadrotor <= 2 µs; LinearMPC cart-pole N = 50 with
+bounds <= 10 µs (:func:`mpc_rows`).
 
 Run: ``python benchmarks/export.py [--repeats R]`` (the machine is shared: take the median of repeats).
 """
@@ -44,6 +45,67 @@ seed = 3
 """
 
 
+QUAD_MPC = """[plant]
+type = "Quadrotor"
+mass = 0.5
+inertia = [3.0e-3, 3.0e-3, 5.0e-3]
+dt = 0.01
+
+[engine]
+type = "mujoco"
+
+[controller]
+type = "LinearMPC"
+horizon = 30
+Q = [10, 10, 10, 2, 2, 2, 1, 1, 1, 0.1, 0.1, 0.1]
+R = [0.1, 200, 200, 200]
+u_min = [0.0, -0.05, -0.05, -0.05]
+u_max = [9.81, 0.05, 0.05, 0.05]
+x_min = [-inf, -inf, -inf, -0.5, -0.5, -inf, -inf, -inf, -inf, -inf, -inf, -inf]
+x_max = [inf, inf, inf, 0.5, 0.5, inf, inf, inf, inf, inf, inf, inf]
+soft = true
+
+[sim]
+duration = 6.0
+initial_state = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+reference = { kind = "constant", value = [1.0, -0.5, 1.5, 0, 0, 0, 0, 0, 0, 0, 0, 0] }
+track = ["x", "y", "z"]
+"""
+
+
+def _row(label: str, cfg: Path, goal: float | None, tmp: Path, repeats: int) -> None:
+    c_ns, py_s = [], []
+    rep = None
+    for r in range(repeats):
+        rep = export_scenario(cfg, tmp / f"out{r}", cflags="-O2")
+        assert rep.build is not None and rep.build.ok, rep.build.summary() if rep.build else "not built"
+        c_ns.append(rep.build.c_step_ns)
+        py_s.append(rep.python_step_s)
+    assert rep is not None and rep.build is not None
+    c = statistics.median(c_ns) / 1e3
+    py = statistics.median(py_s) * 1e6
+    g = f"<= {goal:g} µs" if goal else ""
+    print(f"{label:28s} {rep.build.steps:6d} {rep.build.max_rel_err:11.2e} {c:8.3f} µs {py:9.2f} µs {g:>8s}")
+
+
+def mpc_rows(tmp: Path, repeats: int) -> None:
+    """The MPC exports: cart-pole LinearMPC N = 50 with input and cart bounds (configs/cartpole_mpc_mujoco.toml),
+    the quadrotor MPC of configs/quadrotor_mpc_mujoco.toml (soft tilt bounds) toward a constant set-point (the
+    exported step takes a set-point, not a previewed trajectory).
+
+    The C figure is the test program's: wall time per step over a pass of the recording (bound-active steps,
+    which take more active-set iterations, included), median of passes; the Python figure the median step of
+    the controller on its DAQP backend.
+    """
+    quad = tmp / "quadrotor_mpc_setpoint.toml"
+    quad.write_text(QUAD_MPC)
+    for label, cfg, goal in (
+        ("cart-pole LinearMPC N=50", config_path("cartpole_mpc_mujoco.toml"), 10.0),
+        ("quadrotor LinearMPC N=30", quad, None),
+    ):
+        _row(label, cfg, goal, tmp / label.replace(" ", "_"), repeats)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3, help="exports per scenario (median of their timings)")
@@ -72,6 +134,7 @@ def main() -> None:
             py = statistics.median(py_s) * 1e6
             g = f"<= {goal:g} µs" if goal else ""
             print(f"{label:28s} {rep.build.steps:6d} {rep.build.max_rel_err:11.2e} {c:8.3f} µs {py:9.2f} µs {g:>8s}")
+        mpc_rows(Path(tmp), args.repeats)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from shinro_ctrl.controllers.base import CallGuard, Controller
-from shinro_ctrl.errors import ExportError, NonFiniteError
+from shinro_ctrl.errors import ExportError, MPCInfeasible, NonFiniteError
 from shinro_ctrl.types import Matrix, Vector
 
 if TYPE_CHECKING:
@@ -32,7 +32,9 @@ _STATUS = {
     16: "non-finite measurement",
     32: "non-finite result (state far outside the model's range)",
     64: "bad argument",
+    128: "the MPC's QP is infeasible at this state",
 }
+_QP_INFEASIBLE = 128
 
 
 def _library(folder: Path, name: str, build: bool) -> Path:
@@ -135,6 +137,7 @@ class Exported(Controller):
 
         Raises:
             NonFiniteError: the C step returned an error status (naming it).
+            MPCInfeasible: an exported MPC found its QP infeasible (status ``QP_INFEASIBLE``).
         """
         if not self._guard.acquire(False):
             raise self._guard.refused()
@@ -149,6 +152,8 @@ class Exported(Controller):
             self.last_status = st
             if st >= _ERROR:
                 what = ", ".join(v for k, v in _STATUS.items() if st & k)
+                if st & _QP_INFEASIBLE:  # as the Python MPC reports it
+                    raise MPCInfeasible(f"exported controller {self.name}: status {st} ({what})")
                 raise NonFiniteError(f"exported controller {self.name}: status {st} ({what})")
             return self._u.copy()
         finally:

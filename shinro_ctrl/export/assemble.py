@@ -33,6 +33,7 @@ STATUS_CODES: tuple[tuple[str, int, str], ...] = (
     ("NONFINITE_MEASUREMENT", 16, "the measurement holds NaN or inf: nothing was updated"),
     ("NONFINITE_RESULT", 32, "an internal value overflowed (state far outside the model's range): reset"),
     ("BAD_ARGUMENT", 64, "a NULL pointer, or a non-finite reference or initial estimate"),
+    ("QP_INFEASIBLE", 128, "the MPC's QP has no feasible point at this state (certified by the active-set solver)"),
 )
 
 
