@@ -163,6 +163,26 @@ def test_from_plant_takes_its_input_bounds_from_the_ctrlrange(pendulum):
     assert not np.isfinite(LQR.from_plant(CartPole(), [10, 1, 100, 1], [0.1]).u_max).any()  # built-ins: none
 
 
+def test_the_mpc_controllers_take_their_default_state_bounds_from_the_joint_ranges():
+    arm = MjcfPlant("panda_like_arm.xml")
+    lo, hi = arm.state_ranges()
+    m = MujocoEngine.for_plant(arm).model  # the reference: MuJoCo's own joint ranges
+    np.testing.assert_array_equal(lo[:7], m.jnt_range[:7, 0])
+    np.testing.assert_array_equal(hi[:7], m.jnt_range[:7, 1])
+    assert not np.isfinite(lo[7:]).any() and not np.isfinite(hi[7:]).any()  # velocities: none
+    Q, R = np.ones(14), np.ones(7)
+    mpc = LinearMPC.from_plant(arm, Q, R, horizon=3)
+    nmpc = NonlinearMPC.from_plant(arm, Q, R, horizon=2)
+    for ctrl in (mpc, nmpc):
+        np.testing.assert_array_equal(ctrl.x_min, lo)
+        np.testing.assert_array_equal(ctrl.x_max, hi)
+    mine = LinearMPC.from_plant(arm, Q, R, horizon=3, x_max=np.full(14, 5.0))  # a side the user gives is kept
+    np.testing.assert_array_equal(mine.x_max, np.full(14, 5.0))
+    np.testing.assert_array_equal(mine.x_min, lo)
+    pend = LinearMPC.from_plant(CartPole(), [10, 1, 100, 1], [0.1], horizon=3)  # built-ins declare none
+    assert not np.isfinite(pend.x_min).any() and not np.isfinite(pend.x_max).any()
+
+
 # ------------------------------------------------------------ the realistic variants
 # plant: (controller table, initial state, duration [s], nominal mass [kg] or None, the states that must come back)
 REALISTIC = {

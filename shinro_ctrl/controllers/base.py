@@ -217,6 +217,31 @@ def default_input_bounds(plant: Plant, u_min: Any, u_max: Any) -> tuple[Any, Any
     return u_min, u_max
 
 
+def default_state_bounds(plant: Plant, x_min: Any, x_max: Any) -> tuple[Any, Any]:
+    """The state bounds a ``from_plant`` designs with: the user's, else the plant's physical range.
+
+    Like :func:`default_input_bounds` for states: each side the user leaves None is taken from
+    ``plant.state_ranges()`` (a model file's joint ranges) when that side has a finite entry.
+
+    Args:
+        plant: The plant designed on.
+        x_min, x_max: The user's bounds ``(n,)`` (a scalar broadcasts) or None.
+
+    Returns:
+        ``(x_min, x_max)``: arrays ``(n,)`` with ±inf where unbounded, or None per side.
+    """
+    hook = getattr(plant, "state_ranges", None)
+    if (x_min is not None and x_max is not None) or not callable(hook):
+        return x_min, x_max
+    lo, hi = hook()
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    if x_min is None and np.isfinite(lo).any():
+        x_min = lo
+    if x_max is None and np.isfinite(hi).any():
+        x_max = hi
+    return x_min, x_max
+
+
 def check_operating_point(plant: Plant, x0: np.ndarray, u0: np.ndarray, who: str) -> None:
     """Raise :class:`InvalidArgument` unless ``(x0, u0)`` is an equilibrium, ``f(x0, u0) = 0``.
 

@@ -72,7 +72,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
 from shinro_ctrl.analysis.design import finite_horizon_gain
-from shinro_ctrl.controllers.base import Controller, default_input_bounds
+from shinro_ctrl.controllers.base import Controller, default_input_bounds, default_state_bounds
 from shinro_ctrl.controllers.lqr import riccati
 from shinro_ctrl.controllers.offset_free import offset_free_call
 from shinro_ctrl.controllers.qp.backend_daqp import DaqpBackend
@@ -384,6 +384,7 @@ class LinearMPC(Controller):
         if np.any(drift != 0.0):
             offset = plant.discrete_offset(lm)
         options["u_min"], options["u_max"] = default_input_bounds(plant, options.get("u_min"), options.get("u_max"))
+        options["x_min"], options["x_max"] = default_state_bounds(plant, options.get("x_min"), options.get("x_max"))
         opts = MPCOptions(**options)  # TypeError names a misspelt option
         opts = dataclasses.replace(
             opts,

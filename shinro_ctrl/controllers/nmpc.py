@@ -52,7 +52,7 @@ from shinro_ctrl.concurrency import CallGuard
 from shinro_ctrl.controllers._nmpc_ipopt import IpoptSolver
 from shinro_ctrl.controllers._nmpc_ocp import PLANT_GIVEN, NMPCOptions, NMPCStrategy, build_ocp, rk4_step
 from shinro_ctrl.controllers._nmpc_rti import RealTimeIteration
-from shinro_ctrl.controllers.base import Controller, default_input_bounds
+from shinro_ctrl.controllers.base import Controller, default_input_bounds, default_state_bounds
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError
 from shinro_ctrl.types import Weight
@@ -175,6 +175,7 @@ class NonlinearMPC(Controller):
         if options["u0"] is None:
             options["u0"] = ue
         options["u_min"], options["u_max"] = default_input_bounds(plant, options.get("u_min"), options.get("u_max"))
+        options["x_min"], options["x_max"] = default_state_bounds(plant, options.get("x_min"), options.get("x_max"))
         step = float(plant.dt)
         if dt is None:
             h, hold = step, 1

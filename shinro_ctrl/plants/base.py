@@ -703,6 +703,17 @@ class Plant:
             return ranges(self)
         return np.full(self.input_dim, -np.inf), np.full(self.input_dim, np.inf)
 
+    def state_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Hook: the states' physical range ``(x_min (n,), x_max (n,))``, ±inf where none (the default: none).
+
+        The mechanism's own limits (a model file's joint ranges), not a design choice: the controllers
+        that take state bounds (``LinearMPC``, ``NonlinearMPC``) use them by default where the user gives
+        none (see :func:`~shinro_ctrl.controllers.base.default_state_bounds`). Unlike :attr:`state_bounds`
+        (the standalone step's stops, which built-in plants declare for numerical safety), these are
+        limits a design must respect.
+        """
+        return np.full(self.state_dim, -np.inf), np.full(self.state_dim, np.inf)
+
     def body_force_map(self, body: str) -> np.ndarray:
         """``G (n, 3)``: how a world-frame force ``F`` [N] at ``body``'s centre of mass changes ``ẋ`` (``ẋ += G F``).
 

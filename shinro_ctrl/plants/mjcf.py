@@ -542,6 +542,14 @@ class MjcfPlant(Plant):
                 x[2 * nq + ia] = v
         return x, u
 
+    def state_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(x_min (n,), x_max (n,))``: the ranges of the limited joints on their positions, ±inf elsewhere.
+
+        The controllers that take state bounds (``LinearMPC``, ``NonlinearMPC``) use these by default.
+        """
+        lo, hi = self._joint_range_bounds()
+        return lo, hi
+
     def _joint_range_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Joint ranges of limited joints for the positions; ±inf elsewhere (velocities, activations).
 
