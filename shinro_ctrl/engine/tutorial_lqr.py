@@ -187,6 +187,11 @@ def transition_fd_lqr(
 
     m, d = engine.model, engine.data
     _, dadr, base = _free_adr(m)
+    sites = [m.site(i).name for i in range(m.nsite)]
+    bodies = [m.body(i).name for i in range(m.nbody)]
+    for name in feet:
+        if name not in sites and name not in bodies:
+            raise InvalidArgument(f"unknown foot '{name}': give sites or bodies (sites: {', '.join(sites)})")
     point = standing_point(engine, keyframe)
     d.qpos[:] = point.qpos
     d.qvel[:] = 0.0
@@ -202,13 +207,10 @@ def transition_fd_lqr(
     jac_feet = np.zeros((3, nv))
     for name in feet:
         jac = np.zeros((3, nv))
-        if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, name) >= 0:
+        if name in sites:
             mujoco.mj_jacSite(m, d, jac, None, m.site(name).id)
-        elif mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name) >= 0:
-            mujoco.mj_jacBody(m, d, jac, None, m.body(name).id)
         else:
-            sites = [m.site(i).name for i in range(m.nsite)]
-            raise InvalidArgument(f"unknown foot '{name}': give sites or bodies (sites: {', '.join(sites)})")
+            mujoco.mj_jacBody(m, d, jac, None, m.body(name).id)
         jac_feet += jac / len(feet)
     J_b = (jac_com - jac_feet)[:2]
     Q_pos = balance_weight * J_b.T @ J_b
