@@ -17,7 +17,8 @@ Each acts on exactly one target:
   loop adds its effect ``dt · G F`` to the state after each step, where
   ``G = plant.body_force_map(body)`` is the change of ``ẋ`` per newton
   (for the quadrotor, ``1/m`` on the world velocity). Plants without such
-  a map reject body forces.
+  a map reject body forces, except a model-file plant (``MjcfPlant``),
+  which takes them on any body of its file in the MuJoCo loop.
 
 Kinds (``time`` is the start [s], default 0; ``duration`` limits ``step``,
 ``sine`` and ``noise`` to ``[time, time + duration)``, default forever):
@@ -210,7 +211,14 @@ def parse_disturbances(value: Any, plant: Any, where: str = "[sim] disturbance")
         try:
             plant.body_force_map(body)
         except (ValueError, KeyError, NotImplementedError) as exc:
-            raise ConfigError(f"{where}: {exc}") from None
+            # a model-file plant: any body of its file takes a force in MuJoCo (the standalone loop asks the
+            # plant for its body_force_map when the run starts)
+            tree = getattr(plant, "tree", None)
+            names = [b.name for b in getattr(tree, "bodies", ()) if b.name]
+            if body in names:
+                return
+            listed = f" (bodies of the model: {', '.join(names)})" if names else ""
+            raise ConfigError(f"{where}: {exc}{listed}") from None
 
     out = []
     for k, item in enumerate(items):

@@ -279,3 +279,32 @@ def test_tutorial_recipe_rejects_bad_names(quadruped):
         transition_fd_lqr(e, QUAD_FEET, keyframe="sit")
     with pytest.raises(InvalidArgument, match="free joint"):
         transition_fd_lqr(MujocoEngine("cartpole.xml"), ["x"])
+
+
+def _furuta(push_body: str, engine: str = "mujoco") -> RobotSim:
+    doc = {
+        "plant": {"type": "MjcfPlant", "model": "furuta_pendulum.xml", "dt": 0.005},
+        "engine": {"type": "mujoco", "model": "realistic"},
+        "controller": {"type": "LQR", "Q": [5, 50, 0.5, 1], "R": [200]},
+        "sim": {
+            "duration": 0.2,
+            "initial_state": [0.0, 0.05, 0.0, 0.0],
+            "disturbance": [
+                {"kind": "push", "body": push_body, "value": [0.0, 0.5, 0.0], "time": 0.05, "duration": 0.05}
+            ],
+        },
+    }
+    return RobotSim(parse_scenario(doc), engine=engine)
+
+
+def test_model_file_plant_takes_a_push_on_any_body_of_its_file_in_mujoco():
+    sim = _furuta("pendulum")
+    pushed = sim.run(progress=False)
+    sim.scenario.sim.disturbance = None
+    calm = sim.run(progress=False)  # the same start (initial_state), no push
+    k = int(np.argmin(np.abs(pushed.t - 0.1)))
+    assert np.abs(pushed.x[k] - calm.x[k]).max() > 1e-3  # MuJoCo felt it
+    with pytest.raises(ConfigError, match=r"no body-force disturbance on 'pendulm'.*bodies of the model: .*pendulum"):
+        _furuta("pendulm")
+    with pytest.raises(InvalidArgument, match="no body-force disturbance on 'pendulum'"):
+        _furuta("pendulum", engine="standalone").run(progress=False)  # standalone has no force map: says so
