@@ -258,12 +258,14 @@ def simulate_push(
     height_tol: float = 0.05,
     angle_tol: float = 0.15,
     speed_tol: float = 0.05,
+    monitor: Callable[[], None] | None = None,
 ) -> bool:
     """Run ``policy`` in MuJoCo from ``start = (qpos, qvel)``, push ``body`` with the world ``force`` [N] over
     ``[push_time, push_time + duration)``, and say whether the robot recovered by ``push_time + duration +
     settle``: trunk (the free joint's body) within ``height_tol`` [m] of its initial height and ``angle_tol``
     [rad] of its initial orientation, and its linear speed below ``speed_tol`` [m/s]. A diverged simulation
-    counts as a fall.
+    counts as a fall. ``monitor`` (e.g. the engine's :meth:`~shinro_ctrl.engine.MujocoEngine.balance_monitor`)
+    is called at the start and after every step, with the body poses of the new state.
     """
     m, d = engine.model, engine.data
     _, dadr, base = _free_adr(m)
@@ -276,10 +278,15 @@ def simulate_push(
     n_on, n_off = round(push_time / dt), round((push_time + duration) / dt)
     steps = round((push_time + duration + settle) / dt)
     F = np.asarray(force, dtype=float)
+    if monitor is not None:
+        monitor()
     for k in range(steps):
         d.xfrc_applied[b, :3] = F if n_on <= k < n_off else 0.0
         d.ctrl[:] = policy(d.qpos, d.qvel)
         mujoco.mj_step(m, d)
+        if monitor is not None:
+            mujoco.mj_kinematics(m, d)
+            monitor()
         if not (np.all(np.isfinite(d.qpos)) and abs(d.qpos[2] - start[0][2]) < 1.0):
             d.xfrc_applied[:] = 0.0
             return False
