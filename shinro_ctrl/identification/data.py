@@ -79,7 +79,7 @@ class Experiment:
         """
         if not 0.0 < fraction < 1.0:
             raise InvalidArgument(f"split fraction must be in (0, 1), got {fraction!r}")
-        k = int(round(fraction * (self.samples - 1)))
+        k = round(fraction * (self.samples - 1))
         if k < 2 or self.samples - k < 3:
             raise InvalidArgument(f"{self.source}: {self.samples} samples are too few to split at {fraction:g}")
         first = Experiment(

@@ -93,9 +93,9 @@ def discrete_step(plant: Plant, discretization: str, dt: float) -> cs.Function:
 class _Problem:
     """The least-squares problem of one identification (built once, solved once or twice)."""
 
-    v: cs.SX  # all unknowns: z (scaled parameters), then every experiment's states column-wise
-    g: cs.SX  # shooting constraints
-    e: cs.SX  # raw residuals y - ŷ
+    v: cs.MX  # all unknowns: z (scaled parameters), then every experiment's states column-wise
+    g: cs.MX  # shooting constraints
+    e: cs.MX  # raw residuals y - ŷ
     weight: np.ndarray  # row weights 1/σ
     channel: np.ndarray  # output index of each residual
     lbx: np.ndarray
@@ -200,7 +200,7 @@ def identify(
         stats["iter_count"] = stats.get("iter_count", 0) + stats2.get("iter_count", 0)
         stats["success"] = stats2.get("success", False)
         basis = _complement(weak)
-        unc, J, e = _uncertainty(prob, sol, scale, len(exps[0].outputs), exps, basis)
+        unc, _J, e = _uncertainty(prob, sol, scale, len(exps[0].outputs), exps, basis)
         held = tuple(n for i, n in enumerate(names) if np.max(np.abs(weak[i, :])) > 0.97)
     z = sol[: len(names)]
     theta = z * scale
@@ -329,7 +329,7 @@ def _segment_samples(plant: Plant, segment: float | None, dt: float, mode: str) 
     if segment is not None:
         if not segment > 0:
             raise InvalidArgument(f"segment must be > 0 s, got {segment!r}")
-        return max(1, int(round(segment / dt)))
+        return max(1, round(segment / dt))
     try:
         A, _ = plant.linearize()
         lam = float(np.max(np.linalg.eigvals(A).real))
@@ -337,7 +337,7 @@ def _segment_samples(plant: Plant, segment: float | None, dt: float, mode: str) 
         return 0
     if not np.isfinite(lam) or lam <= 1e-9:
         return 0
-    return max(10, int(round(3.0 / lam / dt)))
+    return max(10, round(3.0 / lam / dt))
 
 
 def _noise_level(y: np.ndarray) -> np.ndarray:
@@ -369,8 +369,8 @@ def _build(
     base: dict[str, float],
 ) -> _Problem:
     n, k = plant.state_dim, len(idx)
-    z = cs.SX.sym("z", k)
-    pvec = [cs.SX(v) for v in base.values()]
+    z = cs.MX.sym("z", k)
+    pvec = [cs.MX(v) for v in base.values()]
     for j, i in enumerate(idx):
         pvec[i] = scale[j] * z[j]
     p = cs.vertcat(*pvec)
@@ -396,7 +396,7 @@ def _build(
             w_rows.append(np.repeat(w, N - 1))
             ch_rows.append(np.repeat(np.arange(len(sel)), N - 1))
             continue
-        X = cs.SX.sym("X", n, N)
+        X = cs.MX.sym("X", n, N)
         vs.append(cs.vec(X))
         slices.append(slice(offset, offset + n * N))
         starts = set(range(0, N - 1, seg)) if seg > 0 else {0}
@@ -423,7 +423,7 @@ def _build(
         offset += n * N
     return _Problem(
         v=cs.vertcat(*vs),
-        g=cs.vertcat(*gs) if gs else cs.SX(0, 1),
+        g=cs.vertcat(*gs) if gs else cs.MX(0, 1),
         e=cs.vertcat(*es),
         weight=np.concatenate(w_rows),
         channel=np.concatenate(ch_rows),
@@ -458,7 +458,13 @@ def _solve(
         g = cs.vertcat(g, cs.mtimes(cs.DM(pinned.T), prob.v[: prob.k] - cs.DM(z0)))
         lbg.append(np.zeros(pinned.shape[1]))
     nlp = {"x": prob.v, "f": 0.5 * cs.dot(r, r), "g": g}
+    # Gauss-Newton: the Hessian of the Lagrangian is JᵣᵀJᵣ (the shooting constraints' curvature dropped; the
+    # reduced Hessian stays the Gauss-Newton one of the eliminated problem), constant in simulation mode
+    Jr = cs.jacobian(r, prob.v)
+    lam_f, lam_g, p = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", g.shape[0]), cs.MX.sym("p", 0)
+    hess = cs.Function("nlp_hess_l", [prob.v, p, lam_f, lam_g], [cs.triu(lam_f * cs.mtimes(Jr.T, Jr))])
     opts = {
+        "hess_lag": hess,
         "print_time": False,
         "ipopt": {
             "print_level": 0,

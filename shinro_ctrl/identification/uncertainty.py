@@ -125,16 +125,20 @@ def parameter_uncertainty(
 
 
 def relative_information(J: np.ndarray, sig2: np.ndarray, k: int, scale: np.ndarray) -> np.ndarray:
-    """The parameters' Fisher information ``(k, k)`` in relative units, the nuisance block eliminated (Schur)."""
+    """The parameters' Fisher information ``(k, k)`` in relative units, the nuisance block eliminated (Schur).
+
+    ``𝓘_pp − 𝓘_pn 𝓘_nn⁺ 𝓘_np`` of the information ``JᵀΣ⁻¹J`` with the parameter columns times their scales
+    (the columns equilibrated before the pseudo-inverse).
+    """
     Jw = J / np.sqrt(sig2)[:, None]
-    Jp = Jw[:, :k] * scale
-    Jn = Jw[:, k:]
-    if Jn.shape[1] == 0:
-        return Jp.T @ Jp
-    # project Jp onto the orthogonal complement of the nuisance columns (least squares, stable)
-    coef, *_ = np.linalg.lstsq(Jn, Jp, rcond=None)
-    Jp_perp = Jp - Jn @ coef
-    return Jp_perp.T @ Jp_perp
+    Jw[:, :k] *= scale
+    cn = np.linalg.norm(Jw, axis=0)
+    cn[cn == 0] = 1.0
+    info = (Jw.T @ Jw) / np.outer(cn, cn)
+    S = info[:k, :k]
+    if info.shape[0] > k:
+        S = S - info[:k, k:] @ np.linalg.pinv(info[k:, k:], rcond=1e-12, hermitian=True) @ info[k:, :k]
+    return S * np.outer(cn[:k], cn[:k])
 
 
 def weak_directions(info_rel: np.ndarray, max_rel_std: float) -> tuple[np.ndarray, np.ndarray]:
