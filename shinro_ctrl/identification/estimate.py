@@ -46,6 +46,7 @@ from shinro_ctrl.identification.data import Experiment, check_sampling, select_o
 from shinro_ctrl.identification.fit import fit_percent, nrmse
 from shinro_ctrl.identification.result import IdentificationResult
 from shinro_ctrl.identification.uncertainty import (
+    Uncertainty,
     describe_direction,
     parameter_uncertainty,
     weak_directions,
@@ -105,6 +106,8 @@ class _Problem:
     dep_states: np.ndarray  # indices in v of the states fixed by the constraints
     k: int
     state_slices: list[slice]  # each experiment's states in v (n * N, column-major)
+    run: np.ndarray  # experiment and output of each residual (a run of consecutive samples)
+    correlated: bool  # one-step errors: neighbours correlated
 
 
 def identify(
@@ -167,6 +170,12 @@ def identify(
     if not max_rel_std > 0:
         raise InvalidArgument(f"max_rel_std must be > 0, got {max_rel_std!r}")
     exps = [_checked_experiment(plant, e, outputs) for e in exps]
+    for e in exps[1:]:
+        if e.outputs != exps[0].outputs:
+            raise InvalidArgument(
+                f"experiments measure different outputs: {exps[0].source} {', '.join(exps[0].outputs)}, "
+                f"{e.source} {', '.join(e.outputs)}; pass outputs=[...] to use the common ones"
+            )
     dt = check_sampling(
         exps, plant.dt if discretization == "plant" else None, what=f"the plant's step (dt = {plant.dt:g} s)"
     )
@@ -182,7 +191,7 @@ def identify(
 
     prob = _build(plant, F, exps, idx, scale, lo / scale, hi / scale, z0, x0s, seg, mode, prior_all)
     sol, stats = _solve(prob, F, np.zeros((len(names), 0)), z0, max_iter)
-    unc, J, e = _uncertainty(prob, sol, scale, len(exps[0].outputs) if exps else 0, exps)
+    unc, e = _uncertainty(prob, sol, scale, len(exps[0].outputs))
     weak, rel_std = weak_directions(unc.info_rel, max_rel_std)
     messages = [describe_direction(weak[:, i], names, prior, scale) for i in range(weak.shape[1])]
     held: tuple[str, ...] = ()
@@ -200,7 +209,7 @@ def identify(
         stats["iter_count"] = stats.get("iter_count", 0) + stats2.get("iter_count", 0)
         stats["success"] = stats2.get("success", False)
         basis = _complement(weak)
-        unc, _J, e = _uncertainty(prob, sol, scale, len(exps[0].outputs), exps, basis)
+        unc, e = _uncertainty(prob, sol, scale, len(exps[0].outputs), basis)
         held = tuple(n for i, n in enumerate(names) if np.max(np.abs(weak[i, :])) > 0.97)
     z = sol[: len(names)]
     theta = z * scale
@@ -434,6 +443,8 @@ def _build(
         dep_states=np.concatenate(dep) if dep else np.zeros(0, int),
         k=k,
         state_slices=slices,
+        run=np.concatenate([c + 1000 * i for i, c in enumerate(ch_rows)]),
+        correlated=mode == "prediction",
     )
 
 
@@ -491,9 +502,8 @@ def _uncertainty(
     sol: np.ndarray,
     scale: np.ndarray,
     channels: int,
-    exps: list[Experiment],
     basis: np.ndarray | None = None,
-):
+) -> tuple[Uncertainty, np.ndarray]:
     """Residual Jacobian wrt (θ, free segment starts), the shooting states eliminated, and the covariance."""
     v = prob.v
     fe = cs.Function("e", [v], [prob.e, cs.jacobian(prob.e, v)])
@@ -512,8 +522,9 @@ def _uncertainty(
     else:
         J = Je[:, w_cols].toarray()
     J[:, :k] = J[:, :k] / scale  # per physical parameter
-    unc = parameter_uncertainty(J, e, prob.weight, prob.channel, channels, k, scale, basis)
-    return unc, J, e
+    run = prob.run if prob.correlated else None
+    unc = parameter_uncertainty(J, e, prob.weight, prob.channel, channels, k, scale, basis, run)
+    return unc, e
 
 
 def _csc(m: cs.DM) -> sp.csc_matrix:
