@@ -166,7 +166,7 @@ def test_run_out_result_is_identification_data(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def csv_data(tmp_path_factory):
-    t, u, _, y, names = mujoco_experiment(seed=5, duration=6.0, noise=1e-3)
+    t, u, _, y, names = mujoco_experiment(seed=5, duration=4.0, noise=1e-3)
     return t, u, y, names, tmp_path_factory.mktemp("ident")
 
 
@@ -186,7 +186,11 @@ def test_cli_identify_writes_a_scenario_that_run_takes(csv_data, capsys) -> None
         assert lo <= truth <= hi
     scenario = out / "cartpole_lqr_mujoco_identified.toml"
     assert load_scenario(scenario).plant.params["pole_length"] == pytest.approx(report["estimate"]["pole_length"])
-    assert main(["run", str(scenario), "--duration", "0.2", "--plot", str(d / "run.png")]) == 0
+    assert main(["design", "lqr", str(scenario)]) == 0  # design takes it as it is
+    assert "K =" in capsys.readouterr().out
+    sim = RobotSim.from_config(scenario)  # and so does run (the same loader)
+    assert sim.plant.params()["pole_length"] == pytest.approx(report["estimate"]["pole_length"])
+    assert np.isfinite(sim.run(duration=0.2).metrics["rms_error"])
 
 
 def _one_line_error(capsys, argv: list[str]) -> str:
