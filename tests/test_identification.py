@@ -108,12 +108,12 @@ def test_lqr_on_identified_model_meets_the_true_models_baseline(identified) -> N
 
 def test_intervals_are_calibrated_over_seeds() -> None:
     """The true values fall inside the 95 % intervals in >= 90 % of the cases: 20 seeds x 4 parameters of the
-    output-error fit on 2 s of MuJoCo data (cart position and pole angle, 2 mm / 2 mrad noise). Intervals too
+    output-error fit on 1.5 s of MuJoCo data (cart position and pole angle, 2 mm / 2 mrad noise). Intervals too
     narrow (a wrong noise estimate, the segment states not eliminated) or a biased estimate fail this;
     benchmarks/identification.py runs 50 seeds of the full 10 s problem."""
     inside = []
     for seed in range(20):
-        t, u, _, y, names = mujoco_experiment(seed=100 + seed, duration=2.0, noise=2e-3)
+        t, u, _, y, names = mujoco_experiment(seed=100 + seed, duration=1.5, noise=2e-3)
         result = identify(CartPole(), experiment(t, u, y, names, ("force",)), list(TRUE))
         inside += [result.interval[k][0] <= v <= result.interval[k][1] for k, v in TRUE.items()]
     assert np.mean(inside) >= 0.90, np.mean(inside)
