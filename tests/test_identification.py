@@ -262,3 +262,8 @@ def test_two_experiments_sampled_slower_than_the_plant_with_rk4() -> None:
         np.testing.assert_allclose(est, true_x0, atol=5e-3)
     for name, truth in TRUE.items():  # RK4's error at 20 ms is far below the noise's: no bias beyond 3 std errors
         assert abs(result.estimate[name] - truth) < 3 * result.std_error[name] < 0.3 * truth, name
+    # known initial states: held exactly; the estimates stay as close to the truth
+    known = identify(CartPole(), exps, list(TRUE), discretization="rk4", x0=np.array(starts))
+    np.testing.assert_array_equal(np.array(known.x0), np.array(starts))
+    for name, truth in TRUE.items():
+        assert abs(known.estimate[name] - truth) < 3 * known.std_error[name] <= 3 * result.std_error[name], name
