@@ -191,7 +191,7 @@ def identify(
     seg = _segment_samples(plant, segment, dt, mode)
 
     prob = _build(plant, F, exps, idx, scale, lo / scale, hi / scale, z0, x0s, seg, mode, prior_all)
-    sol, stats = _solve(prob, F, np.zeros((len(names), 0)), z0, max_iter)
+    sol, stats = _solve(prob, np.zeros((len(names), 0)), z0, max_iter)
     unc, e = _uncertainty(prob, sol, scale, len(exps[0].outputs))
     weak, rel_std = weak_directions(unc.info_rel, max_rel_std)
     messages = [describe_direction(weak[:, i], names, prior, scale) for i in range(weak.shape[1])]
@@ -206,7 +206,7 @@ def identify(
             )
         if on_unidentifiable == "error":
             raise IdentificationError("the data cannot determine: " + "; ".join(messages))
-        sol, stats2 = _solve(prob, F, weak, z0, max_iter, warm=sol)
+        sol, stats2 = _solve(prob, weak, z0, max_iter, warm=sol)
         stats["iter_count"] = stats.get("iter_count", 0) + stats2.get("iter_count", 0)
         stats["success"] = stats2.get("success", False)
         basis = _complement(weak)
@@ -214,7 +214,7 @@ def identify(
         held = tuple(n for i, n in enumerate(names) if np.max(np.abs(weak[i, :])) > 0.97)
     z = sol[: len(names)]
     theta = z * scale
-    interval = unc.interval(theta)
+    interval = np.clip(unc.interval(theta), lo[:, None], hi[:, None])  # a mass's interval stays > 0
     warnings = [
         f"{m} (determined only to ±{100 * r:.0f} %): held at the prior" for m, r in zip(messages, rel_std, strict=True)
     ]
@@ -227,6 +227,13 @@ def identify(
                     f"{names[a]} and {names[b]} are strongly correlated (ρ = {corr[a, b]:+.3f}): the data "
                     "determines mostly a combination of them"
                 )
+    for i, n in enumerate(names):
+        if n not in held and min(abs(theta[i] - lo[i]), abs(theta[i] - hi[i])) <= 1e-6 * scale[i]:
+            b = lo[i] if abs(theta[i] - lo[i]) <= abs(theta[i] - hi[i]) else hi[i]
+            warnings.append(
+                f"{n} ended on its bound {b:g}: the data pushes it beyond, and its interval (cut at the bound) "
+                "is not a confidence interval there; check the model or the bounds"
+            )
     if mode == "prediction":
         warnings.append(
             "prediction error: noise in the measured states biases the estimates (errors in variables) and the "
@@ -464,7 +471,7 @@ def _state_guess(plant: Plant, ex: Experiment, sel: list[int]) -> np.ndarray:
 
 
 def _solve(
-    prob: _Problem, F: cs.Function, pinned: np.ndarray, z0: np.ndarray, max_iter: int, warm: np.ndarray | None = None
+    prob: _Problem, pinned: np.ndarray, z0: np.ndarray, max_iter: int, warm: np.ndarray | None = None
 ) -> tuple[np.ndarray, dict]:
     """Solve with IPOPT; ``pinned`` ``(k, q)``: directions held at the prior, ``pinnedᵀ(z − z0) = 0``."""
     r = prob.e * cs.DM(prob.weight)
@@ -591,6 +598,6 @@ def simulate_segments(plant: Plant, result: IdentificationResult, data: Experime
     base = {k: result.plant_params.get(k, v) for k, v in plant.dynamics_params().items()}
     empty = np.zeros(0)
     prob = _build(plant, F, [exp], [], empty, empty, empty, empty, [None], result.segment, "simulation", base)
-    sol, _ = _solve(prob, F, np.zeros((0, 0)), empty, 200)
+    sol, _ = _solve(prob, np.zeros((0, 0)), empty, 200)
     X = sol[prob.state_slices[0]].reshape(-1, plant.state_dim)
     return X[:, [plant.state_names.index(o) for o in exp.outputs]]
