@@ -44,7 +44,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from shinro_ctrl.errors import IdentificationError, InvalidArgument, UnknownName
-from shinro_ctrl.identification.data import Experiment, check_sampling, select_outputs
+from shinro_ctrl.identification.data import Experiment, check_sampling, close_match_hint, select_outputs
 from shinro_ctrl.identification.fit import fit_percent, nrmse
 from shinro_ctrl.identification.result import IdentificationResult
 from shinro_ctrl.identification.uncertainty import (
@@ -54,7 +54,6 @@ from shinro_ctrl.identification.uncertainty import (
     weak_directions,
 )
 from shinro_ctrl.plants.base import Plant
-from shinro_ctrl.validation import did_you_mean
 
 __all__ = ["IdentificationError", "default_bounds", "discrete_step", "identify"]
 
@@ -288,7 +287,7 @@ def _check_params(plant: Plant, params: Sequence[str]) -> list[str]:
     for p in names:
         if p not in plant.param_names:
             raise UnknownName(
-                f"unknown parameter {p!r} of {type(plant).__name__}{did_you_mean(p, plant.param_names)}; "
+                f"unknown parameter {p!r} of {type(plant).__name__}{close_match_hint(p, plant.param_names)}; "
                 f"valid: {', '.join(plant.param_names)}"
             )
     dup = sorted({p for p in names if names.count(p) > 1})
@@ -308,7 +307,7 @@ def _checked_experiment(plant: Plant, exp: Experiment, outputs: Sequence[str] | 
         if o not in plant.state_names:
             raise UnknownName(
                 f"{exp.source}: output {o!r} is not a state of {type(plant).__name__}"
-                f"{did_you_mean(o, plant.state_names)}; states: {', '.join(plant.state_names)}"
+                f"{close_match_hint(o, plant.state_names)}; states: {', '.join(plant.state_names)}"
             )
     return select_outputs(exp, outputs) if outputs is not None else exp
 
