@@ -13,6 +13,7 @@ __all__ = [
     "ConcurrentUse",
     "ConfigError",
     "ExportError",
+    "IdentificationError",
     "InvalidArgument",
     "MPCInfeasible",
     "NonFiniteError",
@@ -69,3 +70,7 @@ class PlanningFailed(ShinroError, RuntimeError):
 
 class ExportError(ShinroError, RuntimeError):
     """A controller or estimator cannot be exported as C, or the exported code failed to build or verify."""
+
+
+class IdentificationError(ShinroError, ValueError):
+    """Data that cannot identify the parameters asked for (too little excitation); the message names them."""

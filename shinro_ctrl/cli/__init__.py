@@ -21,7 +21,7 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from shinro_ctrl.cli import design, export, models, run, sets
+from shinro_ctrl.cli import design, export, identify, models, run, sets
 from shinro_ctrl.cli.common import (
     _NUMERIC_ERRORS,
     _USER_ERRORS,
@@ -52,6 +52,7 @@ COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     design.register,  # design
     sets.register,  # regress, sweep
     export.register,  # export
+    identify.register,  # identify
 ]
 
 
