@@ -13,6 +13,7 @@ import tomllib
 import numpy as np
 import pytest
 
+from shinro_ctrl.controllers._nmpc_ocp import riccati_functions
 from shinro_ctrl.controllers.nmpc import NonlinearMPC
 from shinro_ctrl.controllers.qp.ltv import CondensedLTV
 from shinro_ctrl.errors import InvalidArgument
@@ -125,3 +126,31 @@ def test_compiled_linearization_equals_the_virtual_machine():
     np.testing.assert_array_equal(np.array(vm.ocp.linearization(X, U)), np.array(cc.ocp.linearization(X, U)))
     with pytest.raises(InvalidArgument, match="codegen"):
         NonlinearMPC.from_plant(plant, [10.0, 0.1], [1.0], codegen="yes", **kw)
+
+
+@pytest.mark.parametrize("codegen", [False, True], ids=["vm", "compiled"])
+def test_riccati_step_equals_the_condensed_qp_minimizer(codegen):
+    """The Riccati recursion's unconstrained step, rollout and gradient against the condensed QP (numpy, LAPACK)."""
+    N, n, m = 8, 5, 2
+    rng = np.random.default_rng(3)
+    G = rng.standard_normal((N, n, n + m + 1))
+    G[:, :, :n] *= 0.2
+    G[:, :, :n] += np.eye(n)
+    L = rng.standard_normal((N, n, n))
+    W = L @ np.swapaxes(L, 1, 2) + 0.1 * np.eye(n)
+    R = np.diag(rng.uniform(0.5, 2.0, m))
+    e, du, dx0 = rng.standard_normal(N * n), rng.standard_normal(N * m), rng.standard_normal(n)
+    back, fwd = riccati_functions(n, m, N, codegen)
+    assert ("External" in repr(back)) == codegen  # the compiled library, or the virtual machine
+    Gt, Wt = G.reshape(N * n, -1).T, np.swapaxes(W, 1, 2).reshape(N * n, n).T  # the column-major layouts
+    KK = back(Gt, Wt, R, e, du)
+    dU, dX, g = (np.array(v).T for v in fwd(Gt, KK, Wt, R, e, du, dx0))
+    inf = np.full(n, np.inf)
+    qp = CondensedLTV(G, W, R, np.full(m, -np.inf), np.full(m, np.inf), -inf, inf)
+    qp.build(e, du)
+    g_ref = qp.g0 + qp.Gx @ dx0
+    z = -np.linalg.solve(qp.H, g_ref)
+    _, dX_ref = qp.step(z, dx0)
+    np.testing.assert_allclose(g.ravel(), g_ref, rtol=0, atol=1e-12 * np.max(np.abs(g_ref)))
+    np.testing.assert_allclose(dU.ravel(), z, rtol=0, atol=1e-12 * np.max(np.abs(z)))
+    np.testing.assert_allclose(dX, dX_ref, rtol=0, atol=1e-12 * np.max(np.abs(dX_ref)))
