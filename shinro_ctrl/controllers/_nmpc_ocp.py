@@ -39,6 +39,7 @@ __all__ = [
     "NMPCStrategy",
     "build_ocp",
     "failed_solution",
+    "riccati_functions",
 ]
 
 #: Solvers of ``NonlinearMPC``: ``"auto"`` is ``"daqp"``.
@@ -100,7 +101,9 @@ class NMPCOptions:
             the stage function has more than :data:`CODEGEN_MIN_INSTRUCTIONS`
             instructions (a 7-DOF arm's 20,000 take 2.6 ms per call of 20
             stages in the virtual machine, 0.1 ms compiled; a cart-pole's few
-            hundred gain little and skip the compiler).
+            hundred gain little and skip the compiler). With it compiled, a
+            large condensed QP without state bounds takes the compiled
+            Riccati step first (:func:`riccati_functions`; docs/nmpc.md).
         state_names: Names of the states, for messages (default ``x[i]``).
         input_names: Names of the inputs, for messages (default ``u[i]``).
     """
@@ -210,6 +213,9 @@ class NMPCProblem:
         Qf: Terminal weight ``(n, n)``.
         W: Stage weights of ``x_1 … x_N`` ``(N, n, n)`` (the last is ``Qf``).
         options: The resolved :class:`NMPCOptions`.
+        compiled: The stage linearization is compiled code (``codegen`` true, or automatic on a large model):
+            the strategies compile their other stage functions too (the Riccati recursion of
+            :func:`riccati_functions`).
     """
 
     n: int
@@ -223,6 +229,7 @@ class NMPCProblem:
     Qf: np.ndarray
     W: np.ndarray
     options: NMPCOptions
+    compiled: bool = False
 
     @property
     def x0(self) -> np.ndarray:
@@ -308,18 +315,20 @@ def build_ocp(
         Qf = Qm.copy() if o.terminal_cost == "Q" else _dare(F, n, m, Qm, Rm, o)
     else:
         Qf = weight_matrix("terminal_cost", o.terminal_cost, n)
+    linearization, compiled_ = _stage_linearization(F, n, m, N, o.codegen)
     return NMPCProblem(
         n=n,
         m=m,
         N=N,
         dt=h,
         F=F,
-        linearization=_stage_linearization(F, n, m, N, o.codegen),
+        linearization=linearization,
         Q=Qm,
         R=Rm,
         Qf=Qf,
         W=np.stack([Qm] * (N - 1) + [Qf]),
         options=o,
+        compiled=compiled_,
     )
 
 
@@ -341,8 +350,8 @@ def _discrete_step(f: cs.Function, n: int, m: int, h: float, o: NMPCOptions) -> 
     return cs.Function("F", [xs, us], [x_next], ["x", "u"], ["x_next"])
 
 
-def _stage_linearization(F: cs.Function, n: int, m: int, N: int, codegen: bool | None) -> cs.Function:
-    """``G_kᵀ`` of all stages side by side, ``(n + m + 1, N n)`` (stored as ``(N, n, n + m + 1)``).
+def _stage_linearization(F: cs.Function, n: int, m: int, N: int, codegen: bool | None) -> tuple[cs.Function, bool]:
+    """``G_kᵀ`` of all stages side by side, ``(n + m + 1, N n)`` (stored as ``(N, n, n + m + 1)``); compiled or not.
 
     One SX stage function (``[A_k, B_k, d_k]`` of one stage), compiled to C when ``codegen`` says so,
     mapped over the horizon in an MX function (an SX ``map`` would unroll it).
@@ -352,11 +361,12 @@ def _stage_linearization(F: cs.Function, n: int, m: int, N: int, codegen: bool |
     # G_k = [A_k, B_k, d_k] (n, n + m + 1), output transposed so that its column-major storage is G_k row-major
     G = cs.horzcat(cs.jacobian(x_next, xs), cs.jacobian(x_next, us), x_next - xn)
     stage = cs.Function("nmpc_stage", [xs, us, xn], [cs.densify(G).T])
-    if codegen or (codegen is None and stage.n_instructions() > CODEGEN_MIN_INSTRUCTIONS):
+    compile_ = bool(codegen or (codegen is None and stage.n_instructions() > CODEGEN_MIN_INSTRUCTIONS))
+    if compile_:
         stage = compiled(stage)
     X = cs.MX.sym("X", n, N + 1)
     U = cs.MX.sym("U", m, N)
-    return cs.Function("lin", [X, U], [stage.map(N)(X[:, :N], U, X[:, 1:])], ["X", "U"], ["G"])
+    return cs.Function("lin", [X, U], [stage.map(N)(X[:, :N], U, X[:, 1:])], ["X", "U"], ["G"]), compile_
 
 
 def _dare(F: cs.Function, n: int, m: int, Q: np.ndarray, R: np.ndarray, o: NMPCOptions) -> np.ndarray:
@@ -385,7 +395,7 @@ def failed_solution(
     )  # fmt: skip
 
 
-def riccati_functions(n: int, m: int, N: int, codegen: bool | None) -> tuple[cs.Function, cs.Function]:
+def riccati_functions(n: int, m: int, N: int, codegen: bool) -> tuple[cs.Function, cs.Function]:
     r"""The LTV QP without inequality constraints, solved by a Riccati recursion: ``(backward, forward)``.
 
     The QP is the one :class:`~shinro_ctrl.controllers.qp.ltv.CondensedLTV` condenses: stage ``k`` maps
@@ -412,15 +422,14 @@ def riccati_functions(n: int, m: int, N: int, codegen: bool | None) -> tuple[cs.
     * forward ``(G, KK, W, R, e, du, dx0 (n)) -> (dU (m, N), dX (n, N), g (m, N))``.
 
     The stage bodies are SX functions called ``N`` times from MX functions (not unrolled); both MX functions
-    are compiled by :func:`shinro_ctrl.codegen.compiled` when ``codegen`` is true, or when it is None and the
-    backward stage has more than :data:`CODEGEN_MIN_INSTRUCTIONS` instructions.
+    are compiled by :func:`shinro_ctrl.codegen.compiled` when ``codegen`` is true (the arm's bodies: about
+    10,000 and 13,000 instructions, kept apart because gcc's time grows faster than a function's size).
     """
     sx = cs.SX.sym
     w = n + m + 1
     Gt, W, P, p, e = sx("Gt", w, n), sx("W", n, n), sx("P", n, n), sx("p", n), sx("e", n)
     Gk = Gt.T  # the stage's block of the linearization's output is G_kᵀ: a contiguous slice, transposed in SX
     A, B, d = Gk[:, :n], Gk[:, n : n + m], Gk[:, n + m]
-    # two bodies of ~10,000 instructions each: gcc's time grows faster than linearly with a function's size
     product = cs.Function("nmpc_riccati_product", [Gt, W, P, p, e], [(W + P) @ Gk, W @ e + p])
     Y, s, R, du = sx("Y", n, w), sx("s", n), sx("R", m, m), sx("du", m)
     # Z = Gᵀ S G = [A B d]ᵀ S [A B d], one triangle (S = W + P is symmetric)
@@ -442,8 +451,6 @@ def riccati_functions(n: int, m: int, N: int, codegen: bool | None) -> tuple[cs.
     fwd_stage = cs.Function("nmpc_policy_stage", [Gt, Kp, dx, fx], [u, A @ dx + B @ u + d, A @ fx + d])
     mu_k = W @ (e + fx) + An @ mu  # An = A_{k+1}ᵀ
     grad_stage = cs.Function("nmpc_costate_stage", [An, Gt, W, R, e, fx, mu, du], [mu_k, R @ du + B.T @ mu_k])
-    size = product.n_instructions() + update.n_instructions()
-    compile_ = codegen or (codegen is None and size > CODEGEN_MIN_INSTRUCTIONS)
     mx = cs.MX.sym
     Gm, Wm, Rm, em, dum = mx("G", n + m + 1, N * n), mx("W", n, N * n), mx("R", m, m), mx("e", N * n), mx("du", N * m)
 
@@ -485,6 +492,6 @@ def riccati_functions(n: int, m: int, N: int, codegen: bool | None) -> tuple[cs.
         ["G", "KK", "W", "R", "e", "du", "dx0"],
         ["dU", "dX", "g"],
     )
-    if compile_:  # each MX function with its stage bodies as one C library
+    if codegen:  # each MX function with its stage bodies as one C library
         return compiled(backward), compiled(forward)
     return backward, forward

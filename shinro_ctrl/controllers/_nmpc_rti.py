@@ -70,8 +70,11 @@ class RealTimeIteration:
         else:
             self.qp = CondensedLTV(self._G, ocp.W, ocp.R, o.u_min, o.u_max, o.x_min, o.x_max, **soft)
         self._ipopt: IpoptSolver | None = None  # the cold start's, built on first use
-        # large condensed QPs without state bounds: the Riccati recursion first (see _riccati_step)
-        self.riccati = isinstance(self.qp, CondensedLTV) and not self.qp.direct and self.qp.rows.size == 0
+        # large condensed QPs without state bounds, with compiled stage functions: the Riccati step first
+        # (_riccati_step; in CasADi's virtual machine the recursion costs more than the condensing it saves)
+        self.riccati = (
+            ocp.compiled and isinstance(self.qp, CondensedLTV) and not self.qp.direct and self.qp.rows.size == 0
+        )
         self._built = False
         if self.riccati:
             self._init_riccati()
@@ -81,7 +84,7 @@ class RealTimeIteration:
         """Bind the compiled Riccati recursion's buffers (:func:`~._nmpc_ocp.riccati_functions`) once."""
         ocp = self.ocp
         n, m, N = ocp.n, ocp.m, ocp.N
-        back, fwd = riccati_functions(n, m, N, ocp.options.codegen)
+        back, fwd = riccati_functions(n, m, N, codegen=True)
         # CasADi reads column-major: the C-ordered transposes are the matrices themselves
         self._Wt = np.ascontiguousarray(np.swapaxes(ocp.W, 1, 2))
         self._Rt = np.ascontiguousarray(ocp.R.T)
@@ -102,6 +105,7 @@ class RealTimeIteration:
         nu = N * m
         qp = self.qp
         assert isinstance(qp, CondensedLTV)
+        self._cqp = qp
         self._lo = qp.bl[:nu].reshape(N, m)  # ΔU bounds (views: set_bounds fills them)
         self._hi = qp.bu[:nu].reshape(N, m)
 
@@ -110,6 +114,8 @@ class RealTimeIteration:
         self._started = False
         self._prepared = False
         self._mu = 0.0
+        if isinstance(self.qp, CondensedLTV):
+            self.qp.clear_active_set()
 
     # ================================================================ phases
     def _condense(self) -> None:
@@ -137,12 +143,17 @@ class RealTimeIteration:
         """
         self._dx0[:] = dx0
         self._fwd()
-        return bool(np.all((self._dU >= self._lo) & (self._dU <= self._hi)))  # False on NaN
+        if np.all((self._dU >= self._lo) & (self._dU <= self._hi)):  # False on NaN
+            self._cqp.mark_unconstrained()
+            return True
+        return False
 
     def _shift(self) -> None:
         X, U = self.X, self.U
         X[:-1] = X[1:]
         U[:-1] = U[1:]
+        if isinstance(self.qp, CondensedLTV):
+            self.qp.shift_active_set()
 
     def prepare(self) -> tuple[float, float, float] | None:
         """Shift the previous solution and linearize/condense for the next state.
