@@ -10,8 +10,9 @@ the same closed loop (the plant stepped at dt: standalone = the plant's own inte
 * time per step of the controller call (median, p90, max), wall clock and the thread's CPU time (the machine
   has 2 cores shared with other jobs: CPU time is what the call costs, wall clock adds the waits for a core);
   RTI's first call (its cold start: SQP iterations from the held state) is left out and printed apart;
-* for RTI the split of the median call: linearization (one compiled call for all stages), condensing, QP
-  (DAQP), other;
+* for RTI the split of the median call: linearization (one compiled call for all stages), condensing (the
+  compiled Riccati recursion, plus the condensed QP on the steps where its unconstrained step breaks a torque
+  bound), QP (the Riccati policy's rollout, plus DAQP on those steps), other; and how many calls needed DAQP;
 * the closed-loop cost ``Σ_k ½ (e_kᵀ Q e_k + (u_k − u0)ᵀ R (u_k − u0))`` and the final joint error.
 
 do-mpc (in the ``bench`` extra) solves the same OCP (the same CasADi step function ``F``, weights and bounds)
@@ -153,10 +154,12 @@ def main() -> None:
     for loop in ("standalone", "mujoco"):
         plant = make_plant(doc, loop)
         phases: list[tuple[float, float, float, float]] = []
+        daqp_calls: list[bool] = []
 
-        def rec(c, phases=phases):
+        def rec(c, phases=phases, daqp_calls=daqp_calls):
             last = c.last
             phases.append((last.time_linearization_s, last.time_condensing_s, last.time_qp_s, last.time_other_s))
+            daqp_calls.append(last.qp_iterations > 0)  # 0: the Riccati step met every bound
 
         T_all, C_all, firsts = [], [], []
         for _ in range(args.repeats):
@@ -164,17 +167,19 @@ def main() -> None:
             phases_run_start = len(phases)
             X, U, T, C = closed_loop(rti, plant, x_init, steps, record=rec)
             del phases[phases_run_start]  # the cold start
+            del daqp_calls[phases_run_start]
             T_all.append(T[1:])
             C_all.append(C[1:])
             firsts.append(T[0])
         T, C, P = np.concatenate(T_all), np.concatenate(C_all), np.array(phases)
         cost, err = score(rti, X, U)
         assert np.all(U <= rti.u_max) and np.all(U >= rti.u_min)
-        rows.append((f"RTI (DAQP), {loop}", T, C, cost, err))
+        rows.append((f"RTI, {loop}", T, C, cost, err))
         cold = us(np.median(firsts))
         print(f"\nRTI, {loop} loop: {T.size} warm calls ({args.repeats} runs); cold start (SQP) {cold} us")
         print("  median split, us:  linearize  condense        QP     other")
         print("                   " + " ".join(f"{1e6 * v:9.0f}" for v in np.median(P, axis=0)))
+        print(f"  calls that needed DAQP (a bound reached): {sum(daqp_calls)} of {len(daqp_calls)}")
         if not args.no_peer:
             try:
                 ctrl = do_mpc_controller(rti, x_init)

@@ -3,7 +3,9 @@
 The reach (``configs/panda_nmpc_reach_mujoco.toml``) runs here for 1 s of its 2 s with the stage linearization
 in CasADi's virtual machine (``codegen = false``): the compiled one gives the same numbers (checked below on a
 small plant, whose C code builds in a fraction of a second), and the arm's 20,000-instruction stage function would
-cost the suite a few seconds of compilation on a fresh cache.
+cost the suite a few seconds of compilation on a fresh cache. With the linearization in the virtual machine the
+reach keeps condensing + DAQP at every call; the compiled Riccati step that replaces them on the arm's benchmark is
+checked against them below, on a small problem and on a pendulum's closed loop (compiled in under a second).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import tomllib
 import numpy as np
 import pytest
 
+from shinro_ctrl.controllers._nmpc_ocp import riccati_functions
 from shinro_ctrl.controllers.nmpc import NonlinearMPC
 from shinro_ctrl.controllers.qp.ltv import CondensedLTV
 from shinro_ctrl.errors import InvalidArgument
@@ -125,3 +128,88 @@ def test_compiled_linearization_equals_the_virtual_machine():
     np.testing.assert_array_equal(np.array(vm.ocp.linearization(X, U)), np.array(cc.ocp.linearization(X, U)))
     with pytest.raises(InvalidArgument, match="codegen"):
         NonlinearMPC.from_plant(plant, [10.0, 0.1], [1.0], codegen="yes", **kw)
+
+
+@pytest.mark.parametrize("codegen", [False, True], ids=["vm", "compiled"])
+def test_riccati_step_equals_the_condensed_qp_minimizer(codegen):
+    """The Riccati recursion's unconstrained step, rollout and gradient against the condensed QP (numpy, LAPACK)."""
+    N, n, m = 8, 5, 2
+    rng = np.random.default_rng(3)
+    G = rng.standard_normal((N, n, n + m + 1))
+    G[:, :, :n] *= 0.2
+    G[:, :, :n] += np.eye(n)
+    L = rng.standard_normal((N, n, n))
+    W = L @ np.swapaxes(L, 1, 2) + 0.1 * np.eye(n)
+    R = np.diag(rng.uniform(0.5, 2.0, m))
+    e, du, dx0 = rng.standard_normal(N * n), rng.standard_normal(N * m), rng.standard_normal(n)
+    back, fwd = riccati_functions(n, m, N, codegen)
+    assert ("External" in repr(back)) == codegen  # the compiled library, or the virtual machine
+    Gt, Wt = G.reshape(N * n, -1).T, np.swapaxes(W, 1, 2).reshape(N * n, n).T  # the column-major layouts
+    KK = back(Gt, Wt, R, e, du)
+    dU, dX, g = (np.array(v).T for v in fwd(Gt, KK, Wt, R, e, du, dx0))
+    inf = np.full(n, np.inf)
+    qp = CondensedLTV(G, W, R, np.full(m, -np.inf), np.full(m, np.inf), -inf, inf)
+    qp.build(e, du)
+    g_ref = qp.g0 + qp.Gx @ dx0
+    z = -np.linalg.solve(qp.H, g_ref)
+    _, dX_ref = qp.step(z, dx0)
+    np.testing.assert_allclose(g.ravel(), g_ref, rtol=0, atol=1e-12 * np.max(np.abs(g_ref)))
+    np.testing.assert_allclose(dU.ravel(), z, rtol=0, atol=1e-12 * np.max(np.abs(z)))
+    np.testing.assert_allclose(dX, dX_ref, rtol=0, atol=1e-12 * np.max(np.abs(dX_ref)))
+
+
+def test_daqp_warm_start_from_the_last_active_set_gives_the_cold_solution():
+    N, n, m = 20, 6, 3
+    rng = np.random.default_rng(7)
+    G = rng.standard_normal((N, n, n + m + 1))
+    G[:, :, :n] *= 0.1
+    G[:, :, :n] += np.eye(n)
+    W = np.stack([np.eye(n)] * N)
+    R = 0.1 * np.eye(m)
+    inf = np.full(n, np.inf)
+    qp = CondensedLTV(G, W, R, np.full(m, -0.3), np.full(m, 0.3), -inf, inf)
+    assert qp.warm_start and not qp.direct  # on for the large (recursive) problems only
+    e, du, dx0 = 3 * rng.standard_normal(N * n), np.zeros(N * m), rng.standard_normal(n)
+    qp.build(e, du)
+    qp.set_bounds(np.zeros((N, m)), np.zeros((N, n)))
+    z_cold, ok, _, it_cold = qp.solve(dx0)
+    active = np.flatnonzero(qp.lam[: N * m])
+    assert ok and active.size >= 5 and it_cold > active.size  # one iteration per bound added, cold
+    z_warm, ok, _, it_warm = qp.solve(dx0)  # the same QP from its own active set
+    assert ok and it_warm < it_cold
+    np.testing.assert_allclose(z_warm, z_cold, rtol=0, atol=1e-12)
+    qp.shift_active_set()  # the RTI shift (stage k + 1's set becomes stage k's): a start, not the answer
+    z_shift, ok, _, _ = qp.solve(dx0)
+    assert ok
+    np.testing.assert_allclose(z_shift, z_cold, rtol=0, atol=1e-12)
+    qp.clear_active_set()
+    z_again, ok, _, it_again = qp.solve(dx0)
+    assert ok and it_again == it_cold
+    np.testing.assert_array_equal(z_again, z_cold)
+
+
+def test_the_riccati_step_first_gives_the_closed_loop_of_the_condensed_qp():
+    """RTI with the compiled Riccati step (DAQP only where a bound is reached) against condensing + DAQP throughout.
+
+    The pendulum at N = 52 is a large (recursive) condensed QP; compiled (``codegen = true``) it takes the
+    Riccati step first, in the virtual machine it does not.
+    """
+    kw = dict(horizon=52, u_min=-0.5, u_max=0.5, cold_start="sqp")
+    runs = []
+    for codegen in (True, False):
+        plant = InvertedPendulum(dt=0.02)
+        c = NonlinearMPC.from_plant(plant, [10.0, 0.1], [1.0], codegen=codegen, **kw)
+        assert c.strategy.riccati == codegen
+        plant.set_state(np.array([0.8, 0.0]))
+        x = plant.get_state()
+        U, daqp_calls = [], []
+        for _ in range(40):
+            u = c(x)
+            U.append(u)
+            daqp_calls.append(c.last.qp_iterations > 0)
+            x = plant.step(u)
+        runs.append((np.array(U), daqp_calls))
+    (U_ric, daqp_ric), (U_ref, daqp_ref) = runs
+    assert all(daqp_ref) and 5 <= sum(daqp_ric) <= 35  # the torque bound binds at first: both paths ran
+    assert np.max(np.abs(U_ric)) == 0.5
+    np.testing.assert_allclose(U_ric, U_ref, rtol=0, atol=1e-12)

@@ -39,6 +39,7 @@ __all__ = [
     "NMPCStrategy",
     "build_ocp",
     "failed_solution",
+    "riccati_functions",
 ]
 
 #: Solvers of ``NonlinearMPC``: ``"auto"`` is ``"daqp"``.
@@ -100,7 +101,9 @@ class NMPCOptions:
             the stage function has more than :data:`CODEGEN_MIN_INSTRUCTIONS`
             instructions (a 7-DOF arm's 20,000 take 2.6 ms per call of 20
             stages in the virtual machine, 0.1 ms compiled; a cart-pole's few
-            hundred gain little and skip the compiler).
+            hundred gain little and skip the compiler). With it compiled, a
+            large condensed QP without state bounds takes the compiled
+            Riccati step first (:func:`riccati_functions`; docs/nmpc.md).
         state_names: Names of the states, for messages (default ``x[i]``).
         input_names: Names of the inputs, for messages (default ``u[i]``).
     """
@@ -210,6 +213,9 @@ class NMPCProblem:
         Qf: Terminal weight ``(n, n)``.
         W: Stage weights of ``x_1 … x_N`` ``(N, n, n)`` (the last is ``Qf``).
         options: The resolved :class:`NMPCOptions`.
+        compiled: The stage linearization is compiled code (``codegen`` true, or automatic on a large model):
+            the strategies compile their other stage functions too (the Riccati recursion of
+            :func:`riccati_functions`).
     """
 
     n: int
@@ -223,6 +229,7 @@ class NMPCProblem:
     Qf: np.ndarray
     W: np.ndarray
     options: NMPCOptions
+    compiled: bool = False
 
     @property
     def x0(self) -> np.ndarray:
@@ -308,18 +315,20 @@ def build_ocp(
         Qf = Qm.copy() if o.terminal_cost == "Q" else _dare(F, n, m, Qm, Rm, o)
     else:
         Qf = weight_matrix("terminal_cost", o.terminal_cost, n)
+    linearization, compiled_ = _stage_linearization(F, n, m, N, o.codegen)
     return NMPCProblem(
         n=n,
         m=m,
         N=N,
         dt=h,
         F=F,
-        linearization=_stage_linearization(F, n, m, N, o.codegen),
+        linearization=linearization,
         Q=Qm,
         R=Rm,
         Qf=Qf,
         W=np.stack([Qm] * (N - 1) + [Qf]),
         options=o,
+        compiled=compiled_,
     )
 
 
@@ -341,8 +350,8 @@ def _discrete_step(f: cs.Function, n: int, m: int, h: float, o: NMPCOptions) -> 
     return cs.Function("F", [xs, us], [x_next], ["x", "u"], ["x_next"])
 
 
-def _stage_linearization(F: cs.Function, n: int, m: int, N: int, codegen: bool | None) -> cs.Function:
-    """``G_kᵀ`` of all stages side by side, ``(n + m + 1, N n)`` (stored as ``(N, n, n + m + 1)``).
+def _stage_linearization(F: cs.Function, n: int, m: int, N: int, codegen: bool | None) -> tuple[cs.Function, bool]:
+    """``G_kᵀ`` of all stages side by side, ``(n + m + 1, N n)`` (stored as ``(N, n, n + m + 1)``); compiled or not.
 
     One SX stage function (``[A_k, B_k, d_k]`` of one stage), compiled to C when ``codegen`` says so,
     mapped over the horizon in an MX function (an SX ``map`` would unroll it).
@@ -352,11 +361,12 @@ def _stage_linearization(F: cs.Function, n: int, m: int, N: int, codegen: bool |
     # G_k = [A_k, B_k, d_k] (n, n + m + 1), output transposed so that its column-major storage is G_k row-major
     G = cs.horzcat(cs.jacobian(x_next, xs), cs.jacobian(x_next, us), x_next - xn)
     stage = cs.Function("nmpc_stage", [xs, us, xn], [cs.densify(G).T])
-    if codegen or (codegen is None and stage.n_instructions() > CODEGEN_MIN_INSTRUCTIONS):
+    compile_ = bool(codegen or (codegen is None and stage.n_instructions() > CODEGEN_MIN_INSTRUCTIONS))
+    if compile_:
         stage = compiled(stage)
     X = cs.MX.sym("X", n, N + 1)
     U = cs.MX.sym("U", m, N)
-    return cs.Function("lin", [X, U], [stage.map(N)(X[:, :N], U, X[:, 1:])], ["X", "U"], ["G"])
+    return cs.Function("lin", [X, U], [stage.map(N)(X[:, :N], U, X[:, 1:])], ["X", "U"], ["G"]), compile_
 
 
 def _dare(F: cs.Function, n: int, m: int, Q: np.ndarray, R: np.ndarray, o: NMPCOptions) -> np.ndarray:
@@ -383,3 +393,105 @@ def failed_solution(
         inputs=np.full((ocp.N, ocp.m), np.nan) if U is None else U.copy(),
         u=np.full(ocp.m, np.nan), objective=math.nan, message=message,
     )  # fmt: skip
+
+
+def riccati_functions(n: int, m: int, N: int, codegen: bool) -> tuple[cs.Function, cs.Function]:
+    r"""The LTV QP without inequality constraints, solved by a Riccati recursion: ``(backward, forward)``.
+
+    The QP is the one :class:`~shinro_ctrl.controllers.qp.ltv.CondensedLTV` condenses: stage ``k`` maps
+    ``Δx_k`` to ``Δx_{k+1} = A_k Δx_k + B_k Δu_k + d_k`` and costs
+    ``½ ‖e_{k+1} + Δx_{k+1}‖²_{W_k} + ½ ‖δu_k + Δu_k‖²_R`` (``e = x̄ − r``, ``δu = ū − u_ref``). With the value
+    function ``½ Δxᵀ P_k Δx + p_kᵀ Δx`` of stages ``k … N−1`` (``P_N = 0``, ``p_N = 0``), ``S = W_k + P_{k+1}``,
+    ``h = S d_k + W_k e_{k+1} + p_{k+1}``, ``R_e = R + B_kᵀ S B_k``, ``G_e = B_kᵀ S A_k``:
+
+    .. math::
+
+        K_k = -R_e^{-1} G_e,\quad \kappa_k = -R_e^{-1} (B_k^\top h + R\,\delta u_k),\quad
+        P_k = A_k^\top S A_k + G_e^\top K_k,\quad p_k = A_k^\top h + G_e^\top \kappa_k,
+
+    and the minimizer is the policy ``Δu_k = K_k Δx_k + κ_k`` rolled out from ``Δx_0``: ``O(N (n³ + n² m))``
+    instead of the condensed Hessian's ``O(N² n² m)`` and its dense factorization. The forward function
+    also returns the QP's gradient at ``ΔU = 0``, ``g_k = R δu_k + B_kᵀ μ_{k+1}`` with the costate
+    ``μ_{k+1} = W_k (e_{k+1} + δx_{k+1}) + A_{k+1}ᵀ μ_{k+2}`` along the free response ``δx`` (``ΔU = 0``),
+    which is ``−H ΔU`` at the minimizer (the KKT residual of the step).
+
+    Signatures (column-major CasADi shapes; each matches a C-ordered NumPy array of the transposed shape):
+
+    * backward ``(G (n+m+1, N n), W (n, N n), R (m, m), e (N n), du (N m)) -> KK (m, N (n+1))``
+      (``G`` the stage linearization's output, ``KK`` the blocks ``[K_k, κ_k]``);
+    * forward ``(G, KK, W, R, e, du, dx0 (n)) -> (dU (m, N), dX (n, N), g (m, N))``.
+
+    The stage bodies are SX functions called ``N`` times from MX functions (not unrolled); both MX functions
+    are compiled by :func:`shinro_ctrl.codegen.compiled` when ``codegen`` is true (the arm's bodies: about
+    10,000 and 13,000 instructions, kept apart because gcc's time grows faster than a function's size).
+    """
+    sx = cs.SX.sym
+    w = n + m + 1
+    Gt, W, P, p, e = sx("Gt", w, n), sx("W", n, n), sx("P", n, n), sx("p", n), sx("e", n)
+    Gk = Gt.T  # the stage's block of the linearization's output is G_kᵀ: a contiguous slice, transposed in SX
+    A, B, d = Gk[:, :n], Gk[:, n : n + m], Gk[:, n + m]
+    product = cs.Function("nmpc_riccati_product", [Gt, W, P, p, e], [(W + P) @ Gk, W @ e + p])
+    Y, s, R, du = sx("Y", n, w), sx("s", n), sx("R", m, m), sx("du", m)
+    # Z = Gᵀ S G = [A B d]ᵀ S [A B d], one triangle (S = W + P is symmetric)
+    Z = cs.SX(w, w)
+    for i in range(w):
+        for j in range(i, w):
+            Z[i, j] = Z[j, i] = cs.dot(Gk[:, i], Y[:, j])
+    At_h = Z[:n, n + m] + A.T @ s  # Aᵀ h, h = S d + W e + p
+    Ge = Z[n : n + m, :n]  # Bᵀ S A
+    KK = -cs.solve(R + Z[n : n + m, n : n + m], cs.horzcat(Ge, Z[n : n + m, n + m] + B.T @ s + R @ du))
+    K, kappa = KK[:, :n], KK[:, n]
+    Pk = cs.SX(n, n)
+    for i in range(n):
+        for j in range(i, n):
+            Pk[i, j] = Pk[j, i] = Z[i, j] + cs.dot(Ge[:, i], K[:, j])
+    update = cs.Function("nmpc_riccati_update", [Gt, Y, s, R, du], [KK, Pk, At_h + Ge.T @ kappa])
+    dx, fx, mu, An, Kp = sx("dx", n), sx("fx", n), sx("mu", n), sx("Ant", n, n), sx("KK", m, n + 1)
+    u = Kp[:, :n] @ dx + Kp[:, n]
+    fwd_stage = cs.Function("nmpc_policy_stage", [Gt, Kp, dx, fx], [u, A @ dx + B @ u + d, A @ fx + d])
+    mu_k = W @ (e + fx) + An @ mu  # An = A_{k+1}ᵀ
+    grad_stage = cs.Function("nmpc_costate_stage", [An, Gt, W, R, e, fx, mu, du], [mu_k, R @ du + B.T @ mu_k])
+    mx = cs.MX.sym
+    Gm, Wm, Rm, em, dum = mx("G", n + m + 1, N * n), mx("W", n, N * n), mx("R", m, m), mx("e", N * n), mx("du", N * m)
+
+    def stage(k: int) -> tuple[cs.MX, cs.MX, cs.MX, cs.MX]:
+        """``G_kᵀ (n + m + 1, n)``, ``W_k``, ``e_{k+1}``, ``δu_k`` of stage ``k``."""
+        return (
+            Gm[:, k * n : (k + 1) * n],
+            Wm[:, k * n : (k + 1) * n],
+            em[k * n : (k + 1) * n],
+            dum[k * m : (k + 1) * m],
+        )
+
+    Pn, pn = cs.MX.zeros(n, n), cs.MX.zeros(n)
+    blocks: list[cs.MX] = [cs.MX()] * N
+    for k in range(N - 1, -1, -1):
+        Gs, Wk, ek, duk = stage(k)
+        Yk, sk = product(Gs, Wk, Pn, pn, ek)
+        blocks[k], Pn, pn = update(Gs, Yk, sk, Rm, duk)
+    backward = cs.Function(
+        "nmpc_riccati", [Gm, Wm, Rm, em, dum], [cs.horzcat(*blocks)], ["G", "W", "R", "e", "du"], ["KK"]
+    )
+    KKm, dx0 = mx("KK", m, N * (n + 1)), mx("dx0", n)
+    dxk, fxk = dx0, dx0
+    us, xs, fs = [], [], []
+    for k in range(N):
+        uk, dxk, fxk = fwd_stage(stage(k)[0], KKm[:, k * (n + 1) : (k + 1) * (n + 1)], dxk, fxk)
+        us.append(uk)
+        xs.append(dxk)
+        fs.append(fxk)
+    mu_next, gs = cs.MX.zeros(n), [cs.MX()] * N
+    for k in range(N - 1, -1, -1):
+        Gs, Wk, ek, duk = stage(k)
+        An = Gm[:n, (k + 1) * n : (k + 2) * n] if k + 1 < N else cs.MX.zeros(n, n)
+        mu_next, gs[k] = grad_stage(An, Gs, Wk, Rm, ek, fs[k], mu_next, duk)
+    forward = cs.Function(
+        "nmpc_policy",
+        [Gm, KKm, Wm, Rm, em, dum, dx0],
+        [cs.horzcat(*us), cs.horzcat(*xs), cs.horzcat(*gs)],
+        ["G", "KK", "W", "R", "e", "du", "dx0"],
+        ["dU", "dX", "g"],
+    )
+    if codegen:  # each MX function with its stage bodies as one C library
+        return compiled(backward), compiled(forward)
+    return backward, forward

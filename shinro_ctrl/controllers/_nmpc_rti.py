@@ -18,7 +18,8 @@ import time
 import numpy as np
 
 from shinro_ctrl.controllers._nmpc_ipopt import IpoptSolver
-from shinro_ctrl.controllers._nmpc_ocp import NMPCProblem, failed_solution
+from shinro_ctrl.controllers._nmpc_ocp import NMPCProblem, failed_solution, riccati_functions
+from shinro_ctrl.controllers.qp.condensed import DAQP_STATUS
 from shinro_ctrl.controllers.qp.ltv import CondensedLTV, SparseLTV
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import MPCInfeasible
@@ -69,27 +70,90 @@ class RealTimeIteration:
         else:
             self.qp = CondensedLTV(self._G, ocp.W, ocp.R, o.u_min, o.u_max, o.x_min, o.x_max, **soft)
         self._ipopt: IpoptSolver | None = None  # the cold start's, built on first use
+        # large condensed QPs without state bounds, with compiled stage functions: the Riccati step first
+        # (_riccati_step; in CasADi's virtual machine the recursion costs more than the condensing it saves)
+        self.riccati = (
+            ocp.compiled and isinstance(self.qp, CondensedLTV) and not self.qp.direct and self.qp.rows.size == 0
+        )
+        self._built = False
+        if self.riccati:
+            self._init_riccati()
         self.reset()
+
+    def _init_riccati(self) -> None:
+        """Bind the compiled Riccati recursion's buffers (:func:`~._nmpc_ocp.riccati_functions`) once."""
+        ocp = self.ocp
+        n, m, N = ocp.n, ocp.m, ocp.N
+        back, fwd = riccati_functions(n, m, N, codegen=True)
+        # CasADi reads column-major: the C-ordered transposes are the matrices themselves
+        self._Wt = np.ascontiguousarray(np.swapaxes(ocp.W, 1, 2))
+        self._Rt = np.ascontiguousarray(ocp.R.T)
+        self._KK = np.zeros((N * (n + 1), m))  # the blocks [K_k, κ_k], transposed
+        self._dx0 = np.zeros(n)
+        self._dU = np.zeros((N, m))
+        self._dX = np.zeros((N, n))
+        self._g = np.zeros((N, m))
+        self._rbuf, self._back = back.buffer()
+        for i, a in enumerate((self._G, self._Wt, self._Rt, self._e, self._du)):
+            self._rbuf.set_arg(i, memoryview(a))
+        self._rbuf.set_res(0, memoryview(self._KK))
+        self._fbuf, self._fwd = fwd.buffer()
+        for i, a in enumerate((self._G, self._KK, self._Wt, self._Rt, self._e, self._du, self._dx0)):
+            self._fbuf.set_arg(i, memoryview(a))
+        for i, a in enumerate((self._dU, self._dX, self._g)):
+            self._fbuf.set_res(i, memoryview(a))
+        nu = N * m
+        qp = self.qp
+        assert isinstance(qp, CondensedLTV)
+        self._cqp = qp
+        self._lo = qp.bl[:nu].reshape(N, m)  # ΔU bounds (views: set_bounds fills them)
+        self._hi = qp.bu[:nu].reshape(N, m)
 
     def reset(self) -> None:
         """Forget the trajectory: the next solve starts cold (see ``cold_start``)."""
         self._started = False
         self._prepared = False
         self._mu = 0.0
+        if isinstance(self.qp, CondensedLTV):
+            self.qp.clear_active_set()
 
     # ================================================================ phases
     def _condense(self) -> None:
         N, n = self.ocp.N, self.ocp.n
         np.subtract(self.X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
         np.subtract(self.U, self.ocp.u0, out=self._du.reshape(N, self.ocp.m))
+        if self.riccati:  # the condensed QP is built only when a bound is reached (_riccati_step)
+            self._back()
+            self._built = False
+        else:
+            self._build()
+        self.qp.set_bounds(self.U, self.X[1:])
+
+    def _build(self) -> None:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by solve
             self.qp.build(self._e, self._du)
-        self.qp.set_bounds(self.U, self.X[1:])
+        self._built = True
+
+    def _riccati_step(self, dx0: np.ndarray) -> bool:
+        """The unconstrained minimizer of the prepared QP by the Riccati policy; True when it meets the bounds.
+
+        The QP is convex, so a minimizer of its cost that meets every bound is its solution (all
+        multipliers zero): then neither the condensed Hessian nor DAQP's dense factorization is needed.
+        ``ΔU``, ``ΔX`` and the gradient at ``ΔU = 0`` are left in ``_dU``, ``_dX``, ``_g``.
+        """
+        self._dx0[:] = dx0
+        self._fwd()
+        if np.all((self._dU >= self._lo) & (self._dU <= self._hi)):  # False on NaN
+            self._cqp.mark_unconstrained()
+            return True
+        return False
 
     def _shift(self) -> None:
         X, U = self.X, self.U
         X[:-1] = X[1:]
         U[:-1] = U[1:]
+        if isinstance(self.qp, CondensedLTV):
+            self.qp.shift_active_set()
 
     def prepare(self) -> tuple[float, float, float] | None:
         """Shift the previous solution and linearize/condense for the next state.
@@ -152,16 +216,29 @@ class RealTimeIteration:
         qp_it = 0
         while True:
             t0 = time.perf_counter()
-            z, ok, qp_status, qp_it = self.qp.solve(dx0)
-            t_qp += time.perf_counter() - t0
             it += 1
-            if not ok:
-                return self._fail(x, qp_status, t_start)
-            kkt = max(self.qp.kkt(z), float(np.max(np.abs(self.D))), float(np.max(np.abs(dx0))))
+            if self.riccati and self._riccati_step(dx0):
+                dU, dX = self._dU.reshape(-1), self._dX
+                qp_status, qp_it, qp_kkt = DAQP_STATUS[1], 0, float(np.max(np.abs(self._g)))  # H ΔU = -g
+                t_qp += time.perf_counter() - t0
+            else:
+                if not self._built:  # a bound is reached: the condensed QP now
+                    t1 = time.perf_counter()
+                    self._build()
+                    t1 = time.perf_counter() - t1
+                    t_cond += t1
+                    t_qp -= t1
+                z, ok, qp_status, qp_it = self.qp.solve(dx0)
+                t_qp += time.perf_counter() - t0
+                if not ok:
+                    return self._fail(x, qp_status, t_start)
+                qp_kkt = self.qp.kkt(z)
+                dU, dX = self.qp.step(z, dx0)
+            kkt = max(qp_kkt, float(np.max(np.abs(self.D))), float(np.max(np.abs(dx0))))
             if it > 1 and kkt < o.tol:
                 status = "solved"
                 break
-            self._step(x, z, dx0, line_search=it > 1 or cold)
+            self._step(x, dU, dX, line_search=it > 1 or cold)
             if it >= budget:
                 break
             dx0 = np.zeros(ocp.n)
@@ -212,9 +289,8 @@ class RealTimeIteration:
         self._started = True
         return budget, cold, t_qp
 
-    def _step(self, x: np.ndarray, z: np.ndarray, dx0: np.ndarray, *, line_search: bool) -> None:
+    def _step(self, x: np.ndarray, dU: np.ndarray, dX: np.ndarray, *, line_search: bool) -> None:
         N, m = self.ocp.N, self.ocp.m
-        dU, dX = self.qp.step(z, dx0)
         if line_search:
             alpha = self._line_search(dX, dU.reshape(N, m))
         else:

@@ -31,6 +31,13 @@ Each real-time iteration (``iterations=1``) is one Gauss-Newton SQP step:
 * **feedback** (when ``x`` arrives): one matrix-vector product for the
   initial-state step, one DAQP solve, the full step.
 
+Large condensed QPs without state bounds (the arm, the quadrotor) take the
+Riccati step first: prepare runs a compiled backward Riccati recursion
+instead of the condensing, feedback rolls out its policy from ``Δx_0``, and
+when that unconstrained minimizer meets every input bound it is the QP's
+solution; only otherwise are the condensed QP and DAQP built and solved
+(:func:`~._nmpc_ocp.riccati_functions`, ``RealTimeIteration._riccati_step``).
+
 ``iterations > 1`` continues with SQP iterations (an ℓ1-merit Armijo line
 search, ``x_0 = x`` held) until the KKT residual is below ``tol``. The
 Hessian is the Gauss-Newton one, which is the exact Hessian of the cost; the

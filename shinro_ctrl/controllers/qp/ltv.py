@@ -67,6 +67,11 @@ class CondensedLTV:
         soft: Soften the state bounds with one slack per state-bound row (stage and bounded component).
         soft_weight_l1, soft_weight_quad: ``w_1``, ``w_2`` of the slack penalty ``w_1 1ᵀ s + ½ w_2 ‖s‖²``.
         daqp_settings: Keyword settings for ``daqp.solve`` (``primal_tol``, …).
+
+    Attributes:
+        warm_start: DAQP starts from the input bounds active at the last solution (moved one stage on by
+            :meth:`shift_active_set`): on for the recursive (large) problems, where each active-set iteration
+            costs tens of microseconds; off for the small ones (their iterates unchanged, bit for bit).
     """
 
     def __init__(
@@ -151,6 +156,24 @@ class CondensedLTV:
         self._umax = np.tile(np.broadcast_to(u_max, (m,)), N)
         self._umin = np.tile(np.broadcast_to(u_min, (m,)), N)
         self._init_recursions(G)
+        self.warm_start = not self.direct
+        self._active = np.zeros(nu, dtype=np.int32)  # DAQP's sense of each input bound: 1 upper, 3 lower active
+
+    def shift_active_set(self) -> None:
+        """Move the warm-start active set one stage on (the RTI shift); the last stage starts inactive."""
+        m = self.m
+        self._active[:-m] = self._active[m:]
+        self._active[-m:] = 0
+
+    def clear_active_set(self) -> None:
+        """Start the next solve with no active input bound."""
+        self._active[:] = 0
+
+    def mark_unconstrained(self) -> None:
+        """The last solution, found without DAQP, met every bound: no active set, zero multipliers."""
+        self._active[:] = 0
+        self.lam = np.zeros_like(self.lam)
+        self.flag = 1
 
     def _init_recursions(self, G: np.ndarray) -> None:
         """Choose the condensing algorithm (:attr:`direct`) and make its buffers and views once."""
@@ -327,9 +350,17 @@ class CondensedLTV:
                 self.bl[nv:] = self._xlo - off
         if self.soft:  # start with every slack at its bound s = 0 (DAQP's ACTIVE | LOWER): only violated rows leave
             self.sense[self.nu : nv] = 3
+        if self.warm_start:
+            self.sense[: self.nu] = self._active
         z, _, flag, info = daqp.solve(self.H, self.g, self.A, self.bu, self.bl, self.sense, **self.settings)
         self.lam = info["lam"]
         self.flag = int(flag)
+        if self.warm_start:
+            lam_u = self.lam[: self.nu]
+            self._active[:] = 0
+            if flag in (1, 2):
+                self._active[lam_u > 0] = 1  # DAQP's multipliers: > 0 at an upper bound, < 0 at a lower one
+                self._active[lam_u < 0] = 3
         return z, flag in (1, 2), DAQP_STATUS.get(self.flag, f"exit flag {self.flag}"), int(info["iterations"])
 
     def step(self, z: np.ndarray, dx0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
