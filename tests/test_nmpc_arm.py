@@ -213,3 +213,33 @@ def test_the_riccati_step_first_gives_the_closed_loop_of_the_condensed_qp():
     assert all(daqp_ref) and 5 <= sum(daqp_ric) <= 35  # the torque bound binds at first: both paths ran
     assert np.max(np.abs(U_ric)) == 0.5
     np.testing.assert_allclose(U_ric, U_ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("soft", [False, True])
+def test_the_riccati_step_first_with_state_bounds_gives_the_closed_loop_of_the_condensed_qp(soft):
+    """The Riccati step with state bounds: taken only where the predicted states meet them, else condensing + DAQP.
+
+    The speed bound binds while the pendulum swings back (unbounded, it reaches -2.398 rad/s), so both paths
+    run; the closed loop equals condensing + DAQP throughout to 1e-12.
+    """
+    kw = dict(horizon=52, u_min=-0.5, u_max=0.5, cold_start="sqp", soft=soft)
+    kw |= dict(x_min=[-np.inf, -2.40])
+    runs = []
+    for codegen in (True, False):
+        plant = InvertedPendulum(dt=0.02)
+        c = NonlinearMPC.from_plant(plant, [10.0, 0.1], [1.0], codegen=codegen, **kw)
+        assert c.strategy.riccati == codegen
+        plant.set_state(np.array([0.8, 0.0]))
+        x = plant.get_state()
+        U, X, daqp_calls = [], [], []
+        for _ in range(40):
+            u = c(x)
+            U.append(u)
+            daqp_calls.append(c.last.qp_iterations > 0)
+            x = plant.step(u)
+            X.append(x)
+        runs.append((np.array(U), np.array(X), daqp_calls))
+    (U_ric, X_ric, daqp_ric), (U_ref, _, daqp_ref) = runs
+    assert all(daqp_ref) and 5 <= sum(daqp_ric) <= 35
+    assert -2.40 - 1e-9 <= X_ric[:, 1].min() < -2.39  # the speed bound was reached and held
+    np.testing.assert_allclose(U_ric, U_ref, rtol=0, atol=1e-12)

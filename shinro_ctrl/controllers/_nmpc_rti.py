@@ -70,11 +70,9 @@ class RealTimeIteration:
         else:
             self.qp = CondensedLTV(self._G, ocp.W, ocp.R, o.u_min, o.u_max, o.x_min, o.x_max, **soft)
         self._ipopt: IpoptSolver | None = None  # the cold start's, built on first use
-        # large condensed QPs without state bounds, with compiled stage functions: the Riccati step first
-        # (_riccati_step; in CasADi's virtual machine the recursion costs more than the condensing it saves)
-        self.riccati = (
-            ocp.compiled and isinstance(self.qp, CondensedLTV) and not self.qp.direct and self.qp.rows.size == 0
-        )
+        # large condensed QPs with compiled stage functions: the Riccati step first (_riccati_step; in CasADi's
+        # virtual machine the recursion costs more than the condensing it saves)
+        self.riccati = ocp.compiled and isinstance(self.qp, CondensedLTV) and not self.qp.direct
         self._built = False
         if self.riccati:
             self._init_riccati()
@@ -108,6 +106,13 @@ class RealTimeIteration:
         self._cqp = qp
         self._lo = qp.bl[:nu].reshape(N, m)  # ΔU bounds (views: set_bounds fills them)
         self._hi = qp.bu[:nu].reshape(N, m)
+        # bounded state components: the predicted X̄₁…X̄_N + ΔX must lie within them too
+        self._xcols = qp.bounded
+        o = ocp.options
+        xmin, xmax = np.broadcast_to(o.x_min, (n,)), np.broadcast_to(o.x_max, (n,))
+        self._xlo = np.asarray(xmin, dtype=float)[self._xcols]
+        self._xhi = np.asarray(xmax, dtype=float)[self._xcols]
+        self._xpred = np.zeros((N, self._xcols.size))
 
     def reset(self) -> None:
         """Forget the trajectory: the next solve starts cold (see ``cold_start``)."""
@@ -138,15 +143,22 @@ class RealTimeIteration:
         """The unconstrained minimizer of the prepared QP by the Riccati policy; True when it meets the bounds.
 
         The QP is convex, so a minimizer of its cost that meets every bound is its solution (all
-        multipliers zero): then neither the condensed Hessian nor DAQP's dense factorization is needed.
-        ``ΔU``, ``ΔX`` and the gradient at ``ΔU = 0`` are left in ``_dU``, ``_dX``, ``_g``.
+        multipliers zero; soft state bounds: every slack at zero): then neither the condensed Hessian nor
+        DAQP's dense factorization is needed. The bounds are the inputs' and the predicted states'
+        ``X̄₁…X̄_N + ΔX`` on the bounded components. ``ΔU``, ``ΔX`` and the gradient at ``ΔU = 0`` are left in
+        ``_dU``, ``_dX``, ``_g``.
         """
         self._dx0[:] = dx0
         self._fwd()
-        if np.all((self._dU >= self._lo) & (self._dU <= self._hi)):  # False on NaN
-            self._cqp.mark_unconstrained()
-            return True
-        return False
+        if not np.all((self._dU >= self._lo) & (self._dU <= self._hi)):  # False on NaN
+            return False
+        if self._xcols.size:
+            xp = self._xpred
+            np.add(self.X[1:, self._xcols], self._dX[:, self._xcols], out=xp)
+            if not np.all((xp >= self._xlo) & (xp <= self._xhi)):
+                return False
+        self._cqp.mark_unconstrained()
+        return True
 
     def _shift(self) -> None:
         X, U = self.X, self.U
@@ -225,6 +237,8 @@ class RealTimeIteration:
                 if not self._built:  # a bound is reached: the condensed QP now
                     t1 = time.perf_counter()
                     self._build()
+                    if self.qp.rows.size:  # the state rows' offsets come from the condensed matrices just built
+                        self.qp.set_bounds(self.U, self.X[1:])
                     t1 = time.perf_counter() - t1
                     t_cond += t1
                     t_qp -= t1
