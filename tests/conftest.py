@@ -1,11 +1,23 @@
-"""Shared fixtures: plant factories and a seeded random generator."""
+"""Shared fixtures: plant factories and a seeded random generator.
+
+BLAS runs on one thread in the test process and everything it starts (set before NumPy is imported, so the
+xdist workers and the CLI subprocesses inherit it). With ``pytest -n auto`` every core already runs a worker;
+OpenBLAS's own threads on top of that oversubscribe the cores and spin while they wait for each other: a
+condensed-MPC check took 14 s instead of 2.5 s on two busy cores. The matrices here are small, so one thread
+is also the faster choice serially. An explicit setting in the environment wins.
+"""
 
 from __future__ import annotations
 
-import numpy as np
-import pytest
+import os
 
-from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402  (after the thread settings above)
+import pytest  # noqa: E402
+
+from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum  # noqa: E402
 
 PENDULUM_FAMILY = [InvertedPendulum, CartPole, DoublePendulum]
 
