@@ -25,8 +25,11 @@ $(STAMP_DEV): pyproject.toml
 demo: $(STAMP_RUN)
 	$(BIN)/shinro-ctrl run
 
+# Bytecode is written even where the environment sets PYTHONDONTWRITEBYTECODE: every pytest process (the xdist
+# workers, the examples' pytest) otherwise re-parses and assertion-rewrites ~260 modules (this package and the
+# pytest plugins: about 6 s of CPU each), and every CLI subprocess recompiles the package (__pycache__ is ignored).
 test: $(STAMP_DEV) sysdeps
-	$(BIN)/python -m pytest -n auto -q
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -n auto -q
 
 # Debian packages the tests need: offscreen OpenGL for the MuJoCo video tests (MUJOCO_GL=osmesa) and headless
 # Chromium for the design-report test. Installed quietly when missing (as root, or through sudo); nothing to do

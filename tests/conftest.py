@@ -1,4 +1,13 @@
-"""Shared fixtures: plant factories and a seeded random generator; one compiled-code cache per test session."""
+"""Shared fixtures: plant factories and a seeded random generator; one compiled-code cache per test session.
+
+BLAS runs on one thread in the test process and everything it starts (set before NumPy is imported, so the
+xdist workers and the CLI subprocesses inherit it). With ``pytest -n auto`` every core already runs a worker;
+OpenBLAS's own threads on top of that oversubscribe the cores and spin while they wait for each other: a
+condensed-MPC check took 14 s instead of 2.5 s on two busy cores. The matrices here are small, so one thread
+is also the faster choice serially. An explicit setting in the environment wins. NumPy is already loaded when
+this file runs (the ``shinro_ctrl.testing`` pytest plugin imports it), so this process's OpenBLAS is also told
+directly (:func:`_one_blas_thread`).
+"""
 
 from __future__ import annotations
 
@@ -6,10 +15,39 @@ import os
 import shutil
 import tempfile
 
-import numpy as np
-import pytest
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum
+import ctypes  # noqa: E402
+
+import numpy as np  # noqa: E402  (after the thread settings above)
+import pytest  # noqa: E402
+
+from shinro_ctrl.plants import CartPole, DoublePendulum, InvertedPendulum  # noqa: E402
+
+
+def _one_blas_thread() -> None:
+    """Set the OpenBLAS libraries already loaded in this process to one thread (Linux; elsewhere nothing)."""
+    if os.environ.get("OPENBLAS_NUM_THREADS") != "1":
+        return
+    try:
+        with open("/proc/self/maps") as maps:
+            libs = {line.split()[-1] for line in maps if "openblas" in line.lower() and ".so" in line}
+    except OSError:
+        return
+    for path in libs:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in ("openblas_set_num_threads", "scipy_openblas_set_num_threads64_", "openblas_set_num_threads64_"):
+            setter = getattr(lib, name, None)
+            if setter is not None:
+                setter(1)
+                break
+
+
+_one_blas_thread()
 
 PENDULUM_FAMILY = [InvertedPendulum, CartPole, DoublePendulum]
 

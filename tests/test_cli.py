@@ -1,4 +1,9 @@
-"""The shinro-ctrl command, run as a user runs it (subprocess)."""
+"""The shinro-ctrl command, run as a user runs it.
+
+Most tests run the command in this process (``cli_runner.cli``: same status, stdout and stderr, without a second
+of interpreter start-up each); the ones about the process itself (the ``python -m`` entry point's exit status, a
+closed pipe, a child's environment for the video) start a real subprocess.
+"""
 
 from __future__ import annotations
 
@@ -8,9 +13,10 @@ import sys
 import pytest
 
 from shinro_ctrl.cli import main
+from tests.cli_runner import cli as run_cli
 
 
-def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+def cli_subprocess(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "shinro_ctrl.cli", *args], capture_output=True, text=True, timeout=timeout
     )
@@ -48,6 +54,21 @@ def test_user_errors_are_one_line_exit_2(args, needle):
     assert "Traceback" not in res.stderr
 
 
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["linearize", "cartpol"], "did you mean 'cartpole'"),  # our error, through the entry point's exit status
+        (["nonsense"], "invalid choice"),  # argparse's
+    ],
+)
+def test_user_errors_exit_the_process_with_2_and_one_line(args, needle):
+    res = cli_subprocess(*args)
+    assert res.returncode == 2
+    assert needle in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in res.stderr
+
+
 @pytest.mark.parametrize("plant", ["cartpole", "double_pendulum"])
 def test_crosscheck_prints_three_linearizations(plant):
     res = run_cli("crosscheck", plant)
@@ -71,9 +92,7 @@ def test_run_with_engine_override(tmp_path):
 
 
 def test_run_without_config_runs_the_embedded_demo(tmp_path):
-    res = subprocess.run(
-        [sys.executable, "-m", "shinro_ctrl.cli", "run"], capture_output=True, text=True, timeout=120, cwd=tmp_path
-    )
+    res = run_cli("run", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
     assert "cartpole_lqr (standalone)" in res.stdout and "rms_error" in res.stdout
     plot = res.stdout.split("plot: ")[1].strip()
@@ -110,13 +129,7 @@ def test_default_scenario_ignores_a_same_named_file_in_cwd(tmp_path):
     (tmp_path / "cartpole_lqr.toml").write_text(
         '[plant]\ntype = "InvertedPendulum"\n[controller]\ntype = "LQR"\nQ=[1,1]\nR=[1]\n'
     )
-    res = subprocess.run(
-        [sys.executable, "-m", "shinro_ctrl.cli", "run", "--duration", "0.2", "--plot", "p.png"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        cwd=tmp_path,
-    )
+    res = run_cli("run", "--duration", "0.2", "--plot", "p.png", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
     assert "CartPole + LQR" in res.stdout
 

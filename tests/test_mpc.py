@@ -745,20 +745,14 @@ def test_non_finite_osqp_settings_are_refused_in_one_line(cartpole, key, value):
 
 
 def test_non_finite_osqp_setting_in_a_scenario_file_exits_2_with_one_line(tmp_path):
-    import subprocess
-    import sys
+    from tests.cli_runner import cli
 
     scenario = tmp_path / "mpc_nan.toml"
     scenario.write_text(
         '[plant]\ntype = "CartPole"\ndt = 0.02\n\n[controller]\ntype = "LinearMPC"\nhorizon = 20\nQ = [10, 1, 100, 1]\n'
         "R = [0.1]\nosqp_settings = { eps_abs = nan }\n\n[sim]\nduration = 0.1\n"
     )
-    res = subprocess.run(
-        [sys.executable, "-m", "shinro_ctrl.cli", "design", "mpc", str(scenario)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    res = cli("design", "mpc", str(scenario))
     assert res.returncode == 2, res.stderr
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "'eps_abs' must be a finite number, got nan" in lines[0], res.stderr
@@ -767,20 +761,14 @@ def test_non_finite_osqp_setting_in_a_scenario_file_exits_2_with_one_line(tmp_pa
 @pytest.mark.parametrize("solver", ["auto", "osqp"])
 def test_design_mpc_prints_the_backend_in_use(tmp_path, solver):
     """``design mpc`` prints the sizes and settings of the backend that solves, not OSQP's while DAQP solves."""
-    import subprocess
-    import sys
+    from tests.cli_runner import cli
 
     scenario = tmp_path / "mpc.toml"
     scenario.write_text(
         '[plant]\ntype = "CartPole"\ndt = 0.02\n\n[controller]\ntype = "LinearMPC"\nhorizon = 20\nQ = [10, 1, 100, 1]\n'
         f'R = [0.1]\nu_min = [-3.0]\nu_max = [3.0]\nsolver = "{solver}"\n\n[sim]\nduration = 0.2\n'
     )
-    res = subprocess.run(
-        [sys.executable, "-m", "shinro_ctrl.cli", "design", "mpc", str(scenario)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    res = cli("design", "mpc", str(scenario))
     assert res.returncode == 0, res.stderr
     if solver == "auto":  # N·m = 20: DAQP
         assert "backend: daqp" in res.stdout and "condensed QP (DAQP): 20 variables" in res.stdout

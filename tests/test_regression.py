@@ -13,10 +13,7 @@ import pytest
 from shinro_ctrl.regression import compare_metrics, read_baseline, run_regression
 from shinro_ctrl.resources import regression_dir
 from shinro_ctrl.testing import assert_matches_baseline
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shinro_ctrl.cli", *args], capture_output=True, text=True, timeout=600)
+from tests.cli_runner import cli as run_cli  # the command in process: same status and output, no start-up
 
 
 def test_shipped_baselines_pass():

@@ -4,6 +4,7 @@ not depend on the working directory, and the import layering holds."""
 from __future__ import annotations
 
 import ast
+import functools
 import re
 import subprocess
 import sys
@@ -209,7 +210,7 @@ def test_no_package_hides_its_names_behind_a_module_getattr():
     bad = [
         path.relative_to(PACKAGE).as_posix()
         for path in PACKAGE.rglob("__init__.py")
-        for node in ast.parse(path.read_text()).body
+        for node in _tree(path).body
         if isinstance(node, ast.FunctionDef) and node.name in ("__getattr__", "__dir__")
     ]
     assert not bad, bad
@@ -250,13 +251,19 @@ def test_arm6_ignores_an_arm6_toml_in_the_working_directory(tmp_path, monkeypatc
 
 
 # ----------------------------------------------------------- layering
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """The parsed source of ``path``, parsed once per test process (the rules below each read every module)."""
+    return ast.parse(path.read_text(), str(path))
+
+
 def _imports(path: Path) -> set[str]:
     """Absolute names of every module ``path`` imports (relative imports resolved)."""
     rel = path.relative_to(PACKAGE.parent).with_suffix("")
     parts = list(rel.parts)
     package = parts[:-1]  # the package of a module, and of an __init__ its own
     out: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.Import):
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -290,7 +297,7 @@ def _from_exception(path: Path, allowed: list[str]) -> bool:
     def ok(name: str) -> bool:
         return any(_under(name, m) for m in allowed)
 
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.ImportFrom) and _under(node.module or "", "shinro_ctrl.engine"):
             if not ok(node.module):
                 return False
@@ -347,7 +354,7 @@ def test_resources_imports_nothing_else_from_the_package():
 def test_no_private_name_in_any_all():
     bad = []
     for path in _modules(""):
-        for node in ast.parse(path.read_text(), str(path)).body:
+        for node in _tree(path).body:
             targets = (
                 node.targets
                 if isinstance(node, ast.Assign)
@@ -395,7 +402,7 @@ def _self_attributes(cls: ast.ClassDef) -> tuple[set[str], dict[str, int]]:
 def _package_classes() -> dict[str, list[tuple[str, ast.ClassDef]]]:
     out: dict[str, list[tuple[str, ast.ClassDef]]] = {}
     for path in _modules(""):
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        for node in ast.walk(_tree(path)):
             if isinstance(node, ast.ClassDef):
                 out.setdefault(node.name, []).append((path.relative_to(PACKAGE).as_posix(), node))
     return out
@@ -467,7 +474,7 @@ SOLVER_WRAPPERS = {"OsqpQP"}
 
 
 def _solver_uses(path: Path) -> set[str]:
-    tree = ast.parse(path.read_text(), str(path))
+    tree = _tree(path)
     alias: dict[str, str] = {}
     uses: set[str] = set()
     for node in ast.walk(tree):
@@ -518,7 +525,7 @@ def test_no_module_reads_a_private_attribute_of_another_object():
     bad = []
     for path in _modules(""):
         rel = path.relative_to(PACKAGE).as_posix()
-        tree = ast.parse(path.read_text())
+        tree = _tree(path)
         own = {"self", "cls"}  # and objects a classmethod makes with cls.__new__(cls)
         for node in ast.walk(tree):
             if (

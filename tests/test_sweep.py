@@ -6,8 +6,6 @@ import csv
 import ctypes
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -25,6 +23,7 @@ from shinro_ctrl.sweep import (
     run_sweep,
 )
 from shinro_ctrl.sweep.batch import batch_unsupported_reason, lqr_batch_rollout
+from tests.cli_runner import cli
 
 CARTPOLE = "cartpole_lqr"
 # Around the nominal (cart 0.5 kg, pole 0.1 kg at 0.5 m): heavy carts and long poles defeat the fixed LQR
@@ -297,8 +296,7 @@ def test_progress_callback_reaches_the_total():
 
 
 # ------------------------------------------------------------------- CLI
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "shinro_ctrl.cli", *args], capture_output=True, text=True, timeout=120)
+_cli = cli  # the command in process (tests.cli_runner): same status and output, no interpreter start-up each
 
 
 def test_cli_writes_table_json_and_plot(tmp_path):
