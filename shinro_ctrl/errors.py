@@ -12,6 +12,7 @@ from __future__ import annotations
 __all__ = [
     "ConcurrentUse",
     "ConfigError",
+    "IdentificationError",
     "InvalidArgument",
     "MPCInfeasible",
     "NonFiniteError",
@@ -64,3 +65,7 @@ class ConcurrentUse(ShinroError, RuntimeError):
 
 class PlanningFailed(ShinroError, RuntimeError):
     """A trajectory optimization did not converge; the message names the solver status and the worst constraint."""
+
+
+class IdentificationError(ShinroError, ValueError):
+    """Data that cannot identify the parameters asked for (too little excitation); the message names them."""

@@ -21,7 +21,7 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from shinro_ctrl.cli import design, models, run, sets
+from shinro_ctrl.cli import design, identify, models, run, sets
 from shinro_ctrl.cli.common import (
     _NUMERIC_ERRORS,
     _USER_ERRORS,
@@ -51,6 +51,7 @@ COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     run.register,  # run, plan
     design.register,  # design
     sets.register,  # regress, sweep
+    identify.register,  # identify
 ]
 
 
