@@ -80,7 +80,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     print(result.summary())
     reports = [compare(plant, result, e) for e in held_out]
     for r in reports:
-        print(r.line() + " (held out)")
+        print(r.line())
     if args.plot:
         from shinro_ctrl.identification.fit import FitReport
 

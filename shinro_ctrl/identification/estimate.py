@@ -21,8 +21,9 @@ the whole experiment when it has none.
 
 **Prediction error** (``mode="prediction"``, every state measured): the one-step errors
 ``y_{k+1} − F(y_k, u_k, p(θ))`` are minimized over ``θ`` alone: fast, but the noise in the measured
-state biases it slightly (errors in variables); its covariance accounts for the one-step errors'
-lag-one correlation.
+states it predicts from biases the estimate (errors in variables), and its intervals (white one-step
+errors) do not include that bias: the result says so. Use it on low-noise full-state data or for a
+first guess; the simulation error is the calibrated one (benchmarks/identification.py).
 
 After the fit, :mod:`~shinro_ctrl.identification.uncertainty` gives the covariance from the residual
 Jacobian (the shooting states eliminated through the constraints' Jacobian). A combination of
@@ -61,6 +62,8 @@ DISCRETIZATIONS = ("plant", "rk4")
 #: Parameter-name fragments that mark a quantity that must be positive / nonnegative (default bounds).
 POSITIVE = ("mass", "length", "inertia", "radius")
 NONNEGATIVE = ("damping", "friction", "armature")
+#: Weight of the pull to the prior in the cost, per relative unit squared (see :func:`_solve`).
+PRIOR_WEIGHT = 1e-6
 #: Correlation above which two estimates are reported as hard to tell apart.
 CORRELATION_WARN = 0.95
 
@@ -106,8 +109,6 @@ class _Problem:
     dep_states: np.ndarray  # indices in v of the states fixed by the constraints
     k: int
     state_slices: list[slice]  # each experiment's states in v (n * N, column-major)
-    run: np.ndarray  # experiment and output of each residual (a run of consecutive samples)
-    correlated: bool  # one-step errors: neighbours correlated
 
 
 def identify(
@@ -218,13 +219,19 @@ def identify(
         f"{m} (determined only to ±{100 * r:.0f} %): held at the prior" for m, r in zip(messages, rel_std, strict=True)
     ]
     corr = unc.correlation
+    involved = {i for i in range(len(names)) for j in range(weak.shape[1]) if abs(weak[i, j]) > 0.25}  # named
     for a in range(len(names)):
         for b in range(a + 1, len(names)):
-            if abs(corr[a, b]) > CORRELATION_WARN and names[a] not in held and names[b] not in held:
+            if abs(corr[a, b]) > CORRELATION_WARN and not (a in involved and b in involved):
                 warnings.append(
                     f"{names[a]} and {names[b]} are strongly correlated (ρ = {corr[a, b]:+.3f}): the data "
                     "determines mostly a combination of them"
                 )
+    if mode == "prediction":
+        warnings.append(
+            "prediction error: noise in the measured states biases the estimates (errors in variables) and the "
+            "intervals do not include that bias; confirm with mode='simulation'"
+        )
     if not stats.get("success", False):
         warnings.append(f"IPOPT did not converge ({stats.get('return_status', '?')}): the estimates are not optimal")
     yhat = _predictions(prob, sol, exps, F, theta, idx, plant, mode)
@@ -443,8 +450,6 @@ def _build(
         dep_states=np.concatenate(dep) if dep else np.zeros(0, int),
         k=k,
         state_slices=slices,
-        run=np.concatenate([c + 1000 * i for i, c in enumerate(ch_rows)]),
-        correlated=mode == "prediction",
     )
 
 
@@ -468,12 +473,16 @@ def _solve(
     if pinned.shape[1]:
         g = cs.vertcat(g, cs.mtimes(cs.DM(pinned.T), prob.v[: prob.k] - cs.DM(z0)))
         lbg.append(np.zeros(pinned.shape[1]))
-    nlp = {"x": prob.v, "f": 0.5 * cs.dot(r, r), "g": g}
+    # a vanishing pull to the prior (PRIOR_WEIGHT per relative unit²) makes the minimum unique along directions
+    # the data cannot see; against an identifiable direction's information (>> 1) it moves nothing
+    dz = prob.v[: prob.k] - cs.DM(z0)
+    nlp = {"x": prob.v, "f": 0.5 * cs.dot(r, r) + 0.5 * PRIOR_WEIGHT * cs.dot(dz, dz), "g": g}
     # Gauss-Newton: the Hessian of the Lagrangian is JᵣᵀJᵣ (the shooting constraints' curvature dropped; the
     # reduced Hessian stays the Gauss-Newton one of the eliminated problem), constant in simulation mode
     Jr = cs.jacobian(r, prob.v)
     lam_f, lam_g, p = cs.MX.sym("lam_f"), cs.MX.sym("lam_g", g.shape[0]), cs.MX.sym("p", 0)
-    hess = cs.Function("nlp_hess_l", [prob.v, p, lam_f, lam_g], [cs.triu(lam_f * cs.mtimes(Jr.T, Jr))])
+    reg = cs.DM(sp.diags(np.r_[np.full(prob.k, PRIOR_WEIGHT), np.zeros(prob.v.shape[0] - prob.k)]))
+    hess = cs.Function("nlp_hess_l", [prob.v, p, lam_f, lam_g], [cs.triu(lam_f * (cs.mtimes(Jr.T, Jr) + reg))])
     opts = {
         "hess_lag": hess,
         "print_time": False,
@@ -522,8 +531,7 @@ def _uncertainty(
     else:
         J = Je[:, w_cols].toarray()
     J[:, :k] = J[:, :k] / scale  # per physical parameter
-    run = prob.run if prob.correlated else None
-    unc = parameter_uncertainty(J, e, prob.weight, prob.channel, channels, k, scale, basis, run)
+    unc = parameter_uncertainty(J, e, prob.weight, prob.channel, channels, k, scale, basis)
     return unc, e
 
 

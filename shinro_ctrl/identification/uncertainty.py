@@ -80,7 +80,6 @@ def parameter_uncertainty(
     k: int,
     scale: np.ndarray,
     basis: np.ndarray | None = None,
-    run: np.ndarray | None = None,
 ) -> Uncertainty:
     """Covariance of ``k`` parameters from the residual Jacobian at the estimate.
 
@@ -94,9 +93,6 @@ def parameter_uncertainty(
         scale: Parameter scales ``(k,)`` (relative units for the identifiability report).
         basis: ``(k, r)`` orthonormal basis, in relative units, of the parameter directions left free
             (the others held at their prior); default all.
-        run: For residuals correlated with their neighbour (one-step prediction errors): a run label per
-            row ``(R,)``; consecutive rows of one run get their lag-one correlation, estimated per output,
-            in the sandwich's middle matrix. None: independent residuals.
 
     Returns:
         The :class:`Uncertainty`; a held direction has zero variance.
@@ -114,17 +110,6 @@ def parameter_uncertainty(
     Js = Jr / cn
     A = Js.T @ (Js * (weight**2)[:, None])
     B = Js.T @ (Js * (weight**4 * sig2)[:, None])
-    if run is not None:
-        pair = run[:-1] == run[1:]
-        rho = np.zeros(channels)
-        for j in range(channels):
-            m = pair & (channel[:-1] == j)
-            den = float(e[:-1][m] @ e[:-1][m])
-            rho[j] = float(e[:-1][m] @ e[1:][m]) / den if den > 0 else 0.0
-        Aw = Js * (weight**2)[:, None]
-        c = (rho * var)[channel[:-1]][pair]
-        C = Aw[:-1][pair].T @ (Aw[1:][pair] * c[:, None])
-        B = B + C + C.T
     Ainv = np.linalg.pinv(A, rcond=1e-13, hermitian=True)
     cov_s = (Ainv @ B @ Ainv) / np.outer(cn, cn)
     r = basis.shape[1]
