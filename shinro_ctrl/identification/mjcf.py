@@ -16,15 +16,21 @@ measured) and inputs, through the inverse-dynamics regressor ``Y(q, q̇, q̈) π
    linear equation see one filter). ``edge`` samples at each end (default ``M + 1``: the filter's
    transients) are dropped.
 2. **Weighted least squares** over every sample and joint: rows weighted by ``1/σ_j``, ``σ_j`` the
-   residual standard deviation of joint ``j`` after a first unweighted fit. The columns are scaled to unit
-   norm and the SVD of the scaled regressor splits π into the directions the data determines and those it
-   does not (singular value below ``rcond`` times the largest, e.g. the mass of a body on a single hinge,
-   which enters only as ``m c``); the latter are **held at the prior** (the model file's values) and named.
+   residual standard deviation of joint ``j`` after a first fit with unit weights. In relative coordinates
+   ``z = (π − π_prior) ⊘ s`` (``s`` the parameters' own scales: a body's prior mass ``m``, ``m L`` for
+   its first moments and ``m L²`` for its inertias, ``L`` the larger of its COM distance and 5 cm; a
+   joint parameter's prior, at least 1e-3) the eigen-decomposition of the information ``s Yᵀ W² Y s``
+   splits π into the directions the data determines and those it does not: a direction of eigenvalue
+   ``λ`` is determined when its relative standard error ``1/√λ`` is below ``max_rel_std`` — not, e.g.,
+   the mass of a body on a single hinge, which enters only as ``m c``. The others are **held at the
+   prior** (the model file's values) and named.
 3. **Physical consistency.** If the least-squares estimate has every body's pseudo-inertia
-   ``J(π) ≻ 0`` and every joint parameter ``≥ 0`` it is the constrained optimum. Otherwise IPOPT
-   minimizes the same quadratic cost over the log-Cholesky coordinates (every iterate consistent) and the
-   joint parameters (bounded below by 0), with the undetermined directions held at the prior as equality
-   constraints.
+   ``J(π) ≻ 0`` and every joint parameter ``> 0`` it is the constrained optimum. Otherwise the same
+   quadratic cost over the determined directions (the held ones stay at the prior) is minimized with a
+   log-det barrier ``−μ Σ log det J_b(π)`` (and ``−μ Σ log π_j``) by damped Newton steps from the
+   (consistent) prior, ``μ`` driven to ``10⁻¹²`` of the cost's curvature: a convex problem without an
+   SDP solver, every iterate consistent (:func:`_barrier`). The log-Cholesky coordinates of
+   :mod:`~shinro_ctrl.identification.regressor` give the same set; the barrier works on π directly.
 4. **Uncertainty.** The residuals of filtered data are correlated in time, so the covariance of π is the
    sandwich (batch-means) estimate: the estimator's per-sample scores summed over blocks of ``block``
    samples (several correlation lengths ``fs/cutoff``), then ``Cov = Σ_blocks S Sᵀ``. The reported
@@ -42,7 +48,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import casadi as cs
 import numpy as np
 
 from shinro_ctrl.errors import IdentificationError, InvalidArgument, UnknownName
@@ -52,9 +57,7 @@ from shinro_ctrl.identification.regressor import (
     ParamError,
     parse_param_names,
     physical_from_pi,
-    pi_from_theta,
     pseudo_inertia,
-    theta_from_pi,
 )
 from shinro_ctrl.identification.result import IdentificationResult
 
@@ -75,7 +78,8 @@ class ModelFileIdentification:
         bodies: Body name → ``{"mass", "ipos" (3,), "fullinertia" (6,)}`` (inertia about the COM: xx, yy,
             zz, xy, xz, yz) of the estimate.
         joints: Joint name → ``{"damping": …, …}`` of the estimate.
-        constrained: Whether IPOPT enforced physical consistency (the least-squares estimate was not).
+        rank: The number of directions of π the data determined (the rest held at the prior).
+        constrained: Whether the barrier enforced physical consistency (the least-squares estimate was not).
         model_path: The model file identified.
     """
 
@@ -88,6 +92,7 @@ class ModelFileIdentification:
     joints: dict[str, dict[str, float]] = field(default_factory=dict)
     constrained: bool = False
     model_path: str = ""
+    rank: int = 0
 
     def consistent(self) -> bool:
         """Every identified body's pseudo-inertia positive definite and every joint parameter ``>= 0``."""
@@ -177,7 +182,7 @@ def identify_model_file(
     *,
     cutoff: float | None = None,
     edge: int | None = None,
-    rcond: float = 1e-6,
+    max_rel_std: float = 0.5,
     block: int | None = None,
     min_speed: float = 0.02,
 ) -> ModelFileIdentification:
@@ -189,7 +194,8 @@ def identify_model_file(
         params: ``body:NAME`` and ``joint:NAME.damping|armature|frictionloss`` names.
         cutoff: The zero-phase low-pass cutoff [Hz] (default a tenth of the Nyquist frequency).
         edge: Samples dropped at each end (default the filter's half length ``M + 1``).
-        rcond: Relative singular value under which a direction of π is held at the prior.
+        max_rel_std: A direction of π whose standard error exceeds this fraction of the parameters' scales is
+            held at the prior.
         block: Samples per block of the covariance's batch means (default ``10 fs / cutoff``).
         min_speed: A joint's friction-loss rows are used only where ``|q̇| > min_speed`` (the sign is known).
 
@@ -207,49 +213,46 @@ def identify_model_file(
     except ParamError as exc:
         raise UnknownName(str(exc)) from None
     Y, y, speed, fc = regressor_data(plant, experiments, reg, cutoff=cutoff, edge=edge)
-    S, nq, k = Y.shape
+    S, nq, _ = Y.shape
     exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
     fs = 1.0 / exps[0].dt
     # friction-loss rows only where the sign of q̇ is known
     mask = np.ones((S, nq), dtype=bool)
-    off = 10 * len(spec.bodies)
     for j, attr in spec.joints:
         if attr == "frictionloss":
             mask[:, j] &= speed[:, j] > min_speed
     prior = reg.pi_prior
+    scale = _scales(prior, len(spec.bodies))
 
-    def solve_ls(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Minimum-deviation-from-prior WLS over the determined directions: π, the column scales D, the
-        determined and undetermined directions V1, V0 of z = D (π − π_prior), and P = V1 Σ⁻² V1ᵀ (z = P Aᵀr)."""
+    def solve_ls(w: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Minimum-deviation-from-prior WLS over the determined directions, in z = (π − π_prior)/s: π, 1/s, the
+        determined and undetermined directions V1, V0, P = V1 Λ⁻¹ V1ᵀ (z = P Aᵀr/s), Λ and x = V1ᵀ z."""
         A = Y * (w * mask)[:, :, None]
         r0 = (y - np.einsum("sjk,k->sj", Y, prior)) * w * mask
         H = np.einsum("sjk,sjl->kl", A, A)
-        D = np.sqrt(np.diag(H))
-        D = np.where(D > 0, D, 1.0)
+        D = 1.0 / scale
         lam, V = np.linalg.eigh(H / np.outer(D, D))
         lam, V = lam[::-1], V[:, ::-1]
-        keep = lam > (rcond**2) * lam[0] if lam[0] > 0 else np.zeros(lam.shape, bool)
-        Pz = (V[:, keep] / lam[keep]) @ V[:, keep].T
-        z = Pz @ (np.einsum("sjk,sj->k", A, r0) / D)
-        return prior + z / D, D, V[:, keep], V[:, ~keep], Pz
+        lam_floor = max(float(lam[0]), 1e-300) * 1e-14
+        keep = (lam > lam_floor) & (1.0 / np.sqrt(np.maximum(lam, lam_floor)) < max_rel_std)
+        V1, lam1 = V[:, keep], lam[keep]
+        x = (V1.T @ (np.einsum("sjk,sj->k", A, r0) / D)) / lam1
+        return prior + (V1 @ x) / D, D, V1, V[:, ~keep], (V1 / lam1) @ V1.T, lam1, x
 
-    pi, D, V1, V0, Pz = solve_ls(np.ones((S, nq)))
+    pi, D, V1, V0, Pz, lam1, x = solve_ls(np.ones((S, nq)))
     resid = (y - np.einsum("sjk,k->sj", Y, pi)) * mask
     sigma = np.sqrt((resid**2).sum(0) / np.maximum(mask.sum(0) - V1.shape[1] / nq, 1.0))
     sigma = np.where(sigma > 0, sigma, 1.0)
     w = np.broadcast_to(1.0 / sigma, (S, nq))
-    pi, D, V1, V0, Pz = solve_ls(w)
+    pi, D, V1, V0, Pz, lam1, x = solve_ls(w)
     if V1.shape[1] == 0:
         raise IdentificationError(
             "the data determine none of the parameters: excite the joints (e.g. [sim] excitation)"
         )
     nb = len(spec.bodies)
-    consistent = all(np.linalg.eigvalsh(pseudo_inertia(pi[10 * b : 10 * b + 10])).min() > 0 for b in range(nb))
-    consistent = consistent and bool(np.all(pi[off:] >= 0))
-    constrained = False
-    if not consistent:
-        pi = _constrained(Y, y, w * mask, prior, D, V0, nb, k)
-        constrained = True
+    constrained = not _consistent(pi, nb)
+    if constrained:
+        pi = _barrier(prior, scale, V1, lam1, x, nb)
     resid = (y - np.einsum("sjk,k->sj", Y, pi)) * w * mask
     # sandwich covariance with batch means: z = Pz Σ_s a_s, a_s = Σ_j (A_sj / D) e_sj the sample's score
     L = int(block) if block is not None else max(1, int(np.ceil(10.0 * fs / fc)))
@@ -259,45 +262,94 @@ def identify_model_file(
     dof = S * nq / max(S * nq - V1.shape[1], 1)
     Vz = Pz @ (sums.T @ sums) @ Pz * dof
     cov = (Vz / D[:, None]) / D[None, :]
-    return _result(plant, reg, spec, pi, cov, D, V0, sigma, constrained, time.perf_counter() - t_start)
-
-
-def _constrained(
-    Y: np.ndarray, y: np.ndarray, wm: np.ndarray, prior: np.ndarray, D: np.ndarray, V0: np.ndarray, nb: int, k: int
-) -> np.ndarray:
-    """The consistent least-squares estimate by IPOPT over log-Cholesky coordinates (module docstring)."""
-    S, nq, _ = Y.shape
-    A = (Y * wm[:, :, None]).reshape(S * nq, k)
-    b = (y * wm).reshape(-1)
-    H = A.T @ A
-    g = A.T @ b
-    nj = k - 10 * nb
-    th = cs.SX.sym("theta", 10 * nb)
-    zj = cs.SX.sym("joint", nj)
-    pis = [pi_from_theta(th[10 * i : 10 * i + 10]) for i in range(nb)]
-    pi_x = cs.vertcat(*pis, zj)
-    cost = 0.5 * cs.mtimes([pi_x.T, cs.DM(H), pi_x]) - cs.mtimes(cs.DM(g).T, pi_x)
-    x = cs.vertcat(th, zj)
-    cons = cs.mtimes(cs.DM((V0 / D[:, None]).T if V0.size else np.zeros((0, k))), pi_x - cs.DM(prior))
-    # scale the cost (its Hessian's size) so IPOPT's tolerances mean something
-    scale = 1.0 / max(float(np.abs(np.diag(H)).max()), 1e-300)
-    nlp = {"x": x, "f": cost * scale, "g": cons}
-    solver = cs.nlpsol(
-        "consistent", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-10, "ipopt.sb": "yes"}
-    )
-    x0 = []
-    for i in range(nb):
-        p = prior[10 * i : 10 * i + 10]
-        try:
-            x0.append(theta_from_pi(p))
-        except np.linalg.LinAlgError:  # an inconsistent model file: start from a unit-density-like body
-            x0.append(np.zeros(10))
-    x0.append(np.maximum(prior[10 * nb :], 0.0))
-    lbx = np.r_[np.full(10 * nb, -np.inf), np.zeros(nj)]
-    sol = solver(x0=np.concatenate(x0), lbx=lbx, ubx=np.inf, lbg=0.0, ubg=0.0)
-    xs = np.asarray(sol["x"]).ravel()
-    out = np.concatenate([pi_from_theta(xs[10 * i : 10 * i + 10]) for i in range(nb)] + [xs[10 * nb :]])
+    out = _result(plant, reg, spec, pi, cov, D, V0, sigma, constrained, time.perf_counter() - t_start)
+    out.rank = V1.shape[1]
     return out
+
+
+_E = np.zeros((10, 4, 4))  # J(π) = Σ_i π_i E_i (pseudo_inertia is linear)
+for _i in range(10):
+    _e = np.zeros(10)
+    _e[_i] = 1.0
+    _E[_i] = pseudo_inertia(_e)
+
+
+def _consistent(pi: np.ndarray, nb: int) -> bool:
+    """Every body's ``J(π) ≻ 0`` and every joint parameter ``>= 0``."""
+    ok = all(np.linalg.eigvalsh(pseudo_inertia(pi[10 * b : 10 * b + 10])).min() > 0 for b in range(nb))
+    return ok and bool(np.all(pi[10 * nb :] >= 0))
+
+
+def _barrier(
+    prior: np.ndarray, scale: np.ndarray, V1: np.ndarray, lam1: np.ndarray, x_ls: np.ndarray, nb: int
+) -> np.ndarray:
+    r"""The physically consistent least-squares estimate by a log-det barrier (convex, SDP-free).
+
+    Over the determined coordinates ``x`` (``π = π_prior + s ⊙ V1 x``; the held directions stay at the
+    prior) it minimizes ``½ (x − x̂)ᵀ Λ (x − x̂) − μ (Σ_b log det J_b(π) + Σ_j log π_j)`` by damped Newton
+    steps that keep every ``J_b ≻ 0`` and joint parameter ``> 0``, for ``μ`` from ``mean(Λ)/10`` down by tens
+    to ``10⁻¹² mean(Λ)``, starting from the prior (which must be consistent; joint parameters use
+    ``log(π_j + ε)``, ``ε`` = 1e-9 of their scale, so a zero prior is inside). ``−log det`` of an affine
+    matrix is convex, so each stage has one minimum.
+    """
+    if not _consistent(prior, nb):
+        raise IdentificationError("the model file's own inertials are not physically consistent: fix them first")
+    B = scale[:, None] * V1  # ∂π/∂x
+    k = prior.shape[0]
+    eps = 1e-9 * scale[10 * nb :]  # joint parameters: the barrier log(π_j + ε) keeps a zero prior inside
+    x = np.zeros(V1.shape[1])
+
+    def barrier(pi: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+        """(−Σ log det J − Σ log π_j, gradient (k,), Hessian (k, k)) in π, None outside the domain."""
+        f, g, H = 0.0, np.zeros(k), np.zeros((k, k))
+        for b in range(nb):
+            J = pseudo_inertia(pi[10 * b : 10 * b + 10])
+            try:
+                L = np.linalg.cholesky(J)
+            except np.linalg.LinAlgError:
+                return None
+            f -= 2.0 * np.log(np.diag(L)).sum()
+            Ji = np.linalg.inv(J)
+            M = np.einsum("ab,ibc->iac", Ji, _E)  # J⁻¹ E_i
+            sl = slice(10 * b, 10 * b + 10)
+            g[sl] = -np.einsum("iaa->i", M)
+            H[sl, sl] = np.einsum("iab,jba->ij", M, M)
+        pj = pi[10 * nb :] + eps
+        if np.any(pj <= 0):
+            return None
+        f -= np.log(pj).sum()
+        g[10 * nb :] = -1.0 / pj
+        H[10 * nb :, 10 * nb :] = np.diag(1.0 / pj**2)
+        return f, g, H
+
+    mu = float(lam1.mean()) / 10.0
+    stop = float(lam1.mean()) * 1e-12
+    while mu > stop:
+        for _ in range(50):
+            pi = prior + B @ x
+            fb = barrier(pi)
+            assert fb is not None  # every accepted step stays inside
+            f0 = 0.5 * float((x - x_ls) @ (lam1 * (x - x_ls))) + mu * fb[0]
+            grad = lam1 * (x - x_ls) + mu * (B.T @ fb[1])
+            hess = np.diag(lam1) + mu * (B.T @ fb[2] @ B)
+            step = -np.linalg.solve(hess, grad)
+            dec = -float(grad @ step)
+            if dec < 1e-12 * max(abs(f0), 1.0):
+                break
+            t = 1.0
+            while t > 1e-12:
+                xn = x + t * step
+                fn = barrier(prior + B @ xn)
+                if fn is not None:
+                    f1 = 0.5 * float((xn - x_ls) @ (lam1 * (xn - x_ls))) + mu * fn[0]
+                    if f1 <= f0 - 0.25 * t * dec:
+                        break
+                t *= 0.5
+            if t <= 1e-12:
+                break
+            x = xn
+        mu /= 10.0
+    return prior + B @ x
 
 
 def _physical(pi: np.ndarray, nb: int) -> np.ndarray:
@@ -431,3 +483,15 @@ def _sparse_basis(N: np.ndarray) -> list[np.ndarray]:
     R = np.linalg.solve(B[:, P], B)
     R[np.abs(R) < 1e-6 * np.abs(R).max(axis=1, keepdims=True)] = 0.0
     return list(R)
+
+
+def _scales(prior: np.ndarray, nb: int) -> np.ndarray:
+    """The parameters' own scales (module docstring): ``m``, ``m L``, ``m L²`` per body, the joint priors."""
+    out = []
+    for b in range(nb):
+        p = prior[10 * b : 10 * b + 10]
+        m = max(abs(float(p[0])), 1e-3)
+        L = max(float(np.linalg.norm(p[1:4])) / m, 0.05)
+        out.append(np.r_[m, [m * L] * 3, [m * L * L] * 6])
+    out.append(np.maximum(np.abs(prior[10 * nb :]), 1e-3))
+    return np.concatenate(out)
