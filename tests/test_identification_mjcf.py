@@ -159,3 +159,28 @@ def test_bad_parameter_names(plant, name, needle):
     with pytest.raises(UnknownName) as err:
         identify_model_file(plant, exp, [name])
     assert needle in str(err.value) and "\n" not in str(err.value)
+
+
+def test_cli_identifies_a_model_file_scenario(plant, tmp_path, capsys):
+    """``identify`` with body:/joint: names on an MjcfPlant scenario: the table, the model file, the scenario."""
+    from shinro_ctrl.cli import main
+
+    exp = _experiment(_truth_model(), plant, seed=6)
+    rows = ["t,shoulder,elbow,shoulder_dot,elbow_dot,shoulder_motor,elbow_motor"]
+    u = np.vstack([exp.u, np.full((1, 2), np.nan)])
+    for t, y, uu in zip(exp.t, exp.y, u, strict=True):
+        rows.append(
+            ",".join(f"{v:.17g}" for v in (t, *y)) + "," + ",".join("" if np.isnan(v) else f"{v:.17g}" for v in uu)
+        )
+    csv = tmp_path / "log.csv"
+    csv.write_text("\n".join(rows) + "\n")
+    cfg = tmp_path / "arm.toml"
+    cfg.write_text(f'[plant]\ntype = "MjcfPlant"\nmodel = "{MODEL}"\n\n[controller]\ntype = "LQR"\n')
+    out = tmp_path / "out"
+    argv = ["identify", str(cfg), "--data", str(csv), "--params", "body:forearm,joint:shoulder,joint:elbow"]
+    assert main([*argv, "--cutoff", "80", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "forearm.mass" in text and "saved ident_two_link_arm_identified.xml" in text
+    m = mujoco.MjModel.from_xml_path(str(out / "ident_two_link_arm_identified.xml"))
+    assert m.body_mass[2] == pytest.approx(0.65, rel=0.01)
+    assert str(out / "ident_two_link_arm_identified.xml") in (out / "arm_identified.toml").read_text()
