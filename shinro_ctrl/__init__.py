@@ -12,6 +12,7 @@ every error a user can cause derives from :class:`ShinroError`.
 from shinro_ctrl.errors import (
     ConcurrentUse,
     ConfigError,
+    IdentificationError,
     InvalidArgument,
     MPCInfeasible,
     NonFiniteError,
@@ -27,6 +28,7 @@ __version__ = "0.1.0"
 __all__ = [
     "ConcurrentUse",
     "ConfigError",
+    "IdentificationError",
     "InvalidArgument",
     "MPCInfeasible",
     "NonFiniteError",

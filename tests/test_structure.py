@@ -458,6 +458,7 @@ SOLVER_BACKENDS = {
     "controllers/_nmpc_ipopt.py": "NonlinearMPC's IPOPT strategy (casadi.nlpsol)",
     "controllers/_ik_parts.py": "IKQP's box QP (holds an OsqpQP)",
     "planning/collocation.py": "trajectory optimization (casadi.nlpsol with IPOPT)",
+    "identification/estimate.py": "grey-box identification (casadi.nlpsol with IPOPT)",
 }
 #: Solver package -> the names that create or call a solver object; casadi's solver factories; our adapter.
 SOLVER_ENTRIES = {"osqp": {"OSQP"}, "daqp": {"Model", "solve"}}

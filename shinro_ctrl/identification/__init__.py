@@ -11,7 +11,7 @@ parameters a scenario's ``[plant]`` table takes, so design and runs start from t
 
 from shinro_ctrl.identification.data import Experiment, check_sampling, experiment, load_data, select_outputs
 from shinro_ctrl.identification.estimate import IdentificationError, identify
-from shinro_ctrl.identification.fit import FitReport, compare, fit_percent, nrmse, plot_fit, simulate
+from shinro_ctrl.identification.fit import FitReport, compare, fit_percent, nrmse, plot_fit
 from shinro_ctrl.identification.result import IdentificationResult
 from shinro_ctrl.identification.uncertainty import Uncertainty, parameter_uncertainty
 
@@ -31,5 +31,4 @@ __all__ = [
     "parameter_uncertainty",
     "plot_fit",
     "select_outputs",
-    "simulate",
 ]

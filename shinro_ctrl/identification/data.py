@@ -22,7 +22,7 @@ from __future__ import annotations
 import csv
 import tomllib
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +59,6 @@ class Experiment:
     source: str = "<arrays>"
     row_label: str = "sample"
     row_offset: int = 0
-    notes: tuple[str, ...] = field(default=())
 
     @property
     def dt(self) -> float:
@@ -97,7 +96,7 @@ class Experiment:
         )
         return first, rest
 
-    def _rows(self, index: np.ndarray) -> str:
+    def describe_rows(self, index: np.ndarray) -> str:
         """``"lines 12-15, 30"``: the (0-based) sample indices as the source names its rows."""
         return _ranges(self.row_label, [int(i) + self.row_offset for i in index])
 
@@ -167,7 +166,7 @@ def _check_finite(exp: Experiment) -> None:
         cols += [c for j, c in enumerate(exp.outputs) if bad_y[:, j].any()]
         kind = "NaN" if np.isnan(np.r_[exp.t, exp.u.ravel(), exp.y.ravel()]).any() else "infinite"
         raise InvalidArgument(
-            f"{exp.source}: {kind} values in {exp._rows(rows)} (columns {', '.join(cols)}); "
+            f"{exp.source}: {kind} values in {exp.describe_rows(rows)} (columns {', '.join(cols)}); "
             "remove or fill those rows, or split the data into experiments at them"
         )
 
@@ -181,9 +180,10 @@ def _check_uniform(exp: Experiment) -> None:
     bad = np.flatnonzero(np.abs(steps - dt) > SAMPLING_RTOL * dt + 1e-12)
     if bad.size:
         k = int(bad[0])
+        where = exp.describe_rows(np.array([k]))
         raise InvalidArgument(
-            f"{exp.source}: gap in the time column: the step is {steps[k]:.6g} s after {exp._rows(np.array([k]))} "
-            f"instead of the sampling step {dt:.6g} s ({exp._rows(bad)} differ); split the data at the gaps "
+            f"{exp.source}: gap in the time column: the step is {steps[k]:.6g} s after {where} "
+            f"instead of the sampling step {dt:.6g} s ({exp.describe_rows(bad)} differ); split the data at the gaps "
             "into experiments"
         )
 
@@ -305,7 +305,8 @@ def _load_csv(p: Path, states: tuple[str, ...], inputs: tuple[str, ...]) -> Expe
             rows = list(csv.reader(f))
     except (OSError, UnicodeDecodeError) as exc:
         raise InvalidArgument(f"{p}: cannot read ({exc})") from None
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    while rows and not any(c.strip() for c in rows[-1]):
+        rows.pop()  # trailing blank lines; a blank line inside is a row of missing values (named as such)
     if len(rows) < 2:
         raise InvalidArgument(f"{p}: needs a header of column names and at least one data row")
     header = [h.strip() for h in rows[0]]

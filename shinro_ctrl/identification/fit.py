@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from shinro_ctrl.identification.result import IdentificationResult
     from shinro_ctrl.plants.base import Plant
 
-__all__ = ["FitReport", "compare", "fit_percent", "nrmse", "plot_fit", "simulate"]
+__all__ = ["FitReport", "compare", "fit_percent", "nrmse", "plot_fit"]
 
 
 def nrmse(y: np.ndarray, yhat: np.ndarray) -> float:
@@ -66,14 +66,6 @@ class FitReport:
     def line(self) -> str:
         """``"fit on <source>: x 97.1 %, theta 95.0 %"``."""
         return f"fit on {self.source}: " + ", ".join(f"{k} {v:.1f} %" for k, v in self.fit_percent.items())
-
-
-def simulate(plant: Plant, params: dict[str, float], x0: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """States ``(N + 1, n)`` of the plant's own step with ``params`` from ``x0`` under inputs ``u (N, m)``."""
-    F = plant.symbolic_step()
-    p = np.array([params.get(k, v) for k, v in plant.dynamics_params().items()])
-    out = F.mapaccum(len(u))(np.asarray(x0, float), np.asarray(u, float).T, p)
-    return np.vstack([np.asarray(x0, float), np.asarray(out).T])
 
 
 def compare(plant: Plant, result: IdentificationResult, data: Experiment) -> FitReport:
