@@ -77,4 +77,3 @@ def write_inertials(
         raise InvalidArgument(f"write_inertials: MuJoCo cannot compile the identified model: {exc}") from None
     xml = spec.to_xml()
     return atomic_write(Path(path), lambda f: f.write(xml))
-

@@ -20,7 +20,8 @@ measured) and inputs, through the inverse-dynamics regressor ``Y(q, q̇, q̈) π
    ``z = (π − π_prior) ⊘ s`` (``s`` the parameters' own scales: a body's prior mass ``m``, ``m L`` for
    its first moments and ``m L²`` for its inertias, ``L`` the larger of its COM distance and 5 cm; a
    joint parameter's prior, at least the value that would explain 5 % of its joint's RMS torque) the
-   eigen-decomposition of the information ``s Yᵀ W² Y s`` splits π into the directions the data determines and those it does not: a direction of eigenvalue
+   eigen-decomposition of the information ``s Yᵀ W² Y s`` splits π into the directions the data
+   determines and those it does not: a direction of eigenvalue
    ``λ`` is determined when its relative standard error ``1/√λ`` is below ``max_rel_std`` — not, e.g.,
    the mass of a body on a single hinge, which enters only as ``m c``. The others are **held at the
    prior** (the model file's values) and named.
