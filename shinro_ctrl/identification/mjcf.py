@@ -237,19 +237,20 @@ def identify_model_file(
         """Minimum-deviation-from-prior WLS over the determined directions, in z = (π − π_prior)/s: π, 1/s, the
         determined and undetermined directions V1, V0, P = V1 Λ⁻¹ V1ᵀ (z = P Aᵀr/s), Λ and x = V1ᵀ z."""
         A = Y * (w * mask)[:, :, None]
-        r0 = (y - np.einsum("sjk,k->sj", Y, prior)) * w * mask
-        H = np.einsum("sjk,sjl->kl", A, A)
+        r0 = (y - Y @ prior) * w * mask
+        A2 = A.reshape(-1, A.shape[2])
+        H = A2.T @ A2
         D = 1.0 / scale
         lam, V = np.linalg.eigh(H / np.outer(D, D))
         lam, V = lam[::-1], V[:, ::-1]
         lam_floor = max(float(lam[0]), 1e-300) * 1e-14
         keep = (lam > lam_floor) & (1.0 / np.sqrt(np.maximum(lam, lam_floor)) < max_rel_std)
         V1, lam1 = V[:, keep], lam[keep]
-        x = (V1.T @ (np.einsum("sjk,sj->k", A, r0) / D)) / lam1
+        x = (V1.T @ ((A2.T @ r0.reshape(-1)) / D)) / lam1
         return prior + (V1 @ x) / D, D, V1, V[:, ~keep], (V1 / lam1) @ V1.T, lam1, x
 
     pi, D, V1, V0, Pz, lam1, x = solve_ls(np.ones((S, nq)))
-    resid = (y - np.einsum("sjk,k->sj", Y, pi)) * mask
+    resid = (y - Y @ pi) * mask
     sigma = np.sqrt((resid**2).sum(0) / np.maximum(mask.sum(0) - V1.shape[1] / nq, 1.0))
     sigma = np.where(sigma > 0, sigma, 1.0)
     w = np.broadcast_to(1.0 / sigma, (S, nq))
@@ -262,11 +263,11 @@ def identify_model_file(
     constrained = not _consistent(pi, nb)
     if constrained:
         pi = _barrier(prior, scale, V1, lam1, x, nb)
-    resid = (y - np.einsum("sjk,k->sj", Y, pi)) * w * mask
+    resid = (y - Y @ pi) * w * mask
     # sandwich covariance with batch means: z = Pz Σ_s a_s, a_s = Σ_j (A_sj / D) e_sj the sample's score
     L = int(block) if block is not None else max(1, int(np.ceil(10.0 * fs / fc)))
     nblk = max(1, S // L)
-    scores = np.einsum("sjk,sj->sk", Y * (w * mask)[:, :, None], resid) / D  # (S, k)
+    scores = np.matmul((resid * w * mask)[:, None, :], Y)[:, 0, :] / D  # (S, k): Σ_j e_sj w_sj Y_sj
     sums = np.add.reduceat(scores, np.arange(0, nblk * L, L), axis=0) if nblk > 1 else scores.sum(0)[None]
     dof = S * nq / max(S * nq - V1.shape[1], 1)
     Vz = Pz @ (sums.T @ sums) @ Pz * dof
