@@ -107,6 +107,7 @@ def test_forearm_and_damping_within_their_intervals(plant, tmp_path):
         assert name not in res.held
         assert 0 < res.std_error[name] < 0.05 * max(abs(true), 0.01), name
         assert res.prior[name] != true or name == "forearm.Iyy"  # the estimator started elsewhere
+    assert all(f > 95.0 for f in res.fit_percent.values()), res.fit_percent  # torques explained (97-99 %)
     assert {"forearm.Ixx", "forearm.com_y"} <= set(res.held)
     assert any("forearm.mass·com_y" in s for s in res.unidentifiable)
     assert r.consistent()

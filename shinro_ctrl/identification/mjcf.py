@@ -36,7 +36,8 @@ measured) and inputs, through the inverse-dynamics regressor ``Y(q, q̇, q̈) π
    sandwich (batch-means) estimate: the estimator's per-sample scores summed over blocks of ``block``
    samples (several correlation lengths ``fs/cutoff``), then ``Cov = Σ_blocks S Sᵀ``. The reported
    parameters (mass, COM, inertia about the COM) get it by the delta method; a reported parameter that
-   depends on an undetermined direction is listed in ``held``.
+   depends on an undetermined direction is listed in ``held``. ``result.fit_percent`` is MATLAB's fit
+   ``100 (1 − ‖y − Yπ‖/‖y − ȳ‖)`` of each joint's torque ``y`` on the estimation data.
 
 :meth:`ModelFileIdentification.write_model` writes the model file with the identified bodies' inertials
 and joints' parameters (``MjSpec`` edit, atomic) so ``design``/``run`` take it.
@@ -274,6 +275,12 @@ def identify_model_file(
     cov = (Vz / D[:, None]) / D[None, :]
     out = _result(plant, reg, spec, pi, cov, D, V0, sigma, constrained, time.perf_counter() - t_start)
     out.rank = V1.shape[1]
+    # MATLAB's fit % of the joint torques the identified inertials explain, on the estimation data
+    err, tau = (y - Y @ pi) * mask, (y - (y * mask).sum(0) / np.maximum(mask.sum(0), 1)) * mask
+    for j, name in enumerate(reg.joint_names):
+        ratio = float(np.linalg.norm(err[:, j]) / max(np.linalg.norm(tau[:, j]), 1e-300))
+        out.result.fit_percent[f"tau_{name}"] = 100.0 * (1.0 - ratio)
+        out.result.nrmse[f"tau_{name}"] = ratio
     return out
 
 
