@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument, UnknownName
-from shinro_ctrl.validation import did_you_mean
+from shinro_ctrl.validation import closest
 
 __all__ = ["Experiment", "check_sampling", "experiment", "load_data"]
 
@@ -251,7 +251,7 @@ def select_outputs(exp: Experiment, outputs: Sequence[str]) -> Experiment:
     for name in outputs:
         if name not in exp.outputs:
             raise UnknownName(
-                f"{exp.source} does not measure {name!r}{did_you_mean(name, exp.outputs)}; "
+                f"{exp.source} does not measure {name!r}{close_match_hint(name, exp.outputs)}; "
                 f"it measures: {', '.join(exp.outputs)}"
             )
         idx.append(exp.outputs.index(name))
@@ -317,7 +317,7 @@ def _load_csv(p: Path, states: tuple[str, ...], inputs: tuple[str, ...]) -> Expe
     unknown = [h for h in header if h not in known]
     if unknown:
         raise UnknownName(
-            f"{p}: unknown column {unknown[0]!r}{did_you_mean(unknown[0], sorted(known))}; "
+            f"{p}: unknown column {unknown[0]!r}{close_match_hint(unknown[0], sorted(known))}; "
             f"valid: {time_cols[0]}, inputs {', '.join(inputs)}, states {', '.join(states)}"
         )
     missing = [i for i in inputs if i not in header]
@@ -344,3 +344,9 @@ def _load_csv(p: Path, states: tuple[str, ...], inputs: tuple[str, ...]) -> Expe
     u = values[:-1, [col[i] for i in inputs]]
     y = values[:, [col[s] for s in outputs]]
     return experiment(t, u, y, outputs, inputs, source=str(p), row_label="line", row_offset=2)
+
+
+def close_match_hint(word: str, choices: Sequence[str]) -> str:
+    """``"; did you mean 'x'?"`` when one of ``choices`` is close to ``word``, else nothing (the caller lists them)."""
+    near = closest(word, choices)
+    return f"; did you mean '{near}'?" if near else ""
