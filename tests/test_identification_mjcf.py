@@ -185,3 +185,5 @@ def test_cli_identifies_a_model_file_scenario(plant, tmp_path, capsys):
     m = mujoco.MjModel.from_xml_path(str(out / "ident_two_link_arm_identified.xml"))
     assert m.body_mass[2] == pytest.approx(0.65, rel=0.01)
     assert str(out / "ident_two_link_arm_identified.xml") in (out / "arm_identified.toml").read_text()
+    assert main([*argv, "--plot", str(tmp_path / "fit.png")]) == 2  # options of the grey-box fit only
+    assert "--plot: not used with body:/joint: parameters" in capsys.readouterr().err

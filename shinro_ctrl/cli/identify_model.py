@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from shinro_ctrl.errors import ConfigError
+from shinro_ctrl.errors import ConfigError, InvalidArgument
 
 __all__ = ["cmd_identify_model_file"]
 
@@ -34,6 +34,22 @@ def cmd_identify_model_file(args: argparse.Namespace, scenario: Any, names: list
     from shinro_ctrl.identification.mjcf import identify_model_file
     from shinro_ctrl.plants import plant_class
 
+    unused = [
+        opt
+        for opt, given in (
+            ("--plot", args.plot),
+            ("--outputs", args.outputs),
+            ("--segment", args.segment),
+            ("--holdout", args.holdout),
+            ("--mode prediction", args.mode != "simulation"),
+        )
+        if given
+    ]
+    if unused:
+        raise InvalidArgument(
+            f"{', '.join(unused)}: not used with body:/joint: parameters (the inverse-dynamics regressor "
+            "fits the joint torques; --cutoff sets its filter)"
+        )
     plant = plant_class(scenario.plant.type).from_config(scenario.plant.params)
     model = getattr(plant, "model_path", None)
     if type(plant).__name__ != "MjcfPlant" or model is None:
