@@ -49,6 +49,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -57,11 +58,15 @@ from shinro_ctrl.identification.data import Experiment
 from shinro_ctrl.identification.regressor import (
     InertialRegressor,
     ParamError,
+    ParamSpec,
     parse_param_names,
     physical_from_pi,
     pseudo_inertia,
 )
 from shinro_ctrl.identification.result import IdentificationResult
+
+if TYPE_CHECKING:
+    from shinro_ctrl.plants.mjcf import MjcfPlant
 
 __all__ = ["ModelFileIdentification", "identify_model_file", "lowpass_kernel", "regressor_data"]
 
@@ -109,6 +114,21 @@ class ModelFileIdentification:
         return write_inertials(self.model_path, path, self.bodies, self.joints)
 
 
+_REGRESSORS: dict[tuple, InertialRegressor] = {}
+
+
+def _regressor(plant: MjcfPlant, spec: ParamSpec) -> InertialRegressor:
+    """The regressor of ``plant``'s file for ``spec``, built once per file version (a few tenths of a second on a
+    7-DOF arm)."""
+    path = Path(plant.model_path)
+    key = (str(path), path.stat().st_mtime_ns, tuple(plant.active_actuators), spec)
+    if key not in _REGRESSORS:
+        if len(_REGRESSORS) > 16:
+            _REGRESSORS.clear()
+        _REGRESSORS[key] = InertialRegressor(plant, spec)
+    return _REGRESSORS[key]
+
+
 def lowpass_kernel(fs: float, cutoff: float) -> np.ndarray:
     """The zero-phase FIR low-pass: a Blackman-windowed sinc, cutoff ``f_c`` (−6 dB), ``2M + 1`` taps with
     ``M = ⌈3 fs/f_c⌉``, unit gain at 0 Hz: ``h_n = w_n 2 (f_c/fs) sinc(2 (f_c/fs)(n − M)) / Σ``."""
@@ -124,7 +144,7 @@ def _filtered(x: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 
 def regressor_data(
-    plant,
+    plant: MjcfPlant,
     experiments: Experiment | Sequence[Experiment],
     regressor: InertialRegressor,
     *,
@@ -178,7 +198,7 @@ def regressor_data(
 
 
 def identify_model_file(
-    plant,
+    plant: MjcfPlant,
     experiments: Experiment | Sequence[Experiment],
     params: Sequence[str],
     *,
@@ -214,7 +234,7 @@ def identify_model_file(
     joint_names = [j.name for j in tree.joints]
     try:
         spec = parse_param_names(params, body_names, joint_names)
-        reg = InertialRegressor(plant, spec)
+        reg = _regressor(plant, spec)
     except ParamError as exc:
         raise UnknownName(str(exc)) from None
     Y, y, speed, fc = regressor_data(plant, experiments, reg, cutoff=cutoff, edge=edge)
@@ -374,9 +394,9 @@ def _physical(pi: np.ndarray, nb: int) -> np.ndarray:
 
 
 def _result(
-    plant,
+    plant: MjcfPlant,
     reg: InertialRegressor,
-    spec,
+    spec: ParamSpec,
     pi: np.ndarray,
     cov: np.ndarray,
     D: np.ndarray,
@@ -461,7 +481,7 @@ def _result(
 _READABLE = {"m": "mass", "hx": "mass·com_x", "hy": "mass·com_y", "hz": "mass·com_z"}
 
 
-def _sentences(V0: np.ndarray, D: np.ndarray, reg: InertialRegressor, spec, held: list[str]) -> list[str]:
+def _sentences(V0: np.ndarray, D: np.ndarray, reg: InertialRegressor, spec: ParamSpec, held: list[str]) -> list[str]:
     """One sentence per undetermined direction of π, naming the parameters (physical names where possible)."""
     out = []
     for v in _sparse_basis(V0 / D[:, None]):  # in π units

@@ -38,12 +38,17 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import casadi as cs
 import numpy as np
 
 from shinro_ctrl._scalar_algebra import quat_to_mat
 from shinro_ctrl.multibody.rigid_body import CASADI_OPS
+
+if TYPE_CHECKING:
+    from shinro_ctrl.multibody.tree import BodyInfo
+    from shinro_ctrl.plants.mjcf import MjcfPlant
 
 __all__ = [
     "BODY_PARAMS",
@@ -131,7 +136,7 @@ def parse_param_names(names: Sequence[str], body_names: Sequence[str], joint_nam
     return ParamSpec(tuple(bodies), tuple(joints))
 
 
-def _body_pi(body) -> np.ndarray:
+def _body_pi(body: BodyInfo) -> np.ndarray:
     """The model's π_b ``(10,)`` of a body."""
     m = float(body.mass)
     c = np.asarray(body.ipos, dtype=float)
@@ -181,7 +186,7 @@ def pseudo_inertia(pi: Sequence[float]) -> np.ndarray:
     return J
 
 
-def pi_from_theta(theta):
+def pi_from_theta(theta: np.ndarray | cs.SX | cs.MX) -> np.ndarray | cs.SX | cs.MX:
     """π ``(10,)`` of the log-Cholesky coordinates θ = (α, d₁, d₂, d₃, s₁₂, s₂₃, s₁₃, t₁, t₂, t₃)."""
     a, d1, d2, d3, s12, s23, s13, t1, t2, t3 = (theta[i] for i in range(10))
     ea = cs.exp(a) if isinstance(theta, cs.SX | cs.MX) else np.exp(a)
@@ -244,7 +249,7 @@ class InertialRegressor:
         pi_names: Names of π's entries.
     """
 
-    def __init__(self, plant, spec: ParamSpec):
+    def __init__(self, plant: MjcfPlant, spec: ParamSpec):
         tree, rb = plant.tree, plant.rigid_body_tree
         nq = tree.nq
         if tree.na:
