@@ -7,6 +7,8 @@ identifies the parameters (:func:`shinro_ctrl.identification.identify`) and prin
 prior, standard error, 95 % interval, the correlations, the combinations the data cannot determine, and
 the fit. ``--out DIR`` writes, as one set, ``<scenario>_identified.toml`` (the scenario with the
 estimates in ``[plant]``: ``design`` and ``run`` take it directly) and ``identification.json``.
+Parameters named ``body:NAME`` or ``joint:NAME.damping|armature|frictionloss`` identify a model file's
+inertials instead (:mod:`shinro_ctrl.cli.identify_model`).
 """
 
 from __future__ import annotations
@@ -43,6 +45,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--outputs", metavar="NAME,...", help="use only these measured states")
     p.add_argument("--segment", type=float, metavar="SECONDS", help="shooting segment length (default: automatic)")
     p.add_argument(
+        "--cutoff",
+        type=float,
+        metavar="HZ",
+        help="model-file parameters (body:/joint:): the zero-phase low-pass cutoff of the derivatives",
+    )
+    p.add_argument(
         "--holdout",
         type=float,
         default=0.0,
@@ -61,6 +69,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise InvalidArgument(f"--holdout must be in [0, 1), got {args.holdout:g}")
     scenario = load_scenario(args.config)
     names = [p.strip() for p in args.params.split(",") if p.strip()]
+    if any(n.startswith(("body:", "joint:")) for n in names):  # a model file's inertials and joints
+        from shinro_ctrl.cli.identify_model import cmd_identify_model_file
+
+        return cmd_identify_model_file(args, scenario, names)
     outputs = [o.strip() for o in args.outputs.split(",") if o.strip()] if args.outputs else None
     inputs = [args.config, *args.data]
     if args.out:

@@ -35,6 +35,7 @@ SIM_KEYS = (
     "disturbance",
     "actuator",
     "sensor",
+    "excitation",
 )
 REFERENCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # kind: (required keys, optional keys)
@@ -48,6 +49,8 @@ REFERENCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 
 #: ``[sim] disturbance``: a table or a list of tables (parsed into DisturbanceSpec; checked structurally here).
 DisturbanceTables = list
+#: ``[sim] excitation``: a table or a list of tables (checked by :func:`shinro_ctrl.sim.excitation.parse_excitation`).
+ExcitationTables = list
 
 
 @dataclass
@@ -110,6 +113,8 @@ class SimConfig:
             (:class:`~shinro_ctrl.sim.nonideal.ActuatorModel`).
         sensor: The ``sensor`` table as written (checked): ``delay``, ``quantization``,
             each a scalar or one value per state (:class:`~shinro_ctrl.sim.nonideal.SensorModel`).
+        excitation: The ``excitation`` entries as written (checked): PRBS, chirp or multisine signals added to
+            the controller's output (:mod:`shinro_ctrl.sim.excitation`).
     """
 
     duration: float = 5.0
@@ -125,6 +130,7 @@ class SimConfig:
     disturbance: DisturbanceTables | None = None
     actuator: dict[str, Any] | None = None
     sensor: dict[str, Any] | None = None
+    excitation: ExcitationTables | None = None
 
 
 @dataclass

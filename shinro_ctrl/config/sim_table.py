@@ -56,6 +56,15 @@ def _parse_sim(ctx: _Ctx, doc: Mapping[str, Any], probe: Any) -> SimConfig:
             raise ctx.error("sim", "'measurement_noise' standard deviations must be >= 0")
     _parse_output_feedback(ctx, st, sim, probe)
     _parse_nonideal(ctx, st, sim, probe)
+    if "excitation" in st:
+        from shinro_ctrl.sim.excitation import parse_excitation
+
+        try:
+            parse_excitation(st["excitation"], probe.input_names, probe.dt)
+        except ConfigError as exc:
+            raise ctx.error("sim", str(exc)) from None
+        exc_value = st["excitation"]
+        sim.excitation = [dict(e) for e in (exc_value if isinstance(exc_value, list) else [exc_value])]
     if "seed" in st:
         if isinstance(st["seed"], bool) or not isinstance(st["seed"], int) or st["seed"] < 0:
             raise ctx.error("sim", f"'seed' must be a non-negative integer, got {st['seed']!r}")

@@ -96,6 +96,8 @@ __all__ = ["CASADI_OPS", "FORWARD_DYNAMICS", "NUMPY_OPS", "Ops", "RigidBodyTree"
 Scalar: TypeAlias = "float | complex | cs.SX"
 #: The forward-dynamics algorithms :meth:`RigidBodyTree.forward_dynamics` offers.
 FORWARD_DYNAMICS = ("aba", "crba")
+#: A node's inertia ``(m, h (3,), I (3, 3))`` about its origin in its frame, as scalars and nested lists.
+NodeInertial: TypeAlias = "tuple[Scalar, list[Scalar], list[list[Scalar]]]"
 #: Each node's ``(R (3, 3), p (3,))`` in its parent node frame, as nested lists of scalars.
 Transforms: TypeAlias = "Transforms"
 
@@ -369,6 +371,7 @@ class RigidBodyTree:
         qdd: Sequence[Scalar],
         a_base: Sequence[Scalar],
         nodes: Sequence[int] | None = None,
+        inertials: Sequence[NodeInertial] | None = None,
     ) -> list[Scalar]:
         """Joint forces ``τ = M q̈ + c`` by recursive Newton–Euler.
 
@@ -379,6 +382,7 @@ class RigidBodyTree:
             a_base: Acceleration of the base ``(3,)`` (``-g`` includes gravity).
             nodes: Only these nodes move (others are at rest, and forces stop at
                 the first node at rest); None: all.
+            inertials: Each node's ``(m, h, I)`` (scalars, e.g. symbols) in place of the model's.
         """
         n = self.nq
         zero3 = [0.0, 0.0, 0.0]
@@ -413,10 +417,12 @@ class RigidBodyTree:
                 w[i] = _vadd(wpl, vj)
                 al[i] = _vadd(alpl, _cross(wpl, vj), aj)
                 a[i] = apl
-            h = _const(nd.h)
-            Ib = [_const(r) for r in nd.inertia]
+            if inertials is None:
+                mass, h, Ib = nd.mass, _const(nd.h), [_const(r) for r in nd.inertia]
+            else:
+                mass, h, Ib = inertials[i]
             wi, ali, ai = w[i], al[i], a[i]
-            f[i] = _vadd(_vscale(ai, nd.mass), _cross(ali, h), _cross(wi, _cross(wi, h)))
+            f[i] = _vadd(_vscale(ai, mass), _cross(ali, h), _cross(wi, _cross(wi, h)))
             m_[i] = _vadd(_matvec(Ib, ali), _cross(wi, _matvec(Ib, wi)), _cross(h, ai))
         # backward pass: forces of the moving nodes propagate to every ancestor
         tau: list[Scalar] = [0.0] * n
@@ -435,6 +441,38 @@ class RigidBodyTree:
         return tau
 
     # ---------------------------------------------------------------- public
+    def inverse_dynamics(
+        self,
+        q: Sequence[Scalar],
+        qd: Sequence[Scalar],
+        qdd: Sequence[Scalar],
+        ops: Ops = NUMPY_OPS,
+        inertials: Sequence[NodeInertial] | None = None,
+    ) -> list[Scalar]:
+        r"""``τ = M(q) q̈ + c(q, q̇)`` ``(nq,)`` by one RNEA (gravity included, armature not).
+
+        Args:
+            q, qd, qdd: Joint positions, velocities, accelerations.
+            ops: The number type's ``sin``/``cos``.
+            inertials: Each node's ``(m, h, I)``: mass, first moment ``m c`` ``(3,)`` and rotational inertia
+                about the node origin ``(3, 3)`` (nested lists), in the node frame; None: the model's. The
+                result is linear in them (the regressor of ``shinro_ctrl.identification.regressor``).
+        """
+        X = self._joint_transforms(q, ops)
+        return self._rnea(X, qd, qdd, self._a_base, None, inertials)
+
+    def node_inertials(self) -> list[NodeInertial]:
+        """The model's ``(m, h, I)`` of every node (see :meth:`inverse_dynamics`), as nested float lists."""
+        return [(nd.mass, [float(v) for v in nd.h], [[float(v) for v in r] for r in nd.inertia]) for nd in self._nodes]
+
+    def body_placement(self, body: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """Body ``body``'s frame in the frame of the node that carries its inertia: ``(node, R (3, 3), p (3,))``.
+
+        ``node`` is -1 for a body welded to the world (its inertia never acts).
+        """
+        node, R, p = self._body_frame[body]
+        return node, np.array(R, dtype=float), np.array(p, dtype=float)
+
     def mass_matrix(self, q: Sequence[Scalar], ops: Ops = NUMPY_OPS, X: Transforms | None = None) -> list[list[Scalar]]:
         """Joint-space mass matrix ``M(q)`` (without armature) as nested lists ``(nq, nq)``."""
         X = self._joint_transforms(q, ops) if X is None else X

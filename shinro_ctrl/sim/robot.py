@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from shinro_ctrl.controllers.base import Controller
     from shinro_ctrl.engine import MujocoEngine
     from shinro_ctrl.plants.base import Plant
+    from shinro_ctrl.sim.excitation import Excitation
     from shinro_ctrl.sim.nonideal import ActuatorModel, SensorModel
 
 __all__ = ["MAX_STEPS", "RobotSim"]
@@ -76,6 +77,8 @@ class RobotSim:
             controller and the plant (``[sim] actuator``), or None (ideal).
         sensor: The :class:`~shinro_ctrl.sim.nonideal.SensorModel` between the plant
             and the estimator (``[sim] sensor``), or None (ideal).
+        excitation: The :class:`~shinro_ctrl.sim.excitation.Excitation` added to the
+            controller's output (``[sim] excitation``: PRBS, chirp, multisine), or None.
     """
 
     def __init__(self, scenario: Scenario, *, engine: str | None = None):
@@ -107,6 +110,7 @@ class RobotSim:
         names = sim.track or list(getattr(self.plant, "tracked_states", None) or self._default_tracked())
         self.tracked = [self.plant.state_names.index(s) for s in names]
         self.actuator, self.sensor = _nonideal(scenario, self.plant, self.estimator.measured)
+        self.excitation = _excitation(scenario, self.plant)
 
     def _design(self, plant: Plant) -> Controller:
         """The scenario's controller, built by its class's ``from_plant`` on ``plant``."""
@@ -179,6 +183,7 @@ class RobotSim:
         sim.engine = self._attach_engine(sim.plant) if self.engine is not None else None
         # its own actuator and sensor: a run's FIFOs and filter states are not shared
         sim.actuator, sim.sensor = _nonideal(self.scenario, sim.plant, sim.estimator.measured)
+        sim.excitation = _excitation(self.scenario, sim.plant)
         return sim
 
     @classmethod
@@ -277,6 +282,8 @@ class RobotSim:
         u_prev = self._operating_input()
         if self.actuator is not None:
             self.actuator.reset(u_prev)  # at rest at the operating input
+        if self.excitation is not None:
+            self.excitation.reset(steps)  # the run's whole signal, computed once
         if self.sensor is not None:
             states = self.sensor.states
             if states is not None and states != tuple(est.measured):  # another estimator: the scenario's sensor
@@ -321,7 +328,7 @@ class RobotSim:
         n, dt, steps = plant.state_dim, plant.dt, U.shape[0]
         x, u_prev = s.x, s.u_prev
         clamps, clamped, balance = s.clamps, s.clamped, s.balance
-        actuator, sensor_model = self.actuator, self.sensor
+        actuator, sensor_model, excitation = self.actuator, self.sensor, self.excitation
         estimate = self.estimator.update
         bar = Progress(steps, f"{self.scenario.name} ({self.loop})", progress, unit="steps")
         clock = time.perf_counter
@@ -349,8 +356,10 @@ class RobotSim:
                 t0 = clock()
                 u = ctrl(x_hat, r)
                 solve[k] = clock() - t0
+                if excitation is not None:
+                    u = excitation(k, u)  # c_k = κ(x̂, r) + e_k: recorded, and told to the estimator
                 U[k] = u
-                u_prev = u
+                u_prev = U[k] if excitation is not None else u  # the row: the buffer is rewritten next step
                 for body, F, _ in forces:
                     engine.set_body_force(body, F[k])
                 u_in = u if actuator is None else actuator(u)  # delayed, rate-limited, quantized, lagged
@@ -491,6 +500,8 @@ class RobotSim:
         for key in ("actuator", "sensor"):
             if getattr(s.sim, key):
                 sim[key] = dict(getattr(s.sim, key))
+        if s.sim.excitation:
+            sim["excitation"] = [dict(e) for e in s.sim.excitation]
         doc["sim"] = sim
         if s.estimator is not None:
             doc["estimator"] = {"type": s.estimator.type, **s.estimator.options}
@@ -515,6 +526,14 @@ def _nonideal(scenario: Scenario, plant: Plant, measured: Any) -> tuple[Actuator
         else None
     )
     return act, sen
+
+
+def _excitation(scenario: Scenario, plant: Plant) -> Excitation | None:
+    """The scenario's ``[sim] excitation`` signals for ``plant`` (None when it has none)."""
+    from shinro_ctrl.sim.excitation import Excitation
+
+    value = scenario.sim.excitation
+    return Excitation.from_config(value, tuple(plant.input_names), plant.dt) if value else None
 
 
 def _bound(value: Any, size: int) -> np.ndarray | None:
