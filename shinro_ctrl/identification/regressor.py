@@ -270,6 +270,7 @@ class InertialRegressor:
             if body.gravcomp:
                 raise ParamError(f"body '{body.name}' has gravcomp: its mass also enters the applied forces")
             node, R, p = rb.body_placement(b)
+            R, p = np.asarray(R, dtype=float), np.asarray(p, dtype=float)
             if node < 0:
                 raise ParamError(f"body '{body.name}' is welded to the world: its inertia never acts")
             pb = _body_pi(body)
@@ -283,7 +284,12 @@ class InertialRegressor:
                 [[II[r][c] - I0[r][c] + Is[r][c] for c in range(3)] for r in range(3)],
             )
         rnea = rb.inverse_dynamics(
-            list(cs.vertsplit(q)), list(cs.vertsplit(qd)), list(cs.vertsplit(qdd)), CASADI_OPS, nodes
+            list(cs.vertsplit(q)),
+            list(cs.vertsplit(qd)),
+            list(cs.vertsplit(qdd)),
+            CASADI_OPS,
+            inertials=nodes,
+            armature=False,
         )
         lhs = [cs.SX(v) if isinstance(v, float | int) else v for v in rnea]
         rhs = rb.generalized_forces(

@@ -441,37 +441,9 @@ class RigidBodyTree:
         return tau
 
     # ---------------------------------------------------------------- public
-    def inverse_dynamics(
-        self,
-        q: Sequence[Scalar],
-        qd: Sequence[Scalar],
-        qdd: Sequence[Scalar],
-        ops: Ops = NUMPY_OPS,
-        inertials: Sequence[NodeInertial] | None = None,
-    ) -> list[Scalar]:
-        r"""``τ = M(q) q̈ + c(q, q̇)`` ``(nq,)`` by one RNEA (gravity included, armature not).
-
-        Args:
-            q, qd, qdd: Joint positions, velocities, accelerations.
-            ops: The number type's ``sin``/``cos``.
-            inertials: Each node's ``(m, h, I)``: mass, first moment ``m c`` ``(3,)`` and rotational inertia
-                about the node origin ``(3, 3)`` (nested lists), in the node frame; None: the model's. The
-                result is linear in them (the regressor of ``shinro_ctrl.identification.regressor``).
-        """
-        X = self._joint_transforms(q, ops)
-        return self._rnea(X, qd, qdd, self._a_base, None, inertials)
-
     def node_inertials(self) -> list[NodeInertial]:
         """The model's ``(m, h, I)`` of every node (see :meth:`inverse_dynamics`), as nested float lists."""
         return [(nd.mass, [float(v) for v in nd.h], [[float(v) for v in r] for r in nd.inertia]) for nd in self._nodes]
-
-    def body_placement(self, body: int) -> tuple[int, np.ndarray, np.ndarray]:
-        """Body ``body``'s frame in the frame of the node that carries its inertia: ``(node, R (3, 3), p (3,))``.
-
-        ``node`` is -1 for a body welded to the world (its inertia never acts).
-        """
-        node, R, p = self._body_frame[body]
-        return node, np.array(R, dtype=float), np.array(p, dtype=float)
 
     def mass_matrix(self, q: Sequence[Scalar], ops: Ops = NUMPY_OPS, X: Transforms | None = None) -> list[list[Scalar]]:
         """Joint-space mass matrix ``M(q)`` (without armature) as nested lists ``(nq, nq)``."""
@@ -601,10 +573,25 @@ class RigidBodyTree:
         qdd: Sequence[Scalar],
         ops: Ops = NUMPY_OPS,
         X: Transforms | None = None,
+        *,
+        inertials: Sequence[NodeInertial] | None = None,
+        armature: bool = True,
     ) -> list[Scalar]:
-        """``(M(q) + diag(a)) q̈ + c(q, q̇)`` ``(nq,)`` by RNEA: the generalized force that produces ``q̈``."""
+        """``(M(q) + diag(a)) q̈ + c(q, q̇)`` ``(nq,)`` by RNEA: the generalized force that produces ``q̈``.
+
+        Args:
+            q, qd, qdd: Joint positions, velocities, accelerations.
+            ops: The number type's ``sin``/``cos``.
+            X: The node transforms at ``q`` when already built.
+            inertials: Each node's ``(m, h, I)``: mass, first moment ``m c`` ``(3,)`` and rotational inertia
+                about the node origin ``(3, 3)`` (nested lists), in the node frame; None: the model's. The
+                result is linear in them (the regressor of ``shinro_ctrl.identification.regressor``).
+            armature: Whether the armature term ``diag(a) q̈`` is included.
+        """
         X = self._joint_transforms(q, ops) if X is None else X
-        tau = self._rnea(X, qd, qdd, self._a_base)
+        tau = self._rnea(X, qd, qdd, self._a_base, None, inertials)
+        if not armature:
+            return tau
         return [_add(tau[i], _mul(self._armature[i], qdd[i])) for i in range(self.nq)]
 
     def forward_dynamics(
