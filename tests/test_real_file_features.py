@@ -1,0 +1,55 @@
+"""What real robot files revealed (issue 25, benchmarks/real_robot_files.md), each on a model file written here.
+
+References are MuJoCo's own: ``mjd_transitionFD`` on the file itself (clamps off) and ``qacc_smooth``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from shinro_ctrl.crosscheck import crosscheck
+from shinro_ctrl.plants import MjcfPlant
+
+EDGE = Path(__file__).parent / "data" / "robots" / "tendon_range_edge.xml"
+
+
+@pytest.fixture(scope="module")
+def edge_plant() -> MjcfPlant:
+    return MjcfPlant(EDGE)
+
+
+def _file_jacobian_B(x0: np.ndarray, u0: np.ndarray) -> np.ndarray:
+    """Continuous ``∂[q̇; q̈]/∂u`` of the file by central differences of MuJoCo's ``qacc_smooth`` (no clamp)."""
+    m = mujoco.MjModel.from_xml_path(str(EDGE))
+    m.actuator_ctrllimited[:] = 0
+    d = mujoco.MjData(m)
+    nq = m.nq
+    d.qpos[:], d.qvel[:] = x0[:nq], x0[nq:]
+    cols = []
+    for e in np.eye(len(u0)) * 1e-6:
+        acc = []
+        for s in (1.0, -1.0):
+            d.ctrl[:] = u0 + s * e
+            mujoco.mj_forward(m, d)
+            acc.append(d.qacc_smooth.copy())
+        cols.append(np.concatenate([np.zeros(nq), (acc[0] - acc[1]) / 2e-6]))
+    return np.column_stack(cols)
+
+
+@pytest.mark.parametrize("past_edge", [0.0, 1.5e-10], ids=["on the edge", "a rounding error past it"])
+def test_crosscheck_differentiates_an_input_at_its_ctrlrange_edge(edge_plant, past_edge):
+    # The Piper file's equilibrium input of its gripper tendon came out 1.5e-10 above its ctrlrange [-0.08, 0]:
+    # MuJoCo's mjd_transitionFD nudges a control only inside ctrlrange while ctrllimited (mjDSBL_CLAMPCTRL or
+    # not), so the matched twin's B had a zero column and crosscheck reported a relative error of 1.
+    x0, _ = edge_plant.equilibrium()
+    u0 = np.array([0.0, past_edge])
+    B_ref = _file_jacobian_B(x0, u0)
+    assert np.abs(B_ref[:, 1]).max() > 100  # the tendon drives both fingers: the column the twin lost
+    result = crosscheck(edge_plant, x0, u0)
+    np.testing.assert_allclose(result.B_exact, B_ref, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(result.B_mujoco, B_ref, rtol=1e-5, atol=1e-5)
+    assert result.mujoco_max_rel_error < 1e-5
