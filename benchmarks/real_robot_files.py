@@ -54,6 +54,7 @@ import numpy as np
 from shinro_ctrl.controllers import LQR
 from shinro_ctrl.crosscheck import crosscheck
 from shinro_ctrl.engine import MujocoEngine
+from shinro_ctrl.engine.model_tree import urdf_with_motors
 from shinro_ctrl.plants import MjcfPlant
 
 _MESH_ASSET = re.compile(r"<mesh\b[^>]*/>\s*", re.S)
@@ -83,7 +84,8 @@ class Row:
 
 
 def _unclamped(path: Path) -> mujoco.MjModel:
-    m = mujoco.MjModel.from_xml_path(str(path))
+    """The file in MuJoCo, clamps off; a URDF through the plant's own translation (a motor per joint)."""
+    m = mujoco.MjModel.from_xml_path(str(urdf_with_motors(path)))
     m.actuator_ctrllimited[:] = 0
     m.actuator_forcelimited[:] = 0
     m.jnt_actfrclimited[:] = 0
