@@ -53,3 +53,15 @@ def test_crosscheck_differentiates_an_input_at_its_ctrlrange_edge(edge_plant, pa
     np.testing.assert_allclose(result.B_exact, B_ref, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(result.B_mujoco, B_ref, rtol=1e-5, atol=1e-5)
     assert result.mujoco_max_rel_error < 1e-5
+
+
+def test_crosscheck_of_a_constrained_file_says_why_in_one_line(capsys):
+    # The Panda-with-hand, Robotiq 2F-85, xArm7 and ARX L5 files are constrained (finger couplings, four-bars):
+    # the CLI printed "MjcfPlant has no MuJoCo state map to cross-check against" and nothing about the cause.
+    from shinro_ctrl.cli import main
+    from shinro_ctrl.resources import asset_path
+
+    assert main(["crosscheck", str(asset_path("gallery/gripper_equality.xml"))]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: "), err
+    assert "independent coordinates" in err[0] and "equality constraints" in err[0], err[0]
