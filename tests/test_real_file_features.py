@@ -65,3 +65,16 @@ def test_crosscheck_of_a_constrained_file_says_why_in_one_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: "), err
     assert "independent coordinates" in err[0] and "equality constraints" in err[0], err[0]
+
+
+@pytest.mark.parametrize(
+    ("fingers", "level", "says"),
+    [(1.5e-10, "warning", "on its edge"), (0.0, "warning", "0.0% of the range"), (1e-3, "error", "MuJoCo clamps it")],
+)
+def test_model_gap_tells_a_rounding_error_past_a_ctrlrange_from_a_clamped_input(edge_plant, fingers, level, says):
+    # Piper's equilibrium input sat 1.5e-10 past its gripper's ctrlrange [-0.08, 0] (its file's 2e-8 quaternion
+    # tilts): model_gap reported it as an error, "outside the range: MuJoCo clamps it", like an input 1e-3 past.
+    x0, _ = edge_plant.equilibrium()
+    gap = edge_plant.model_gap(x0, np.array([0.0, fingers]))
+    clamp = [w for w in gap.warnings if w.effect == "clamp" and "'fingers'" in w.message]
+    assert len(clamp) == 1 and clamp[0].level == level and says in clamp[0].message, clamp

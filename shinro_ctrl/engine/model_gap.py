@@ -578,11 +578,21 @@ def _dofs(
     return rows
 
 
+#: A value past a range's end by at most this fraction of its width is on the edge (rounding), not outside it.
+_ROUNDING = 1e-8
+
+
 def _clamp_warning(
     warns: list[GapWarning], margin: float, t: GapThresholds, what: str, rng_name: str, rng: tuple[float, float]
 ) -> None:
     where = f"{what} against {rng_name} [{rng[0]:.4g}, {rng[1]:.4g}]"
-    if margin < 0:
+    if -_ROUNDING <= margin < 0:  # e.g. an equilibrium input 1.5e-10 past a gripper's [-0.08, 0] (Piper's file)
+        warns.append(
+            GapWarning(
+                "warning", "clamp", f"{where} is on its edge (past it by {-margin:.1e} of the range, a rounding error)"
+            )
+        )
+    elif margin < 0:
         warns.append(GapWarning("error", "clamp", f"{where} is outside the range: MuJoCo clamps it"))
     elif margin < t.clamp:
         warns.append(
