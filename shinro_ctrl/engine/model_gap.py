@@ -32,7 +32,9 @@ MuJoCo itself (``mj_forward`` at ``x0``) and says which are not small:
       \mathrm{margin} = \frac{\min(v - lo,\; hi - v)}{hi - lo},
 
   so 0.5 is the middle, 0 the edge and a negative margin lies outside, where
-  MuJoCo clamps (an error-level warning: the loop cannot apply ``u0``).
+  MuJoCo clamps (an error-level warning: the loop cannot apply ``u0``), except
+  within a rounding error of the edge (``−1e-8 ≤ margin < 0``, e.g. an
+  equilibrium input computed 1e-10 past it): on the edge, a warning.
 * **tendons** with friction loss or a range (:class:`TendonGap`): the friction
   loss against the tendon's load force, the length's margin in the range.
 * **contacts** active at ``x0`` (MuJoCo's ``d.contact`` rows that become
