@@ -4,7 +4,8 @@ Reads every ``*.xml`` / ``*.urdf`` in a folder the user points it at (no file sh
 shinro_ctrl and nothing is fetched). Robot description collections ship meshes beside their
 MJCF files; without them MuJoCo cannot load the file. ``--strip-meshes`` first writes, into
 ``<folder>/stripped/``, a copy of each file with every ``<mesh>`` asset and every geom that
-uses one (``mesh=`` attribute, or ``type="mesh"`` given on the geom) removed. That changes:
+uses one (``mesh=`` attribute, or ``type="mesh"`` given on the geom) removed; in a URDF, every
+``<visual>``/``<collision>`` block whose geometry is a ``<mesh>``. That changes:
 
 * contacts with those geoms are lost (the primitive geoms -- capsules, spheres, boxes -- stay);
 * a body's inertia taken from its mesh geoms is lost where the body has no explicit
@@ -61,8 +62,17 @@ _MESH_ASSET = re.compile(r"<mesh\b[^>]*/>\s*", re.S)
 _MESH_GEOM = re.compile(r"<geom\b(?=[^>]*(?:\bmesh=|\btype=\"mesh\"))[^>]*/>\s*", re.S)
 
 
+_URDF_BLOCK = re.compile(r"<(visual|collision)\b[^>]*>.*?</\1>\s*", re.S)
+
+
 def strip_meshes(text: str) -> str:
-    """The file without ``<mesh>`` assets and without the geoms that use a mesh (module docstring)."""
+    """The file without its meshes (module docstring).
+
+    MJCF: without ``<mesh>`` assets and the geoms that use one. URDF: without the ``<visual>`` and
+    ``<collision>`` blocks whose geometry is a ``<mesh>``.
+    """
+    if "<robot" in text and "<mujoco" not in text:
+        return _URDF_BLOCK.sub(lambda b: "" if "<mesh" in b.group(0) else b.group(0), text)
     return _MESH_GEOM.sub("", _MESH_ASSET.sub("", text))
 
 
