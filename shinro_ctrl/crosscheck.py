@@ -232,7 +232,8 @@ def _comparable_state_map(plant: Any, x0: np.ndarray, u0: np.ndarray) -> np.ndar
     try:
         T, _ = plant.engine_state_map(x0)
     except NotImplementedError as exc:
-        raise InvalidArgument(f"{type(plant).__name__} has no MuJoCo state map to cross-check against") from exc
+        why = f": {exc}" if str(exc) else ""
+        raise InvalidArgument(f"{type(plant).__name__} has no MuJoCo state map to cross-check against{why}") from exc
     # With a state-dependent coordinate map x = g(z), A_x = T A_z T⁻¹ + (dT/dt) T⁻¹: the comparison is
     # exact only where T does not change along the motion (any equilibrium; zero body rates for a free body).
     T_ahead, _ = plant.engine_state_map(x0 + 1e-6 * plant.dynamics(x0, u0))  # T a microsecond later

@@ -210,8 +210,8 @@ def _idealize_model_file(spec: mujoco.MjSpec) -> None:
     """Make a user's model file the exact twin of its smooth design model (``MjcfPlant``, ``model="matched"``).
 
     :func:`_exact_match_options`, and off: contacts, joint-limit forces, friction loss, the ``ctrlrange`` clamp
-    (``mjDSBL_CLAMPCTRL``), every actuator's ``forcerange`` clamp and every joint's ``actuatorfrcrange``. What
-    ``crosscheck`` compares.
+    (``mjDSBL_CLAMPCTRL``, and ``ctrllimited`` off, which ``mjd_transitionFD`` reads), every actuator's
+    ``forcerange`` clamp and every joint's ``actuatorfrcrange``. What ``crosscheck`` compares.
     """
     _exact_match_options(spec)
     opt = spec.option
@@ -219,6 +219,10 @@ def _idealize_model_file(spec: mujoco.MjSpec) -> None:
         opt.disableflags = int(opt.disableflags) | int(bit)
     for act in spec.actuators:
         act.forcelimited = int(mujoco.mjtLimited.mjLIMITED_FALSE)
+        # mjd_transitionFD keeps its control nudges inside ctrlrange whenever ctrllimited, mjDSBL_CLAMPCTRL or
+        # not: a u0 on the edge gave a one-sided difference, one a rounding error past it (an equilibrium input
+        # of 1e-10 above a range [-0.08, 0]) a zero column of B.
+        act.ctrllimited = int(mujoco.mjtLimited.mjLIMITED_FALSE)
     for joint in spec.joints:
         joint.actfrclimited = int(mujoco.mjtLimited.mjLIMITED_FALSE)
 

@@ -32,7 +32,9 @@ MuJoCo itself (``mj_forward`` at ``x0``) and says which are not small:
       \mathrm{margin} = \frac{\min(v - lo,\; hi - v)}{hi - lo},
 
   so 0.5 is the middle, 0 the edge and a negative margin lies outside, where
-  MuJoCo clamps (an error-level warning: the loop cannot apply ``u0``).
+  MuJoCo clamps (an error-level warning: the loop cannot apply ``u0``), except
+  within a rounding error of the edge (``−1e-8 ≤ margin < 0``, e.g. an
+  equilibrium input computed 1e-10 past it): on the edge, a warning.
 * **tendons** with friction loss or a range (:class:`TendonGap`): the friction
   loss against the tendon's load force, the length's margin in the range.
 * **contacts** active at ``x0`` (MuJoCo's ``d.contact`` rows that become
@@ -578,11 +580,21 @@ def _dofs(
     return rows
 
 
+#: A value past a range's end by at most this fraction of its width is on the edge (rounding), not outside it.
+_ROUNDING = 1e-8
+
+
 def _clamp_warning(
     warns: list[GapWarning], margin: float, t: GapThresholds, what: str, rng_name: str, rng: tuple[float, float]
 ) -> None:
     where = f"{what} against {rng_name} [{rng[0]:.4g}, {rng[1]:.4g}]"
-    if margin < 0:
+    if -_ROUNDING <= margin < 0:  # e.g. an equilibrium input 1.5e-10 past a gripper's [-0.08, 0] (Piper's file)
+        warns.append(
+            GapWarning(
+                "warning", "clamp", f"{where} is on its edge (past it by {-margin:.1e} of the range, a rounding error)"
+            )
+        )
+    elif margin < 0:
         warns.append(GapWarning("error", "clamp", f"{where} is outside the range: MuJoCo clamps it"))
     elif margin < t.clamp:
         warns.append(

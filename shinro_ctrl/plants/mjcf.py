@@ -884,7 +884,10 @@ class MjcfPlant(Plant):
     def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`)."""
         if self.constraints is not None:
-            raise NotImplementedError(f"{self._label()}: a constrained model's state is its independent coordinates")
+            raise NotImplementedError(
+                f"{self._label()}: a constrained model's state is its independent coordinates, MuJoCo's dependent "
+                "joints follow them nonlinearly (its equality constraints)"
+            )
         n = self.state_dim
         return np.eye(n), np.arange(n)
 
