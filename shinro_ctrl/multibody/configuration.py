@@ -105,7 +105,7 @@ def _linear(tree: ModelTree) -> tuple[list[int], list[int]]:
 
 
 def qpos_rate(tree: ModelTree, q: Sequence[object], v: Sequence[object]) -> list[object]:
-    """``q̇pos (nq,)`` from ``qpos (nq,)``, ``qvel (nv,)``: ``v`` on plain coordinates, ``½ q ⊗ (0, ω)`` on quaternions."""
+    """``q̇pos (nq,)`` from ``qpos (nq,)``, ``qvel (nv,)``: ``v`` on coordinates, ``½ q ⊗ (0, ω)`` on quaternions."""
     out: list[object] = [0.0] * tree.nq
     qi, vi = _linear(tree)
     for a, d in zip(qi, vi, strict=True):

@@ -203,7 +203,7 @@ class ModelTree:
         name: Model name.
         path: Absolute path of the model file ("" when built in memory).
         bodies: Bodies, index 0 the world; parents precede children.
-        joints: Hinge and slide joints in MuJoCo's ``qpos`` order.
+        joints: The joints in MuJoCo's ``qpos`` order (:attr:`qposadr` and :attr:`dofadr` index them).
         actuators: Actuators in MuJoCo's ``ctrl`` order.
         gravity: The model's gravity vector ``(3,)`` [m/s²] (``opt.gravity``).
         timestep: The model's ``opt.timestep`` [s].
