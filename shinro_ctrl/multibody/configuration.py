@@ -42,12 +42,14 @@ if TYPE_CHECKING:
 
 __all__ = [
     "difference",
+    "difference_jacobian",
     "integrate",
     "integrate_sx",
     "normalize_quaternions",
     "qpos_rate",
     "quat_matrix",
     "quaternion_slices",
+    "tangent_basis",
 ]
 
 
@@ -212,3 +214,37 @@ def normalize_quaternions(tree: ModelTree, qpos: ArrayLike) -> tuple[np.ndarray,
         worst = max(worst, abs(n - 1.0))
         q[a : a + 4] /= n
     return q, worst
+
+
+def _left(q: np.ndarray) -> np.ndarray:
+    """``L(q)``: ``q ⊗ p = L(q) p``."""
+    w, x, y, z = q
+    return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
+
+
+def tangent_basis(tree: ModelTree, qpos: ArrayLike) -> np.ndarray:
+    """``E = ∂ integrate(qpos, v) / ∂v`` at ``v = 0`` ``(nq, nv)``: ``½ L(q)[:, 1:]`` on a quaternion, else ``I``."""
+    q = np.asarray(qpos, dtype=float)
+    E = np.zeros((tree.nq, tree.nv))
+    qi, vi = _linear(tree)
+    E[qi, vi] = 1.0
+    for a, d in quaternion_slices(tree):
+        u = q[a : a + 4] / np.linalg.norm(q[a : a + 4])
+        E[a : a + 4, d : d + 3] = 0.5 * _left(u)[:, 1:]
+    return E
+
+
+def difference_jacobian(tree: ModelTree, qpos: ArrayLike) -> np.ndarray:
+    """``D = ∂ difference(q, qpos) / ∂q`` at ``q = qpos`` ``(nv, nq)``: ``2 L(q̄)[1:, :]`` on a quaternion.
+
+    ``D E = I`` (:func:`tangent_basis`); ``D q = 0`` on each quaternion (a change of its norm is no motion).
+    """
+    q = np.asarray(qpos, dtype=float)
+    D = np.zeros((tree.nv, tree.nq))
+    qi, vi = _linear(tree)
+    D[vi, qi] = 1.0
+    for a, d in quaternion_slices(tree):
+        n = np.linalg.norm(q[a : a + 4])
+        u = q[a : a + 4] / n
+        D[d : d + 3, a : a + 4] = 2.0 * _left(np.r_[u[0], -u[1:]])[1:, :] / n
+    return D
