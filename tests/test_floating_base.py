@@ -167,7 +167,7 @@ def test_continuous_tangent_jacobian_on_the_manifold(drone):
     rng = np.random.default_rng(3)
     x0 = drone.equilibrium()[0]
     x = drone.retract(x0, rng.normal(size=12))  # tilted and spinning: the −½[ω]× terms matter
-    u = rng.normal(size=4) + [5.0, 0, 0, 0]
+    u = rng.normal(size=4) + np.array([5.0, 0, 0, 0])
 
     def d5(F, h):
         return (-F(2 * h) + 8 * F(h) - 8 * F(-h) + F(-2 * h)) / (12 * h)
@@ -232,7 +232,8 @@ def test_bad_quaternions_and_lengths(drone, tmp_path, capsys):
     scenario = tmp_path / "bad.toml"
     scenario.write_text(
         '[plant]\ntype = "MjcfPlant"\nmodel = "quadrotor_free.xml"\nx0 = [0, 0, 1, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0]\n'
-        '[controller]\ntype = "LQR"\nQ = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\nR = [1, 1, 1, 1]\n[sim]\nduration = 0.1\n'
+        '[controller]\ntype = "LQR"\nQ = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\nR = [1, 1, 1, 1]\n'
+        "[sim]\nduration = 0.1\n"
     )
     assert main(["run", str(scenario), "--engine", "standalone"]) == 2
     err = capsys.readouterr().err
