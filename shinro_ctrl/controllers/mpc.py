@@ -401,12 +401,19 @@ class LinearMPC(Controller):
         ctrl = cls(lm.A, lm.B, Q, R, horizon, options=opts)
         ctrl.model = lm
         if floating:
-            # the QP lives in the deviation coordinates of the operating state: x and ref enter as
-            # plant.difference(·, x0) (its operating point 0; the plans ``last.states`` are deviations)
             x_op = lm.x0.copy()
-            ctrl._to_tangent = lambda z: plant.difference(z, x_op)
-            ctrl.state_dim = plant.state_dim
+            ctrl.measure_deviations(lambda z: plant.difference(z, x_op), plant.state_dim)
         return ctrl
+
+    def measure_deviations(self, deviation: Callable[[np.ndarray], np.ndarray], state_dim: int) -> None:
+        """Take states ``(state_dim,)`` and references as ``deviation(x)`` (a floating base's tangent space).
+
+        The QP then lives in the deviation coordinates of the operating state (:meth:`from_plant` passes
+        ``plant.difference(·, x0)`` and an operating point 0): ``x`` and ``ref`` enter through
+        ``deviation``; the plans ``last.states`` and the state bounds are deviations.
+        """
+        self._to_tangent = deviation
+        self.state_dim = int(state_dim)
 
     def _tangent_args(self, x: ArrayLike, ref: ArrayLike | None) -> tuple[np.ndarray, np.ndarray | None]:
         """A floating base's full state and reference as deviations (see :meth:`from_plant`)."""

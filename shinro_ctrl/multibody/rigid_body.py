@@ -212,7 +212,7 @@ class RigidBodyTree:
             for j in body.joints:
                 jt = tree.joints[j]
                 if jt.type in ("ball", "free"):
-                    node, R, p = RigidBodyTree._ball_nodes(tree, nodes, j, node, R, p)
+                    node, R, p = _ball_nodes(tree, nodes, j, node, R, p)
                     continue
                 anchor = np.asarray(jt.pos, dtype=float)
                 # node frame = current frame moved to the anchor (same orientation)
@@ -244,63 +244,6 @@ class RigidBodyTree:
         if order != list(range(len(tree.joints))):  # MuJoCo numbers dofs in body order
             raise ValueError(f"joints are not in tree order: {order}")
         return nodes, frame
-
-    @staticmethod
-    def _ball_nodes(
-        tree: ModelTree, nodes: list[_Node], j: int, node: int, R: np.ndarray, p: np.ndarray
-    ) -> tuple[int, np.ndarray, np.ndarray]:
-        r"""Append the nodes of ball or free joint ``j``; return the body frame after it ``(node, R, p)``.
-
-        A free joint is three slides along the world axes (``qvel[0:3]``: the world velocity of the
-        body origin, ``qpos[0:3]`` its world position; MuJoCo ignores the body's ``pos``/``quat`` then)
-        followed by a ball at the body origin. A ball is three rotation nodes with the body's axes
-        ``e_x, e_y, e_z`` at one origin: the first is rotated by the quaternion ``qpos[a:a+4]``
-        (``R = R_0 R(q)``), the others by nothing, so the body's angular velocity in its own frame is
-        ``ω = Σ e_k q̇_k = qvel[d:d+3]`` (MuJoCo's body-frame convention). The velocity-product terms
-        of the rotation nodes use the angular velocity *before* the joint (``c = ω_λ × S q̇``, the true
-        spherical joint's, since ``S`` is constant in the body frame), never the partial sums a chain
-        of hinges would give (:mod:`~shinro_ctrl.multibody.aba`, :meth:`_rnea`).
-        """
-        jt = tree.joints[j]
-        a = tree.qposadr[j]
-        eye = np.eye(3)
-        if jt.type == "free":
-            if node >= 0:
-                raise ValueError(f"free joint '{jt.name}' is not on a child of the world")
-            for k in range(3):
-                nodes.append(
-                    _Node(
-                        parent=node,
-                        dof=j,
-                        slide=True,
-                        R0=eye.copy(),
-                        p0=np.zeros(3),
-                        axis=eye[k].copy(),
-                        qpos0=0.0,
-                        qadr=a + k,
-                    )
-                )
-                node = len(nodes) - 1
-            R, p, anchor, a = eye, np.zeros(3), np.zeros(3), a + 3
-        else:
-            anchor = np.asarray(jt.pos, dtype=float)
-        for k in range(3):
-            first = k == 0
-            nodes.append(
-                _Node(
-                    parent=node,
-                    dof=j,
-                    slide=False,
-                    R0=R.copy() if first else eye.copy(),
-                    p0=(p + R @ anchor) if first else np.zeros(3),
-                    axis=eye[k].copy(),
-                    qpos0=0.0,
-                    qadr=a,
-                    ball=1 if first else 2,
-                )
-            )
-            node = len(nodes) - 1
-        return node, eye, -anchor
 
     def _descendants(self, i: int) -> list[int]:
         out = [i]
@@ -841,3 +784,60 @@ class RigidBodyTree:
             R = [[_dot(Rn[r], [R[0][c], R[1][c], R[2][c]]) for c in range(3)] for r in range(3)]
             node = self._nodes[node].parent
         return R, p
+
+
+def _ball_nodes(
+    tree: ModelTree, nodes: list[_Node], j: int, node: int, R: np.ndarray, p: np.ndarray
+) -> tuple[int, np.ndarray, np.ndarray]:
+    r"""Append the nodes of ball or free joint ``j``; return the body frame after it ``(node, R, p)``.
+
+    A free joint is three slides along the world axes (``qvel[0:3]``: the world velocity of the
+    body origin, ``qpos[0:3]`` its world position; MuJoCo ignores the body's ``pos``/``quat`` then)
+    followed by a ball at the body origin. A ball is three rotation nodes with the body's axes
+    ``e_x, e_y, e_z`` at one origin: the first is rotated by the quaternion ``qpos[a:a+4]``
+    (``R = R_0 R(q)``), the others by nothing, so the body's angular velocity in its own frame is
+    ``ω = Σ e_k q̇_k = qvel[d:d+3]`` (MuJoCo's body-frame convention). The velocity-product terms
+    of the rotation nodes use the angular velocity *before* the joint (``c = ω_λ × S q̇``, the true
+    spherical joint's, since ``S`` is constant in the body frame), never the partial sums a chain
+    of hinges would give (:mod:`~shinro_ctrl.multibody.aba`, :meth:`_rnea`).
+    """
+    jt = tree.joints[j]
+    a = tree.qposadr[j]
+    eye = np.eye(3)
+    if jt.type == "free":
+        if node >= 0:
+            raise ValueError(f"free joint '{jt.name}' is not on a child of the world")
+        for k in range(3):
+            nodes.append(
+                _Node(
+                    parent=node,
+                    dof=j,
+                    slide=True,
+                    R0=eye.copy(),
+                    p0=np.zeros(3),
+                    axis=eye[k].copy(),
+                    qpos0=0.0,
+                    qadr=a + k,
+                )
+            )
+            node = len(nodes) - 1
+        R, p, anchor, a = eye, np.zeros(3), np.zeros(3), a + 3
+    else:
+        anchor = np.asarray(jt.pos, dtype=float)
+    for k in range(3):
+        first = k == 0
+        nodes.append(
+            _Node(
+                parent=node,
+                dof=j,
+                slide=False,
+                R0=R.copy() if first else eye.copy(),
+                p0=(p + R @ anchor) if first else np.zeros(3),
+                axis=eye[k].copy(),
+                qpos0=0.0,
+                qadr=a,
+                ball=1 if first else 2,
+            )
+        )
+        node = len(nodes) - 1
+    return node, eye, -anchor
