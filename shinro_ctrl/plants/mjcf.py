@@ -1,4 +1,4 @@
-r"""Bring your own robot: any fixed-base MJCF/URDF tree of hinge and slide joints as a plant.
+r"""Bring your own robot: any MJCF/URDF tree of hinge, slide, ball and free joints as a plant.
 
 :class:`MjcfPlant` reads the model file once (MuJoCo compiles it; the
 reader ``shinro_ctrl.engine.model_tree`` is the one module of the engine
@@ -366,8 +366,8 @@ class MjcfPlant(Plant):
     stops there, and controllers that take state bounds get them.
 
     The file's kind is read from its content (``<mujoco>`` or ``<robot>``),
-    whatever its name. Everything in it the plant cannot model (free or ball
-    joints, tendon or inactive equality constraints, spatial tendons that act,
+    whatever its name. Everything in it the plant cannot model (stiffness or
+    a joint actuator on a ball or free joint, tendon or inactive equality constraints, spatial tendons that act,
     fluid forces, an unsupported actuator ...) and every invalid number (a
     ``NaN`` gravity, an infinite mass) is refused in one error that lists them
     all by element name, with the reason and the fix where one exists.
@@ -407,6 +407,17 @@ class MjcfPlant(Plant):
     Jacobians in its own buffers (created on its first call; the first
     compilation is behind a lock). :meth:`step` and the state belong to one thread (see
     :class:`~shinro_ctrl.plants.base.Plant`).
+
+    **Floating bases.** Free and ball joints hold unit quaternions: the
+    state is MuJoCo's ``[qpos; qvel; act]`` with ``nq ≠ nv`` (a free joint
+    ``root``: ``root_x .. root_z, root_qw .. root_qz``, then the world
+    velocity ``root_vx ..`` and the body rates ``root_wx ..``), stepped on
+    the manifold. The linear models live in the tangent space of
+    :attr:`tangent_dim` ``= 2 nv + na`` coordinates (:meth:`difference`,
+    :meth:`retract`, :meth:`tangent_maps`; MuJoCo's ``mj_differentiatePos``
+    / ``mj_integratePos`` and ``mjd_transitionFD`` conventions). A user's
+    quaternion within :data:`QUATERNION_TOLERANCE` of unit norm is
+    normalized with a warning, else refused.
 
     Args:
         model: MJCF/URDF path, or the name of a shipped asset; default the
