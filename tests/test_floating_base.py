@@ -251,3 +251,15 @@ def test_unsupported_floating_features_are_refused(tmp_path):
         warnings.simplefilter("ignore")
         with pytest.raises(InvalidArgument, match=r"stiffness on ball joint 'hip'"):
             MjcfPlant(path)
+
+
+def test_crosscheck_compares_the_tangent_models_directly(drone):
+    from shinro_ctrl.crosscheck import crosscheck
+
+    rng = np.random.default_rng(5)
+    x0 = drone.equilibrium()[0]
+    x = drone.retract(x0, rng.normal(size=12) * 0.5)  # tilted and spinning, off equilibrium
+    u = np.array([5.0, 0.01, -0.02, 0.01])
+    res = crosscheck(drone, x, u)
+    assert res.A_mujoco.shape == (12, 12) and res.state_names[3:6] == ("root_rx", "root_ry", "root_rz")
+    assert res.mujoco_max_rel_error < 1e-6 and res.fd_max_rel_error < 1e-6

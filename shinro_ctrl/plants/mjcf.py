@@ -1137,10 +1137,14 @@ class MjcfPlant(Plant):
         )
 
     def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`)."""
+        """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`).
+
+        On a floating base the identity of the tangent space (``2 nv + na``): the linear models are in
+        ``mjd_transitionFD``'s own coordinates (``crosscheck`` compares them directly).
+        """
         if self.constraints is not None:
             raise NotImplementedError(f"{self._label()}: a constrained model's state is its independent coordinates")
-        n = self.state_dim
+        n = self.tangent_dim
         return np.eye(n), np.arange(n)
 
     def engine_read(self, engine: MujocoEngine) -> np.ndarray:
