@@ -263,3 +263,25 @@ def test_crosscheck_compares_the_tangent_models_directly(drone):
     res = crosscheck(drone, x, u)
     assert res.A_mujoco.shape == (12, 12) and res.state_names[3:6] == ("root_rx", "root_ry", "root_rz")
     assert res.mujoco_max_rel_error < 1e-6 and res.fd_max_rel_error < 1e-6
+
+
+def test_kalman_filter_estimates_the_drone_from_its_pose(drone):
+    from shinro_ctrl.estimators.kalman import KalmanFilter
+
+    x0, u = drone.equilibrium()
+    ctrl = LQR.from_plant(drone, [10, 10, 10, 2, 2, 2, 1, 1, 1, 0.1, 0.1, 0.1], [0.5, 200, 200, 200])
+    kf = KalmanFilter.from_plant(drone, measured=list(drone.state_names[:7]), Qn=[1e-2] * 4, Rn=[1e-4] * 7)
+    assert kf.C.shape == (7, 12)  # the filter runs in the tangent space; it measures qpos (with the quaternion)
+    kf.reset(x0)
+    rng = np.random.default_rng(6)
+    x = drone.retract(x0, np.r_[0.3, -0.3, 0.2, 0.2, -0.2, 0.5, np.zeros(6)])
+    first = None
+    for _ in range(300):
+        x_hat = kf.update(x[:7] + 1e-3 * rng.normal(size=7), u)
+        first = np.abs(drone.difference(x_hat, x)).max() if first is None else first
+        u = ctrl(x_hat)
+        x = drone.integrate(x, u)
+    assert x_hat.shape == (13,) and np.linalg.norm(x_hat[3:7]) == pytest.approx(1.0, abs=1e-12)
+    assert np.abs(drone.difference(x, x0)).max() < 0.05
+    err = np.abs(drone.difference(x_hat, x))
+    assert err[:6].max() < 5e-3 and err[6:].max() < 0.1 < first  # the pose to a few noise sigmas
