@@ -285,3 +285,34 @@ def test_kalman_filter_estimates_the_drone_from_its_pose(drone):
     assert np.abs(drone.difference(x, x0)).max() < 0.05
     err = np.abs(drone.difference(x_hat, x))
     assert err[:6].max() < 5e-3 and err[6:].max() < 0.1 < first  # the pose to a few noise sigmas
+
+
+def test_tvlqr_tracks_a_drone_trajectory(drone):
+    from shinro_ctrl.controllers.tvlqr import TVLQR
+    from shinro_ctrl.planning.trajectory import Trajectory
+
+    # a feasible reference: the LQR's own flight out of a yaw offset (knots at the plant's step)
+    x0, u0 = drone.equilibrium()
+    lqr = LQR.from_plant(drone, [10, 10, 10, 2, 2, 2, 1, 1, 1, 0.1, 0.1, 0.1], [0.5, 200, 200, 200])
+    xs, us = [drone.retract(x0, np.r_[0.5, 0, 0, 0, 0, 1.0, np.zeros(6)])], []
+    for _ in range(45):
+        us.append(lqr(xs[-1]))
+        xs.append(drone.integrate(xs[-1], us[-1]))
+    X, U = np.array(xs[:-1]), np.array(us)
+    X[-1], U[-1] = x0, u0  # the plan ends at rest, the goal's LQR takes over (an equilibrium)
+    xdot = np.array([drone.dynamics(x, u) for x, u in zip(X, U, strict=True)])
+    traj = Trajectory(t=drone.dt * np.arange(45), x=X, u=U, xdot=xdot)
+    ctrl = TVLQR.from_trajectory(drone, traj, [100] * 6 + [10] * 6, [0.1, 1, 1, 1])
+    assert ctrl.K.shape == (44, 4, 12)  # one tangent-space gain per step of the 0.44 s plan
+    x = X[0].copy()  # on the plan: it is followed to rounding
+    for k in range(44):
+        assert np.abs(drone.difference(x, X[k])).max() < 1e-9
+        x = drone.integrate(x, ctrl(x))
+    ends = []
+    for feedback in (True, False):  # 0.05 off the plan: the feedback pulls it back, the plan's inputs do not
+        ctrl.reset()
+        x = drone.retract(X[0], np.r_[0.05, -0.05, 0.0, 0.05, 0.0, -0.05, np.zeros(6)])
+        for k in range(43):
+            x = drone.integrate(x, ctrl(x) if feedback else U[k])
+        ends.append(np.linalg.norm(drone.difference(x, X[43])))
+    assert ends[0] < 0.75 * ends[1]  # about 0.14 against 0.22

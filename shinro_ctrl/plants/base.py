@@ -226,6 +226,11 @@ class Plant:
         """
         return np.asarray(x, dtype=float) - np.asarray(x_ref, dtype=float)
 
+    def tangent_maps(self, x: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """``(D, E)``: ``∂ difference(·, x)/∂x``, ``∂ retract(x, ·)/∂dx`` at 0 (identities but on a floating base)."""
+        n = self.state_dim
+        return np.eye(n), np.eye(n)
+
     def retract(self, x_ref: ArrayLike, dx: ArrayLike) -> np.ndarray:
         """The state ``x_ref ⊕ dx`` ``(..., n)`` reached from ``x_ref`` by the deviation ``dx (..., tangent_dim)``.
 
