@@ -375,6 +375,11 @@ class ExtendedKalmanFilter(Estimator):
     """
 
     def __init__(self, plant: Plant, C: Matrix, Qn: Weight, Rn: Weight, *, Qn_on: str = "input"):
+        if plant.tangent_dim != plant.state_dim:
+            raise InvalidArgument(
+                f"ExtendedKalmanFilter on a floating base ({plant!r}: unit quaternions in the state) is not supported "
+                "yet; use KalmanFilter (it runs in the tangent space)"
+            )
         n, m = plant.state_dim, plant.input_dim
         C = measurement_matrix(C, n)
         p = C.shape[0]
