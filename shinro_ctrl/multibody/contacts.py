@@ -269,14 +269,18 @@ def standing_equilibrium(
             "cones needs torques outside the actuator ranges (ctrlrange; lower the load or change the posture)",
             "torque",
         )
-    # the QP: min ‖u‖² + ε‖λ‖² (convex; HiGHS)
+    # the QP: min ‖u‖² + ε‖λ‖² (convex; IPOPT)
     H = np.diag(np.r_[np.ones(m), np.full(R, FORCE_WEIGHT)])
     Aall = np.vstack([A, G]) if len(G) else A
     lba = np.r_[-b, np.full(len(G), -np.inf)]
     uba = np.r_[-b, np.zeros(len(G))]
-    qp = {"h": cs.Sparsity.dense(nz, nz), "a": cs.Sparsity.dense(*Aall.shape)}
-    solver = cs.conic("standing", "highs", qp, {"highs": {"output_flag": False}, "error_on_fail": False})
-    sol = solver(h=cs.DM(H), g=cs.DM.zeros(nz), a=cs.DM(Aall), lba=lba, uba=uba, lbx=lo, ubx=hi)
+    zs = cs.MX.sym("z", nz)
+    nlp = {"x": zs, "f": 0.5 * cs.dot(zs, cs.mtimes(cs.DM(H), zs)), "g": cs.mtimes(cs.DM(Aall), zs)}
+    opts = {"ipopt": {"print_level": 0, "sb": "yes", "tol": 1e-12, "max_iter": 200}, "print_time": False}
+    solver = cs.nlpsol("standing", "ipopt", nlp, opts)
+    lbx = np.where(np.isfinite(lo), lo, -np.inf)
+    ubx = np.where(np.isfinite(hi), hi, np.inf)
+    sol = solver(x0=np.zeros(nz), lbg=lba, ubg=uba, lbx=lbx, ubx=ubx)
     z = np.asarray(sol["x"]).ravel()
     residual = float(np.abs(A @ z + b).max())
     if not solver.stats().get("success", False) or residual > BALANCE_TOL * max(1.0, np.abs(b).max()):
