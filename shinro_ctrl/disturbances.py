@@ -17,7 +17,8 @@ Each acts on exactly one target:
   loop adds its effect ``dt · G F`` to the state after each step, where
   ``G = plant.body_force_map(body)`` is the change of ``ẋ`` per newton
   (for the quadrotor, ``1/m`` on the world velocity). Plants without such
-  a map reject body forces.
+  a map reject body forces, except a model-file plant (``MjcfPlant``),
+  which takes them on any body of its file in the MuJoCo loop.
 
 Kinds (``time`` is the start [s], default 0; ``duration`` limits ``step``,
 ``sine`` and ``noise`` to ``[time, time + duration)``, default forever):
@@ -28,6 +29,19 @@ Kinds (``time`` is the start [s], default 0; ``duration`` limits ``step``,
 * ``sine``: ``d = value · sin(2π frequency (t − time) + phase)``.
 * ``noise``: white Gaussian, standard deviation ``value`` per step, from
   its own seeded stream.
+* ``push``: a shove on a body, ``d = value`` over ``[time, time + duration)``
+  (a ``step`` whose ``time`` and ``duration`` are required and whose target
+  must be a ``body``)::
+
+      [[sim.disturbance]]
+      kind = "push"
+      body = "trunk"
+      value = [0, 30, 0]   # 30 N sideways (world y)
+      time = 1.0
+      duration = 0.1
+
+  In MuJoCo it is ``xfrc_applied[body, :3] = value`` during those steps (the
+  controller sees nothing of it but its effect on the state).
 
 Every random draw (disturbance noise, sensor noise, process noise) comes
 from its own stream derived from ``[sim] seed``, so adding one kind of
@@ -61,6 +75,7 @@ DISTURBANCE_KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "impulse": (("value", "time"), ()),
     "sine": (("value", "frequency"), ("time", "duration", "phase")),
     "noise": (("value",), ("time", "duration")),
+    "push": (("value", "time", "duration"), ()),
 }
 _STREAMS = {"sensor": 1, "process": 2, "disturbance": 3}
 
@@ -75,7 +90,7 @@ class DisturbanceSpec:
     """One parsed disturbance.
 
     Attributes:
-        kind: ``step``, ``impulse``, ``sine`` or ``noise``.
+        kind: ``step``, ``impulse``, ``sine``, ``noise`` or ``push``.
         input: Input index, or None for a body force.
         body: Body name, or None for an input disturbance.
         value: ``(1,)`` for an input, ``(3,)`` world force [N] for a body.
@@ -138,6 +153,8 @@ def _one(table: Any, plant: Any, where: str, body_ok: Any) -> DisturbanceSpec:
     if ("input" in t) == ("body" in t):
         raise ConfigError(f"{where}: give exactly one target, 'input' (name or index) or 'body' (a body force)")
     names = tuple(plant.input_names)
+    if kind == "push" and "input" in t:
+        raise ConfigError(f"{where}: a 'push' is a force on a body: give 'body' (a body name), not 'input'")
     if "input" in t:
         i = t["input"]
         if isinstance(i, str):
@@ -194,7 +211,14 @@ def parse_disturbances(value: Any, plant: Any, where: str = "[sim] disturbance")
         try:
             plant.body_force_map(body)
         except (ValueError, KeyError, NotImplementedError) as exc:
-            raise ConfigError(f"{where}: {exc}") from None
+            # a model-file plant: any body of its file takes a force in MuJoCo (the standalone loop asks the
+            # plant for its body_force_map when the run starts)
+            tree = getattr(plant, "tree", None)
+            names = [b.name for b in getattr(tree, "bodies", ()) if b.name]
+            if body in names:
+                return
+            listed = f" (bodies of the model: {', '.join(names)})" if names else ""
+            raise ConfigError(f"{where}: {exc}{listed}") from None
 
     out = []
     for k, item in enumerate(items):
@@ -238,7 +262,7 @@ def disturbance_profile(
         start = s.time
         on = (t >= start - 1e-12 * max(1.0, start)) & (t < start + s.duration - 1e-12)
         amp = np.asarray(s.value)
-        if s.kind == "step":
+        if s.kind in ("step", "push"):
             sig = on[:, None] * amp[None, :]
         elif s.kind == "impulse":
             k = int(np.searchsorted(t, start + 1e-12 * max(1.0, start), side="right")) - 1

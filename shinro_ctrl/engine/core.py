@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import mujoco
 import numpy as np
 
+from shinro_ctrl.engine.contacts import BalanceMonitor, FloorContact, balance_body, floor_contacts
 from shinro_ctrl.engine.mjcf import (
     MODEL_CHOICES,
     _apply_patch,
@@ -594,6 +595,19 @@ class MujocoEngine:
             if link is not None and self.model.actuator_forcelimited[link[0]]
         ]
         return ForceClamps(self, plant.input_dim, links) if links else None
+
+    def balance_monitor(self) -> BalanceMonitor | None:
+        """A sampler of the trunk pose and floor contacts for the balance metrics (None: no free joint or no floor).
+
+        See :class:`~shinro_ctrl.engine.contacts.BalanceMonitor`; the trunk is the first free joint's body, the
+        floor any plane geom of the world body.
+        """
+        body = balance_body(self.model)
+        return BalanceMonitor(self, body) if body is not None else None
+
+    def floor_contacts(self) -> list[FloorContact]:
+        """The active floor contacts and their forces in the contact frame (see :func:`.contacts.floor_contacts`)."""
+        return floor_contacts(self)
 
     # ---------------------------------------------------------- bodies, sites
     def get_body_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:

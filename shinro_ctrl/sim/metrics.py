@@ -10,12 +10,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from shinro_ctrl.errors import NonFiniteError
 
+if TYPE_CHECKING:
+    from shinro_ctrl.engine.contacts import BalanceRecord
+
 __all__ = [
+    "BALANCE_METRICS",
     "FLAG_METRICS",
     "METRICS",
     "METRIC_KINDS",
@@ -29,6 +34,7 @@ __all__ = [
     "MetricInfo",
     "StreamingMetrics",
     "at_bounds",
+    "balance_metrics",
     "bound_excess",
     "compute_metrics",
     "format_metric",
@@ -45,7 +51,7 @@ __all__ = [
 #: a clock reading (varies from run to run), a count, or a yes/no flag.
 METRIC_KINDS = ("response", "timing", "wall-clock", "count", "flag")
 #: Which runs report a metric.
-REPORTED_BY = ("every run", "step response", "output feedback", "bounded input")
+REPORTED_BY = ("every run", "step response", "output feedback", "bounded input", "floating base")
 
 
 @dataclass(frozen=True)
@@ -99,6 +105,35 @@ METRIC_REGISTRY: dict[str, MetricInfo] = {
         MetricInfo(
             "estimation_rms", "", "response", "root mean square of the estimation error ‖x̂ − x‖", "output feedback"
         ),
+        MetricInfo(
+            "trunk_height_error",
+            "m",
+            "response",
+            "largest |z − z_ref| of the trunk (the free joint's body) over the run; z_ref its height at t = 0",
+            "floating base",
+        ),
+        MetricInfo(
+            "trunk_orientation_error",
+            "rad",
+            "response",
+            "largest angle of the rotation from the trunk's orientation at t = 0 to its orientation",
+            "floating base",
+        ),
+        MetricInfo(
+            "foot_slip",
+            "m",
+            "response",
+            "largest horizontal travel of a robot geom's floor contact point during one unbroken contact (None: "
+            "no contact)",
+            "floating base",
+        ),
+        MetricInfo(
+            "friction_cone_fraction",
+            "",
+            "response",
+            "worst geom's fraction of its in-contact samples whose floor force had ‖f_t‖ ≤ μ f_n (None: no contact)",
+            "floating base",
+        ),
     )
 }
 
@@ -127,8 +162,10 @@ RESPONSE_METRICS = _names(reported="step response")
 OUTPUT_FEEDBACK_METRICS = _names(reported="output feedback")
 #: Per-input metrics (``time_at_min_<input>``, ``time_at_max_<input>``) of the inputs with a bound on that side.
 PER_INPUT_METRICS = _names(reported="bounded input")
+#: Balance metrics of a MuJoCo run of a floating-base model with a floor (:func:`balance_metrics`).
+BALANCE_METRICS = _names(reported="floating base")
 #: Metrics newer than some stored baselines: a baseline without them passes (``regress --update`` stores them).
-NEWER_METRICS = (*RESPONSE_METRICS, *FLAG_METRICS, "saturation_fraction", *PER_INPUT_METRICS)
+NEWER_METRICS = (*RESPONSE_METRICS, *FLAG_METRICS, "saturation_fraction", *PER_INPUT_METRICS, *BALANCE_METRICS)
 
 
 def is_newer_metric(name: str) -> bool:
@@ -492,3 +529,64 @@ def plan_tracking_rms(x: np.ndarray, x_plan: np.ndarray, tracked: list[int]) -> 
         return None
     e = np.linalg.norm(x[inside][:, tracked] - x_plan[inside][:, tracked], axis=1)
     return float(np.sqrt(np.mean(e**2)))
+
+
+def _quat_angle(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``(T,)`` angle [rad] of the rotation from ``q_ref (4,)`` to each ``q (T, 4)``: ``2 acos |⟨q_ref, q⟩|``."""
+    q_ref = q_ref / np.linalg.norm(q_ref)
+    qn = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return 2.0 * np.arccos(np.clip(np.abs(qn @ q_ref), 0.0, 1.0))
+
+
+def balance_metrics(record: BalanceRecord | None) -> dict[str, float | None]:
+    r"""The balance metrics of a run of a floating-base robot on a floor (every value None without a record).
+
+    From the samples of :class:`~shinro_ctrl.engine.contacts.BalanceRecord` (one before the first step, one
+    after each step):
+
+    * ``trunk_height_error`` [m]: :math:`\max_k |z_k - z_0|`, the trunk's height against its height at t = 0.
+    * ``trunk_orientation_error`` [rad]: :math:`\max_k 2\arccos|\langle q_0, q_k\rangle|`, the angle of the
+      rotation taking the initial trunk orientation to the current one (unit quaternions; sign-free).
+    * ``foot_slip`` [m]: for each robot geom touching the floor, its contact point (the mean when it has
+      several contacts in one sample) is followed through each unbroken run of samples in contact; the slip
+      of that run is the largest horizontal distance :math:`\|p_{xy,k} - p_{xy,start}\|` from where the run
+      began. The metric is the largest over runs and geoms.
+    * ``friction_cone_fraction``: per geom, the fraction of its in-contact samples in which every contact
+      force had :math:`\|f_t\| \le \mu f_n` (1e-6 relative slack); the metric is the smallest over geoms
+      (1.0: every contact force stayed inside its cone the whole time).
+
+    ``foot_slip`` and ``friction_cone_fraction`` are None when nothing touched the floor.
+
+    Args:
+        record: The run's samples, or None (not a floating-base run with a floor).
+
+    Returns:
+        ``{name: value}`` for the names in :data:`BALANCE_METRICS`.
+    """
+    out: dict[str, float | None] = dict.fromkeys(BALANCE_METRICS)
+    if record is None or record.trunk_pos.shape[0] == 0:
+        return out
+    z = record.trunk_pos[:, 2]
+    out["trunk_height_error"] = float(np.max(np.abs(z - z[0])))
+    out["trunk_orientation_error"] = float(np.max(_quat_angle(record.trunk_quat[0], record.trunk_quat)))
+    if record.contact_step.shape[0] == 0:
+        return out
+    slip, fractions = 0.0, []
+    steps, geoms = record.contact_step, record.contact_geom
+    f_n, f_t = record.contact_force[:, 0], record.contact_force[:, 1]
+    inside = f_t <= record.contact_friction * f_n * (1 + 1e-6) + 1e-9
+    for g in dict.fromkeys(geoms.tolist()):
+        mine = geoms == g
+        ks = np.unique(steps[mine])
+        pos = np.array([record.contact_pos[mine & (steps == k), :2].mean(axis=0) for k in ks])
+        ok = np.array([bool(np.all(inside[mine & (steps == k)])) for k in ks])
+        fractions.append(float(np.mean(ok)))
+        start = 0
+        for i in range(1, len(ks) + 1):
+            if i == len(ks) or ks[i] != ks[i - 1] + 1:  # the run [start, i) ends
+                run = pos[start:i]
+                slip = max(slip, float(np.max(np.linalg.norm(run - run[0], axis=1))))
+                start = i
+    out["foot_slip"] = slip
+    out["friction_cone_fraction"] = min(fractions)
+    return out

@@ -18,6 +18,7 @@ import numpy as np
 
 from shinro_ctrl.disturbances import DisturbanceProfile, disturbance_profile, noise_stream
 from shinro_ctrl.errors import ConfigError, ShinroError
+from shinro_ctrl.plants.standalone import StandaloneEngine
 from shinro_ctrl.types import Weight
 
 if TYPE_CHECKING:
@@ -137,14 +138,15 @@ class LoopSignals:
         process: ``(T, m)`` process noise added to the applied input, or None.
         disturbance: The sampled :class:`~shinro_ctrl.disturbances.DisturbanceProfile`.
         extra_input: ``(T, m)`` process noise plus input disturbances, or None when both are absent.
-        forces: ``[(body, (T, 3), G (n, 3))]`` world body forces and their standalone state map.
+        forces: ``[(body, (T, 3), G (n, 3))]`` world body forces and their standalone state map (None in MuJoCo,
+            which applies the force itself).
     """
 
     sensor: np.ndarray | None
     process: np.ndarray | None
     disturbance: DisturbanceProfile
     extra_input: np.ndarray | None
-    forces: list[tuple[str, np.ndarray, np.ndarray]]
+    forces: list[tuple[str, np.ndarray, np.ndarray | None]]
 
 
 def loop_signals(scenario: Scenario, plant: Plant, t: np.ndarray, p: int) -> LoopSignals:
@@ -162,7 +164,9 @@ def loop_signals(scenario: Scenario, plant: Plant, t: np.ndarray, p: int) -> Loo
     extra = None
     if process is not None or np.any(prof.inputs):
         extra = prof.inputs + (process if process is not None else 0.0)
-    forces = [(body, F, plant.body_force_map(body)) for body, F in prof.forces]
+    # the standalone loop moves the state by G F (checked here, before the loop); MuJoCo applies F itself
+    standalone = isinstance(plant.simulation, StandaloneEngine)
+    forces = [(body, F, plant.body_force_map(body) if standalone else None) for body, F in prof.forces]
     return LoopSignals(sensor, process, prof, extra, forces)
 
 

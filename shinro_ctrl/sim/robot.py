@@ -14,7 +14,7 @@ import numpy as np
 from shinro_ctrl.config import Scenario, load_scenario, parse_scenario
 from shinro_ctrl.errors import ConfigError, InvalidArgument, ShinroError
 from shinro_ctrl.progress import Progress
-from shinro_ctrl.sim.metrics import compute_metrics, plan_tracking_rms, saturation_metrics
+from shinro_ctrl.sim.metrics import balance_metrics, compute_metrics, plan_tracking_rms, saturation_metrics
 from shinro_ctrl.sim.output_feedback import estimation_metrics, loop_signals, uses_estimation
 from shinro_ctrl.sim.reference import Reference
 from shinro_ctrl.sim.result import SimResult
@@ -55,6 +55,7 @@ class _LoopState:
     u_prev: np.ndarray
     clamps: Any = None  # the engine's ForceClamps (MuJoCo loop with force-limited actuators), else None
     clamped: np.ndarray | None = None  # (T, m) int8: the inputs MuJoCo clamped at a forcerange in each step
+    balance: Any = None  # the engine's BalanceMonitor (MuJoCo loop, free joint and floor), else None
 
 
 class RobotSim:
@@ -285,6 +286,9 @@ class RobotSim:
         p = n if measured is None else measured.shape[0]
         sig = loop_signals(self.scenario, plant, t, p)
         clamps = self.engine.force_clamp_monitor(plant) if self.engine is not None else None
+        balance = self.engine.balance_monitor() if self.engine is not None else None
+        if balance is not None:
+            balance()  # the sample at t = 0: the reference pose of the balance metrics
         return _LoopState(
             t,
             X,
@@ -303,6 +307,7 @@ class RobotSim:
             u_prev,
             clamps,
             np.zeros((steps, m), dtype=np.int8) if clamps is not None else None,
+            balance,
         )
 
     def _loop(self, s: _LoopState, progress: bool | None) -> None:
@@ -315,7 +320,7 @@ class RobotSim:
         sensor, extra, forces = s.sig.sensor, s.sig.extra_input, s.sig.forces
         n, dt, steps = plant.state_dim, plant.dt, U.shape[0]
         x, u_prev = s.x, s.u_prev
-        clamps, clamped = s.clamps, s.clamped
+        clamps, clamped, balance = s.clamps, s.clamped, s.balance
         actuator, sensor_model = self.actuator, self.sensor
         estimate = self.estimator.update
         bar = Progress(steps, f"{self.scenario.name} ({self.loop})", progress, unit="steps")
@@ -354,6 +359,8 @@ class RobotSim:
                 X[k + 1] = x
                 if clamps is not None:
                     clamped[k] = clamps()
+                if balance is not None:
+                    balance()
                 if limit is not None:
                     pviol[k + 1] = limit()
                 if k % 256 == 0:
@@ -405,6 +412,8 @@ class RobotSim:
         plan = plan_states(s.t) if plan_states is not None else None
         if plan is not None:
             metrics["plan_tracking_rms"] = plan_tracking_rms(s.X, plan, self.tracked)
+        if s.balance is not None:
+            metrics.update(balance_metrics(s.balance.record()))
         if uses_estimation(self.scenario):
             metrics.update(estimation_metrics(s.X, s.X_hat, tuple(plant.state_names)))
         measured = self.estimator.measured if s.measured is not None else range(n)
