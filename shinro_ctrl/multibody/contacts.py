@@ -59,6 +59,7 @@ import numpy as np
 import scipy.optimize
 from scipy.spatial.transform import Rotation
 
+from shinro_ctrl._interrupts import solve_interruptibly
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.multibody.constraints import ConstrainedDynamics, Constraint
 from shinro_ctrl.multibody.rigid_body import NUMPY_OPS, RigidBodyTree
@@ -280,7 +281,7 @@ def standing_equilibrium(
     solver = cs.nlpsol("standing", "ipopt", nlp, opts)
     lbx = np.where(np.isfinite(lo), lo, -np.inf)
     ubx = np.where(np.isfinite(hi), hi, np.inf)
-    sol = solver(x0=np.zeros(nz), lbg=lba, ubg=uba, lbx=lbx, ubx=ubx)
+    sol = solve_interruptibly(solver, x0=np.zeros(nz), lbg=lba, ubg=uba, lbx=lbx, ubx=ubx)
     z = np.asarray(sol["x"]).ravel()
     residual = float(np.abs(A @ z + b).max())
     if not solver.stats().get("success", False) or residual > BALANCE_TOL * max(1.0, np.abs(b).max()):
