@@ -137,6 +137,14 @@ def mujoco_continuous_jacobians(
     A[:nv, nv : 2 * nv] = np.eye(nv)
     A[nv : 2 * nv] = A_d[nv : 2 * nv] / h
     A[nv : 2 * nv, nv : 2 * nv] -= np.eye(nv) / h
+    # a free or ball joint's rotation rows (the tangent space, mjd_transitionFD's coordinates): the rotation
+    # vector's rate is ω + ½ δθ × ω, so its row block is −½ [ω]× on the rotation columns (0 at rest)
+    for j in range(m.njnt):
+        kind = int(m.jnt_type[j])  # mjtJoint: 0 free, 1 ball (only the engine package imports mujoco)
+        if kind in (0, 1):
+            r = int(m.jnt_dofadr[j]) + (3 if kind == 0 else 0)
+            wx, wy, wz = (float(v) for v in engine.data.qvel[r : r + 3])
+            A[r : r + 3, r : r + 3] = -0.5 * np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
     B = np.zeros((n, nu))
     B[nv : 2 * nv] = B_d[nv : 2 * nv] / h
     if na:
@@ -203,7 +211,7 @@ def crosscheck(plant: Any, x0: Any = None, u0: Any = None, *, eps: float = 1e-6)
     mj_abs, mj_rel = _errors(A_e, B_e, A_m, B_m)
     return CrosscheckResult(
         plant=repr(plant),
-        state_names=tuple(plant.state_names),
+        state_names=tuple(plant.tangent_names),
         input_names=tuple(plant.input_names),
         x0=x0,
         u0=u0,

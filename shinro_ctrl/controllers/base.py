@@ -242,8 +242,11 @@ def check_operating_point(plant: Plant, x0: np.ndarray, u0: np.ndarray, who: str
     """
     x0 = np.asarray(x0, dtype=float)
     u0 = np.asarray(u0, dtype=float)
+    # a floating base: the residual in the tangent space, where the linearization lives
+    D = plant.tangent_maps(x0)[0] if plant.tangent_dim != plant.state_dim else None
     with np.errstate(all="ignore"):
         f = np.asarray(plant.dynamics(x0, u0), dtype=float).reshape(-1)
+        f = f if D is None else D @ f
         A_c, B_c = plant.linearize(x0, u0)
     norm = lambda v: float(np.max(np.abs(v), initial=0.0))  # noqa: E731
     scale = 1.0 + float(np.abs(A_c).sum(axis=1).max(initial=0.0)) * norm(x0)
@@ -251,7 +254,7 @@ def check_operating_point(plant: Plant, x0: np.ndarray, u0: np.ndarray, who: str
     tol = EQUILIBRIUM_TOL * scale
     if not np.all(np.isfinite(f)) or norm(f) <= tol:
         return  # a non-finite f is the linearization's error to report
-    snames = _names(getattr(plant, "state_names", None), x0.size, "x")
+    snames = _names(getattr(plant, "tangent_names", None), f.size, "x")
     residual = ", ".join(f"d{snames[i]}/dt = {f[i]:.4g}" for i in np.flatnonzero(np.abs(f) > tol))
     head = (
         f"{who}: the operating point is not an equilibrium: f(x0, u0) has {residual} "
@@ -265,6 +268,7 @@ def check_operating_point(plant: Plant, x0: np.ndarray, u0: np.ndarray, who: str
             step = np.linalg.lstsq(B_c, -r, rcond=None)[0]
             u = u + step
             r = np.asarray(plant.dynamics(x0, u), dtype=float).reshape(-1)
+            r = r if D is None else D @ r
         if not np.all(np.isfinite(r)):
             break
         if norm(r) < best_r:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -232,6 +232,7 @@ class LQR(Controller):
         state_names: Sequence[str] | None = None,
         integral: str | int | Sequence[str | int] | None = None,
         integral_dt: float = 1.0,
+        difference: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     ):
         A, B = state_space(A, B)
         n, m = B.shape
@@ -242,7 +243,11 @@ class LQR(Controller):
         self.Q = _design_weight(Q, A_d.shape[0], self._lqi, design_names)
         self.R = weight_matrix("R", R, m, definite=True)
         self.discrete = bool(discrete)
-        self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
+        # a floating base: the model acts on the deviation difference(x, x0) (n,), the state x0 is longer
+        self._difference = difference
+        if difference is not None and x0 is None:
+            raise InvalidArgument("LQR: a difference map needs the operating state x0")
+        self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n if difference is None else np.size(x0))
         self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
         self.u_min, self.u_max = bound_pair("u_min", "u_max", u_min, u_max, m)
         self._saturate = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
@@ -255,8 +260,8 @@ class LQR(Controller):
             K = K[:, :n]
         self.K = K
         self.S = S
-        self.state_dim, self.input_dim = n, m
-        self._x0_u = self.u0 + self.K @ self.x0  # u = (u0 + K x0) - K x
+        self.state_dim, self.input_dim = len(self.x0), m
+        self._x0_u = self.u0 + self.K @ self.x0 if difference is None else None  # u = (u0 + K x0) - K x
         self._guard = CallGuard("LQR with integral action")
         self.feedforward = bool(feedforward)
         self.preview = 1 if self.feedforward else 0  # future reference samples the controller wants
@@ -325,9 +330,10 @@ class LQR(Controller):
             u_min=u_min,
             u_max=u_max,
             feedforward=feedforward,
-            state_names=plant.state_names,
+            state_names=plant.tangent_names,
             integral=integral,
             integral_dt=plant.dt,
+            difference=plant.difference if plant.tangent_dim != plant.state_dim else None,
         )
         ctrl.model = lm
         return ctrl
@@ -354,6 +360,8 @@ class LQR(Controller):
 
     def _law(self, x: Vector, ref: Vector | Matrix | None) -> np.ndarray:
         x = as_vector("x", x, self.state_dim)  # fast path for a finite (n,) array
+        if self._difference is not None:  # a floating base: the deviations in the tangent space
+            return self._law_tangent(x, ref)
         if ref is None:
             u = self._x0_u - self.K @ x
             r = self.x0
@@ -383,9 +391,30 @@ class LQR(Controller):
             np.clip(u, self.u_min, self.u_max, out=u)
         return u
 
+    def _law_tangent(self, x: np.ndarray, ref: Vector | Matrix | None) -> np.ndarray:
+        """:meth:`_law` with every deviation ``x ⊖ r`` from the plant's ``difference`` (a floating base)."""
+        dif = self._difference
+        r = self.x0 if ref is None else np.asarray(ref, dtype=float)
+        rows = r if r.ndim == 2 else r[None, :]
+        if rows.shape[1] != self.state_dim or rows.shape[0] < 1:
+            raise InvalidArgument(f"ref: expected ({self.state_dim},) or (k, {self.state_dim}) but found {r.shape}")
+        r0 = as_vector("ref", rows[0], self.state_dim)
+        u = self.u0 - self.K @ dif(x, r0)
+        if self.feedforward and rows.shape[0] > 1:
+            r1 = as_vector("ref", rows[1], self.state_dim)
+            u = u + self._B_pinv @ (dif(r1, self.x0) - self.A @ dif(r0, self.x0))
+        if not np.isfinite(u).all():
+            raise NonFiniteError(f"LQR: the input for the state {np.array2string(x, precision=3)} overflows float64")
+        if self._lqi is not None:
+            raise InvalidArgument("LQR: integral action on a floating base is not supported yet")
+        if self._saturate:
+            np.clip(u, self.u_min, self.u_max, out=u)
+        return u
+
     def cost_to_go(self, x: Vector) -> float:
-        """Predicted optimal cost ``½ (x − x0)ᵀ S (x − x0)`` from state ``x (n,)``."""
-        d = as_vector("x", x, self.state_dim) - self.x0
+        """Predicted optimal cost ``½ (x ⊖ x0)ᵀ S (x ⊖ x0)`` from state ``x (n,)``."""
+        x = as_vector("x", x, self.state_dim)
+        d = x - self.x0 if self._difference is None else self._difference(x, self.x0)
         if self._lqi is not None:  # the augmented state [x̃; z]
             d = np.concatenate([d, self._lqi.z])
         return 0.5 * float(d @ self.S @ d)

@@ -65,6 +65,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -230,6 +231,8 @@ class LinearMPC(Controller):
         self.state_dim, self.input_dim, self.horizon = n, m, N
         self.preview = N  # a simulation passes reference trajectories of N + 1 samples (see sim.RobotSim.run)
         self.model: Any = None  # the LinearModel when built by from_plant
+        # a floating base (from_plant): the full state x (and ref) -> its deviation difference(x, x_op) (n,)
+        self._to_tangent: Callable[[np.ndarray], np.ndarray] | None = None
         self.A, self.B, self.Q, self.R = A_, B_, Q_, R_
         # |x| beyond which ½ xᵀ Q x summed over the horizon overflows float64 (a "huge state" is not "infeasible")
         self._x_overflow = min(
@@ -385,18 +388,47 @@ class LinearMPC(Controller):
             offset = plant.discrete_offset(lm)
         options["u_min"], options["u_max"] = default_input_bounds(plant, options.get("u_min"), options.get("u_max"))
         opts = MPCOptions(**options)  # TypeError names a misspelt option
+        floating = plant.tangent_dim != plant.state_dim
         opts = dataclasses.replace(
             opts,
-            x0=lm.x0,
+            x0=np.zeros(plant.tangent_dim) if floating else lm.x0,
             u0=lm.u0,
             dt=lm.dt,
             offset=offset,
-            state_names=plant.state_names,
+            state_names=plant.tangent_names,
             input_names=plant.input_names,
         )
         ctrl = cls(lm.A, lm.B, Q, R, horizon, options=opts)
         ctrl.model = lm
+        if floating:
+            x_op = lm.x0.copy()
+            ctrl.measure_deviations(lambda z: plant.difference(z, x_op), plant.state_dim)
         return ctrl
+
+    def measure_deviations(self, deviation: Callable[[np.ndarray], np.ndarray], state_dim: int) -> None:
+        """Take states ``(state_dim,)`` and references as ``deviation(x)`` (a floating base's tangent space).
+
+        The QP then lives in the deviation coordinates of the operating state (:meth:`from_plant` passes
+        ``plant.difference(·, x0)`` and an operating point 0): ``x`` and ``ref`` enter through
+        ``deviation``; the plans ``last.states`` and the state bounds are deviations.
+        """
+        self._to_tangent = deviation
+        self.state_dim = int(state_dim)
+
+    def _tangent_args(self, x: ArrayLike, ref: ArrayLike | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """A floating base's full state and reference as deviations (see :meth:`from_plant`)."""
+        assert self._to_tangent is not None
+        x = as_vector("x", x, self.state_dim)
+        if ref is None:
+            return self._to_tangent(x), None
+        r = np.asarray(ref, dtype=float)
+        if r.shape not in ((self.state_dim,), (self.N + 1, self.state_dim)):
+            raise InvalidArgument(
+                f"ref: expected ({self.state_dim},) or ({self.N + 1}, {self.state_dim}) but found {r.shape}"
+            )
+        if not np.isfinite(r).all():
+            raise NonFiniteError("ref must be finite")
+        return self._to_tangent(x), self._to_tangent(r)
 
     # =============================================================== public
     @property
@@ -451,6 +483,8 @@ class LinearMPC(Controller):
         Returns:
             A :class:`QP` with fresh arrays (the solver is not touched).
         """
+        if self._to_tangent is not None:
+            x, ref = self._tangent_args(x, ref)
         with self._lock:
             return self._build(x, ref, u_ref, u_prev)
 
@@ -505,6 +539,8 @@ class LinearMPC(Controller):
             MPCInfeasible: the backend certified infeasibility or failed (and
                 no ``fallback="shift"`` plan is left).
         """
+        if self._to_tangent is not None:
+            x, ref = self._tangent_args(x, ref)
         with self._lock:
             if self.disturbance_model is not None and np.shape(x) == (self.n + self.m,):
                 return offset_free_call(self, x, ref, u_ref)  # [x̂; d̂] from a disturbance-augmented estimator

@@ -184,6 +184,11 @@ class NonlinearMPC(Controller):
             hold = round(ratio)
             if hold < 1 or abs(ratio - hold) > 1e-9 * max(1.0, ratio):
                 raise InvalidArgument(f"dt must be a whole multiple of the plant's dt = {step:g} s, got {h:g}")
+        if plant.tangent_dim != plant.state_dim:
+            raise InvalidArgument(
+                f"NonlinearMPC on a floating base ({plant!r}: unit quaternions in the state) is not supported yet; "
+                "use LinearMPC, LQR or TVLQR (they work in the tangent space)"
+            )
         return cls(
             plant.symbolic(),
             Q,

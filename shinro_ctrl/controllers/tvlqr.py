@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import threading
 import weakref
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import casadi as cs
@@ -177,8 +177,10 @@ class TVLQR(Controller):
         Qf: np.ndarray,
         u_min: Bound = None,
         u_max: Bound = None,
+        difference: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     ):
         self.trajectory = trajectory
+        self._difference = difference  # a floating base: deviations x ⊖ x_ref(t) in the tangent space
         self.dt = dt
         self.A, self.B, self.Q, self.R, self.Qf = A, B, Q, R, Qf
         self.x_ref, self.u_ref = x_ref, u_ref
@@ -242,7 +244,8 @@ class TVLQR(Controller):
                 "use discretization 'zoh' or 'rk4' for another control rate"
             )
         u_min, u_max = default_input_bounds(plant, u_min, u_max)
-        Qm = weight_matrix("Q", Q, n)
+        nt = plant.tangent_dim  # the deviations' dimension (n but on a floating base)
+        Qm = weight_matrix("Q", Q, nt)
         Rm = weight_matrix("R", R, m, definite=True)
         steps = max(1, int(np.ceil(traj.duration / dt - 1e-9)))
         ts = traj.t[0] + dt * np.arange(steps)
@@ -256,14 +259,32 @@ class TVLQR(Controller):
                 raise InvalidArgument(f"terminal_cost must be 'lqr', 'Q' or an (n, n) matrix, got {terminal_cost!r}")
             Qf_m = final.S if terminal_cost == "lqr" else Qm.copy()
         else:
-            Qf_m = weight_matrix("terminal_cost", terminal_cost, n)
-        A_c, B_c = trajectory_jacobians(plant, x_ref, u_ref)
+            Qf_m = weight_matrix("terminal_cost", terminal_cost, nt)
+        if nt != n:  # a floating base: the tangent-space Jacobians point by point
+            jc = [plant.linearize(x, u) for x, u in zip(x_ref, u_ref, strict=True)]
+            A_c, B_c = np.array([j[0] for j in jc]), np.array([j[1] for j in jc])
+        else:
+            A_c, B_c = trajectory_jacobians(plant, x_ref, u_ref)
         if discretization == "step":
             jac = [plant.step_jacobians(x, u) for x, u in zip(x_ref, u_ref, strict=True)]
             A, B = np.array([j[0] for j in jac]), np.array([j[1] for j in jac])
         else:
             A, B = _discretize_all(A_c, B_c, dt, discretization)
-        ctrl = cls(traj, A, B, Qm, Rm, final, dt=dt, x_ref=x_ref, u_ref=u_ref, Qf=Qf_m, u_min=u_min, u_max=u_max)
+        ctrl = cls(
+            traj,
+            A,
+            B,
+            Qm,
+            Rm,
+            final,
+            dt=dt,
+            x_ref=x_ref,
+            u_ref=u_ref,
+            Qf=Qf_m,
+            u_min=u_min,
+            u_max=u_max,
+            difference=plant.difference if nt != n else None,
+        )
         ctrl.A_c, ctrl.B_c = A_c, B_c
         return ctrl
 
@@ -359,7 +380,8 @@ class TVLQR(Controller):
     def _law(self, k: int, x: np.ndarray) -> np.ndarray:
         if k >= self.horizon:
             return self.final(x)
-        u = self.u_ref[k] - self.K[k] @ (x - self.x_ref[k])
+        dx = x - self.x_ref[k] if self._difference is None else self._difference(x, self.x_ref[k])
+        u = self.u_ref[k] - self.K[k] @ dx
         if self._saturate:
             np.clip(u, self.u_min, self.u_max, out=u)
         return u

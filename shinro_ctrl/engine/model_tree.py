@@ -66,7 +66,8 @@ __all__ = [
 ]
 
 _JOINT_KINDS = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide"}
-_BAD_JOINTS = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball"}
+_FLOATING_JOINTS = {int(mujoco.mjtJoint.mjJNT_FREE): "free", int(mujoco.mjtJoint.mjJNT_BALL): "ball"}
+_ALL_JOINTS = {**_JOINT_KINDS, **_FLOATING_JOINTS}
 _GAIN = {int(mujoco.mjtGain.mjGAIN_FIXED): "fixed", int(mujoco.mjtGain.mjGAIN_AFFINE): "affine"}
 _BIAS = {int(mujoco.mjtBias.mjBIAS_NONE): "none", int(mujoco.mjtBias.mjBIAS_AFFINE): "affine"}
 _DSBL = mujoco.mjtDisableBit
@@ -715,14 +716,39 @@ def _unsupported(m: mujoco.MjModel, label: _Label) -> list[str]:
     urdf = label.urdf
     out: list[tuple[str, str, str]] = []
     flags = int(m.opt.disableflags)
-    for j in range(m.njnt):
-        t = int(m.jnt_type[j])
-        if t in _BAD_JOINTS:
-            name = m.joint(j).name
-            if label.kind == "urdf" and name in urdf.floating:
-                out.append(("floating <joint>", f"'{name}'", "a free-flying base: not supported yet"))
-            else:
-                out.append((f"{_BAD_JOINTS[t]} joint", _joint(m, j), "not supported yet: hinge and slide joints only"))
+    floating = [j for j in range(m.njnt) if int(m.jnt_type[j]) in _FLOATING_JOINTS]
+    for j in floating:
+        kind = _FLOATING_JOINTS[int(m.jnt_type[j])]
+        name = m.joint(j).name
+        b = int(m.jnt_bodyid[j])
+        if label.kind == "urdf" and name in urdf.floating:
+            out.append(
+                ("floating <joint>", f"'{name}'", "a free-flying base from a URDF: not supported yet (use MJCF)")
+            )
+        elif kind == "free" and (int(m.body_parentid[b]) != 0 or int(m.body_jntnum[b]) != 1):
+            out.append(("free joint", _joint(m, j), "supported only as the one joint of a child of the world"))
+        if m.jnt_stiffness[j] != 0.0 and not flags & int(_DSBL.mjDSBL_SPRING):
+            out.append((f"stiffness on {kind} joint", _joint(m, j), "not supported yet; set stiffness to 0"))
+    driven_joints = {
+        int(m.actuator_trnid[a, 0]): a
+        for a in range(m.nu)
+        if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
+    }
+    for j in floating:
+        if j in driven_joints:
+            out.append(
+                ("actuator on a ball or free joint", _actuator(m, driven_joints[j]), "not supported yet; use a site")
+            )
+    for t in range(m.ntendon):
+        adr, num = int(m.tendon_adr[t]), int(m.tendon_num[t])
+        if any(
+            int(m.wrap_objid[w]) in floating
+            for w in range(adr, adr + num)
+            if int(m.wrap_type[w]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
+        ):
+            out.append(("tendon on a ball or free joint", _tendon(m, t), "not supported yet"))
+    if floating and m.neq and not flags & int(_DSBL.mjDSBL_EQUALITY):
+        out.append(("equality constraints with a ball or free joint", "", "not supported yet"))
     if m.njnt == 0:
         out.append(("no joints", "", "nothing moves"))
     if m.nu == 0:
@@ -967,15 +993,15 @@ def _read_joints(m: mujoco.MjModel) -> tuple[list[JointInfo], dict[int, list[int
         joints.append(
             JointInfo(
                 name=m.joint(j).name,
-                type=_JOINT_KINDS[int(m.jnt_type[j])],
+                type=_ALL_JOINTS[int(m.jnt_type[j])],
                 body=b,
                 axis=np.array(m.jnt_axis[j], dtype=float),
                 pos=np.array(m.jnt_pos[j], dtype=float),
-                qpos0=float(m.qpos0[int(m.jnt_qposadr[j])]),
+                qpos0=float(m.qpos0[int(m.jnt_qposadr[j])]) if int(m.jnt_type[j]) in _JOINT_KINDS else 0.0,
                 damping=float(m.dof_damping[d]),
                 armature=float(m.dof_armature[d]),
                 stiffness=float(m.jnt_stiffness[j]),
-                springref=float(m.qpos_spring[int(m.jnt_qposadr[j])]),
+                springref=float(m.qpos_spring[int(m.jnt_qposadr[j])]) if int(m.jnt_type[j]) in _JOINT_KINDS else 0.0,
                 limited=bool(m.jnt_limited[j]) and limits,
                 range=(float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])),
                 frictionloss=float(m.dof_frictionloss[d]) if friction else 0.0,

@@ -25,7 +25,8 @@ a scenario's ``[sim] process_noise`` and ``sensor_noise`` standard deviations
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import casadi as cs
@@ -45,6 +46,21 @@ __all__ = ["DISTURBANCE_MODELS", "ExtendedKalmanFilter", "KalmanFilter", "rk4_st
 
 #: Disturbance models a linear filter can add to its state: None, or a constant input disturbance.
 DISTURBANCE_MODELS = (None, "input")
+
+
+@dataclass(frozen=True)
+class Manifold:
+    """How a floating-base plant's states relate to the filter's deviations (see ``Plant.difference``).
+
+    Attributes:
+        difference: ``(x, x_ref) -> dx``.
+        retract: ``(x_ref, dx) -> x``.
+        y0: The measurement at the operating state ``(p,)``.
+    """
+
+    difference: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    retract: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    y0: np.ndarray
 
 
 class KalmanFilter(Estimator):
@@ -109,6 +125,7 @@ class KalmanFilter(Estimator):
         disturbance_model: str | None = None,
         Qd: Weight | None = None,
         state_names: Sequence[str] | None = None,
+        manifold: Manifold | None = None,
     ):
         A, B = state_space(A, B)
         n, m = B.shape
@@ -122,7 +139,11 @@ class KalmanFilter(Estimator):
         self.state_names = tuple(state_names) if state_names is not None else None
         self.n, self.m, self.p = n, m, p
         self.measured = measured_indices(C)
-        self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n)
+        # a floating base: the filter runs on the deviation difference(x, x0) (n,); x0 and x̂ are full states
+        self._manifold = manifold
+        if manifold is not None and x0 is None:
+            raise InvalidArgument("KalmanFilter: a manifold needs the operating state x0")
+        self.x0 = np.zeros(n) if x0 is None else as_vector("x0", x0, n if manifold is None else np.size(x0))
         self.u0 = np.zeros(m) if u0 is None else as_vector("u0", u0, m)
         self.disturbance_model = disturbance_model
         self.Qn_on = Qn_on
@@ -150,8 +171,11 @@ class KalmanFilter(Estimator):
         self._nu = np.zeros(p)
         self._out = np.zeros(N)
         self._xoff = np.zeros(N)
-        self._xoff[:n] = self.x0
-        self._yoff = C[:, :n] @ self.x0
+        if manifold is None:
+            self._xoff[:n] = self.x0
+            self._yoff = C[:, :n] @ self.x0
+        else:
+            self._yoff = np.asarray(manifold.y0, dtype=float)
         self._first = True
         self.P = self._P_post_ss.copy()
         self.P_prior = self.P_prior_ss.copy()
@@ -200,6 +224,11 @@ class KalmanFilter(Estimator):
         """
         C = plant.output_matrix(measured)
         lm = plant.linear_model(x0, u0, discretization=discretization)
+        manifold = None
+        if plant.tangent_dim != plant.state_dim:  # a floating base: y = C x, so ỹ = C E(x0) dx to first order
+            _, E = plant.tangent_maps(lm.x0)
+            manifold = Manifold(plant.difference, plant.retract, C @ lm.x0)
+            C = C @ E
         est = cls(
             lm.A,
             lm.B,
@@ -212,7 +241,8 @@ class KalmanFilter(Estimator):
             u0=lm.u0,
             disturbance_model=disturbance_model,
             Qd=Qd,
-            state_names=plant.state_names,
+            state_names=plant.tangent_names,
+            manifold=manifold,
         )
         est.model = lm
         return est
@@ -226,8 +256,15 @@ class KalmanFilter(Estimator):
         N = self.n_aug
         if self.disturbance_model is not None and np.shape(x0_hat) == (self.n,):
             x0_hat = np.concatenate([np.asarray(x0_hat, dtype=float), np.zeros(self.m)])
-        z = as_vector("x0_hat", x0_hat, N)
-        self._z[:] = z - self._xoff
+        if self._manifold is not None:
+            full = np.size(self.x0) + (self.m if self.disturbance_model is not None else 0)
+            z = as_vector("x0_hat", x0_hat, full)
+            nx = np.size(self.x0)
+            self._z[: self.n] = self._manifold.difference(z[:nx], self.x0)
+            self._z[self.n :] = z[nx:]
+        else:
+            z = as_vector("x0_hat", x0_hat, N)
+            self._z[:] = z - self._xoff
         if self.steady_state:
             if P0 is not None:
                 raise InvalidArgument("P0: a steady-state filter has a fixed covariance; use steady_state=False")
@@ -255,6 +292,8 @@ class KalmanFilter(Estimator):
             self._zbar += self._Gam @ (u - self.u0)
             self._zbar += self.M @ self._nu
             z[:] = self._zbar
+            if self._manifold is not None:
+                return self._on_manifold(z)
             out = z + self._xoff
             return out if self.disturbance_model is not None else out[: self.n]
         zbar = self._zbar
@@ -280,8 +319,16 @@ class KalmanFilter(Estimator):
         np.subtract(y, self._yoff, out=self._nu)
         self._nu -= self.C @ zbar
         np.add(zbar, M @ self._nu, out=self._z)
+        if self._manifold is not None:
+            return self._on_manifold(self._z)
         np.add(self._z, self._xoff, out=self._out)
         return self._out.copy() if self.disturbance_model is not None else self._out[: self.n].copy()
+
+    def _on_manifold(self, z: np.ndarray) -> np.ndarray:
+        """The full state ``retract(x0, z[:n])`` (with ``d̂`` appended under the disturbance model)."""
+        assert self._manifold is not None
+        x = self._manifold.retract(self.x0, z[: self.n])
+        return np.concatenate([x, z[self.n :]]) if self.disturbance_model is not None else x
 
     @property
     def d_hat(self) -> np.ndarray | None:
@@ -328,6 +375,11 @@ class ExtendedKalmanFilter(Estimator):
     """
 
     def __init__(self, plant: Plant, C: Matrix, Qn: Weight, Rn: Weight, *, Qn_on: str = "input"):
+        if plant.tangent_dim != plant.state_dim:
+            raise InvalidArgument(
+                f"ExtendedKalmanFilter on a floating base ({plant!r}: unit quaternions in the state) is not supported "
+                "yet; use KalmanFilter (it runs in the tangent space)"
+            )
         n, m = plant.state_dim, plant.input_dim
         C = measurement_matrix(C, n)
         p = C.shape[0]

@@ -9,6 +9,9 @@
 * :mod:`~shinro_ctrl.multibody.constraints`: :class:`Constraint` (joint
   couplings, connect, weld) and :class:`ConstrainedDynamics`, the exact KKT
   dynamics in the coordinates the constraints leave free;
+* :mod:`~shinro_ctrl.multibody.configuration`: ball and free joints' quaternion
+  configurations: ``qpos`` rates, ``integrate``/``difference`` on the manifold
+  (MuJoCo's ``mj_integratePos``/``mj_differentiatePos``);
 * :mod:`~shinro_ctrl.multibody.aba`: forward dynamics by the articulated-body
   algorithm (the default behind ``RigidBodyTree.forward_dynamics``).
 """

@@ -23,9 +23,12 @@ force (a rigid body: ``A = I_O``, ``B = [h]×``, ``C = m 1`` with ``h = m c``
 the first moment). A node ``i`` sits in its parent's frame with orientation
 ``R`` and origin ``p``; motions go parent → child as ``ω_i = Rᵀ ω``,
 ``v_i = Rᵀ (v + ω × p)`` and forces child → parent as ``f = R f_i``,
-``n = R n_i + p × R f_i``. Each joint has one degree of freedom along a
+``n = R n_i + p × R f_i``. Each node has one degree of freedom along a
 constant axis ``s`` of its node frame: a hinge ``S = (s, 0)``, a slide
-``S = (0, s)``.
+``S = (0, s)``. A ball joint is three rotation nodes at one origin with no
+rotation between them (``ball`` 1, 2, 2): their velocity-product terms are the
+spherical joint's ``c = (ω_λ × S q̇, v × S q̇)`` with ``ω_λ`` the rate before
+the joint (``S`` is constant in the body frame), not a hinge chain's.
 
 Everything is written with the structural-zero-skipping helpers of
 :mod:`shinro_ctrl._scalar_algebra`, so one code path builds CasADi ``SX``
@@ -53,6 +56,7 @@ class JointNode(Protocol):
 
     parent: int
     slide: bool
+    ball: int
     axis: np.ndarray
     mass: float
     h: np.ndarray
@@ -158,6 +162,7 @@ def articulated_body_accelerations(
     IA: list[list[Mat]] = []
     pn: list[Vec] = [zero3] * n
     pf: list[Vec] = [zero3] * n
+    wb: list[Vec] = [zero3] * n  # a ball's rate before the joint
     # pass 1: velocities, velocity-product accelerations, rigid-body inertias and bias forces
     for i, nd in enumerate(nodes):
         R, p = X[i]
@@ -173,8 +178,9 @@ def articulated_body_accelerations(
             vi = _vadd(vi, sj)
             c_ang[i], c_lin[i] = zero3, _cross(wi, sj)
         else:
+            wb[i] = wb[nd.parent] if nd.ball == 2 else wi
             wi = _vadd(wi, sj)
-            c_ang[i], c_lin[i] = _cross(wi, sj), _cross(vi, sj)
+            c_ang[i], c_lin[i] = _cross(wb[i], sj), _cross(vi, sj)
         w[i], v[i] = wi, vi
         h = _const(nd.h)
         A = [_const(r) for r in nd.inertia]

@@ -83,6 +83,7 @@ from shinro_ctrl._scalar_algebra import (
     quat_to_mat,
 )
 from shinro_ctrl.multibody.aba import articulated_body_accelerations
+from shinro_ctrl.multibody.configuration import qpos_rate, quat_matrix
 from shinro_ctrl.multibody.transmission import SiteFrame, Transmissions, tendon_length, tendon_velocity
 
 if TYPE_CHECKING:
@@ -111,6 +112,8 @@ class _Node:
     p0: np.ndarray  # (3,) origin in the parent node frame
     axis: np.ndarray  # (3,) unit axis in the node frame
     qpos0: float
+    qadr: int = -1  # index in qpos of the coordinate (hinge, slide) or of the quaternion (ball == 1)
+    ball: int = 0  # 0: a hinge or slide; 1: a ball's first rotation node (holds the quaternion); 2: its others
     mass: float = 0.0
     h: np.ndarray = field(default_factory=lambda: np.zeros(3))  # first moment m c in the node frame
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # about the node origin
@@ -151,17 +154,25 @@ class RigidBodyTree:
         self.algorithm = algorithm
         self.tree = tree
         self.nq = tree.nq
+        self.nv = tree.nv
         self.nu = tree.nu
         self._nodes, self._body_frame = self._build_nodes(tree)
+        self._qadr, self._dadr = tree.qposadr, tree.dofadr
         self.transmissions = Transmissions(tree)
         self.na = tree.na
         self.parent = np.array([n.parent for n in self._nodes], dtype=int)
         g = np.asarray(tree.gravity, dtype=float) if tree.gravity_enabled else np.zeros(3)
         self._a_base = _const(-g)
-        self._damping = [j.damping if tree.damping_enabled else 0.0 for j in tree.joints]
-        self._stiffness = [j.stiffness if tree.springs_enabled else 0.0 for j in tree.joints]
-        self._springref = [j.springref for j in tree.joints]
-        self._armature = [j.armature for j in tree.joints]
+        # per degree of freedom (a ball's or free joint's dofs share its damping and armature)
+        dof_joint = [tree.joints[nd.dof] for nd in self._nodes]
+        self._damping = [j.damping if tree.damping_enabled else 0.0 for j in dof_joint]
+        self._stiffness = [
+            j.stiffness if tree.springs_enabled and j.type in ("hinge", "slide") else 0.0 for j in dof_joint
+        ]
+        self._springref = [j.springref for j in dof_joint]
+        self._armature = [j.armature for j in dof_joint]
+        if any(j.stiffness and j.type in ("ball", "free") for j in tree.joints) and tree.springs_enabled:
+            raise ValueError("stiffness on a ball or free joint is not supported")
         self._tendons = [
             t for t in tree.tendons if (t.stiffness and tree.springs_enabled) or (t.damping and tree.damping_enabled)
         ]
@@ -178,9 +189,11 @@ class RigidBodyTree:
             if gravity_on and body.gravcomp and body.mass and self._body_frame[b][0] >= 0
         ]
         # joints whose compensation MuJoCo routes through the actuators lose it with actuation disabled
-        self._gravcomp_joints = {i for i, j in enumerate(tree.joints) if tree.actuation_enabled or not j.actgravcomp}
+        self._gravcomp_joints = {
+            i for i, nd in enumerate(self._nodes) if tree.actuation_enabled or not tree.joints[nd.dof].actgravcomp
+        }
         # children lists give each column of M its moving subtree
-        self._subtree = [self._descendants(i) for i in range(self.nq)]
+        self._subtree = [self._descendants(i) for i in range(self.nv)]
 
     # ------------------------------------------------------------- structure
     @staticmethod
@@ -198,6 +211,9 @@ class RigidBodyTree:
             node, R, p = pnode, Rb, pb
             for j in body.joints:
                 jt = tree.joints[j]
+                if jt.type in ("ball", "free"):
+                    node, R, p = _ball_nodes(tree, nodes, j, node, R, p)
+                    continue
                 anchor = np.asarray(jt.pos, dtype=float)
                 # node frame = current frame moved to the anchor (same orientation)
                 nodes.append(
@@ -209,6 +225,7 @@ class RigidBodyTree:
                         p0=p + R @ anchor,
                         axis=np.asarray(jt.axis, dtype=float) / np.linalg.norm(jt.axis),
                         qpos0=float(jt.qpos0),
+                        qadr=tree.qposadr[j],
                     )
                 )
                 node, R, p = len(nodes) - 1, np.eye(3), -anchor
@@ -223,14 +240,14 @@ class RigidBodyTree:
                 nd.mass += m
                 nd.h = nd.h + m * c
                 nd.inertia = nd.inertia + Ic + m * (float(c @ c) * np.eye(3) - np.outer(c, c))
-        order = [n.dof for n in nodes]
+        order = list(dict.fromkeys(n.dof for n in nodes))
         if order != list(range(len(tree.joints))):  # MuJoCo numbers dofs in body order
             raise ValueError(f"joints are not in tree order: {order}")
         return nodes, frame
 
     def _descendants(self, i: int) -> list[int]:
         out = [i]
-        for k in range(i + 1, self.nq):
+        for k in range(i + 1, self.nv):
             if self._nodes[k].parent in out:
                 out.append(k)
         return out
@@ -239,11 +256,19 @@ class RigidBodyTree:
     def _joint_transforms(self, q: Sequence[Scalar], ops: Ops) -> Transforms:
         """Each node's ``(R (3, 3), p (3,))`` in its parent node frame at ``q``."""
         out = []
-        for i, nd in enumerate(self._nodes):
+        for nd in self._nodes:
             R0 = [_const(r) for r in nd.R0]
             p0 = _const(nd.p0)
+            if nd.ball == 2:
+                out.append((R0, p0))
+                continue
+            if nd.ball == 1:
+                Rq = quat_matrix(q[nd.qadr : nd.qadr + 4])
+                out.append(([[_dot(R0[r], [Rq[0][c], Rq[1][c], Rq[2][c]]) for c in range(3)] for r in range(3)], p0))
+                continue
             ax = _const(nd.axis)
-            th = _sub(q[i], nd.qpos0) if nd.qpos0 != 0.0 else q[i]
+            qi = q[nd.qadr]
+            th = _sub(qi, nd.qpos0) if nd.qpos0 != 0.0 else qi
             if nd.slide:
                 R = R0
                 p = _vadd(p0, _vscale(_matvec(R0, ax), th))
@@ -317,8 +342,8 @@ class RigidBodyTree:
         Returns:
             ``(Jp, Jw)``: lists of ``nq`` columns, each a 3-list or None.
         """
-        Jp: list[list[Scalar] | None] = [None] * self.nq
-        Jw: list[list[Scalar] | None] = [None] * self.nq
+        Jp: list[list[Scalar] | None] = [None] * self.nv
+        Jw: list[list[Scalar] | None] = [None] * self.nv
         k = node
         while k >= 0:
             nd = self._nodes[k]
@@ -380,13 +405,14 @@ class RigidBodyTree:
             nodes: Only these nodes move (others are at rest, and forces stop at
                 the first node at rest); None: all.
         """
-        n = self.nq
+        n = self.nv
         zero3 = [0.0, 0.0, 0.0]
         w: list[list[Scalar]] = [zero3] * n
         al: list[list[Scalar]] = [zero3] * n
         a: list[list[Scalar]] = [zero3] * n
         f: list[list[Scalar]] = [zero3] * n
         m_: list[list[Scalar]] = [zero3] * n
+        wb: list[list[Scalar]] = [zero3] * n  # a ball's rate before the joint, in its frame
         active = range(n) if nodes is None else nodes
         moving = set(active)
         for i in active:
@@ -410,8 +436,10 @@ class RigidBodyTree:
                 al[i] = alpl
                 a[i] = _vadd(apl, _vscale(_cross(wpl, vj), 2.0), aj)
             else:
+                # a ball's velocity product uses the rate before the joint (see _ball_nodes)
+                wb[i] = wb[pi] if nd.ball == 2 and pi in moving else wpl
                 w[i] = _vadd(wpl, vj)
-                al[i] = _vadd(alpl, _cross(wpl, vj), aj)
+                al[i] = _vadd(alpl, _cross(wb[i], vj), aj)
                 a[i] = apl
             h = _const(nd.h)
             Ib = [_const(r) for r in nd.inertia]
@@ -438,7 +466,7 @@ class RigidBodyTree:
     def mass_matrix(self, q: Sequence[Scalar], ops: Ops = NUMPY_OPS, X: Transforms | None = None) -> list[list[Scalar]]:
         """Joint-space mass matrix ``M(q)`` (without armature) as nested lists ``(nq, nq)``."""
         X = self._joint_transforms(q, ops) if X is None else X
-        n = self.nq
+        n = self.nv
         M: list[list[Scalar]] = [[0.0] * n for _ in range(n)]
         for j in range(n):
             e = [1.0 if k == j else 0.0 for k in range(n)]
@@ -453,7 +481,7 @@ class RigidBodyTree:
     ) -> list[Scalar]:
         """``c(q, q̇)``: Coriolis, centrifugal and gravity forces ``(nq,)``."""
         X = self._joint_transforms(q, ops) if X is None else X
-        return self._rnea(X, qd, [0.0] * self.nq, self._a_base)
+        return self._rnea(X, qd, [0.0] * self.nv, self._a_base)
 
     def actuator_forces(
         self,
@@ -496,19 +524,21 @@ class RigidBodyTree:
         tau = [
             _sub(
                 _mul(-self._damping[i], qd[i]) if self._damping[i] else 0.0,
-                _mul(self._stiffness[i], _sub(q[i], self._springref[i])) if self._stiffness[i] else 0.0,
+                _mul(self._stiffness[i], _sub(q[self._nodes[i].qadr], self._springref[i]))
+                if self._stiffness[i]
+                else 0.0,
             )
-            for i in range(self.nq)
+            for i in range(self.nv)
         ]
         for t in self._tendons:
             k = t.stiffness if self.tree.springs_enabled else 0.0
             b = t.damping if self.tree.damping_enabled else 0.0
             force = _sub(
-                _mul(-k, _sub(tendon_length(t, q), t.springlength)) if k else 0.0,
-                _mul(b, tendon_velocity(t, qd)) if b else 0.0,
+                _mul(-k, _sub(tendon_length(t, q, self._qadr), t.springlength)) if k else 0.0,
+                _mul(b, tendon_velocity(t, qd, self._dadr)) if b else 0.0,
             )
             for j, c in zip(t.joints, t.coefs, strict=True):
-                tau[j] = _add(tau[j], _mul(c, force))
+                tau[self._dadr[j]] = _add(tau[self._dadr[j]], _mul(c, force))
         return tau
 
     def gravity_compensation(self, W: Transforms) -> list[Scalar]:
@@ -519,7 +549,7 @@ class RigidBodyTree:
         off there when actuation is disabled (MuJoCo then clamps it to the joint's
         ``actuatorfrcrange``: its loop only).
         """
-        tau: list[Scalar] = [0.0] * self.nq
+        tau: list[Scalar] = [0.0] * self.nv
         for b, force in self._gravcomp:
             body = self.tree.bodies[b]
             node, _, c = self.body_frame(W, b, body.ipos)
@@ -550,10 +580,10 @@ class RigidBodyTree:
             W = self.world_frames(self._joint_transforms(q, ops) if X is None else X)
         ta = self.actuator_forces(q, qd, u, active, act, ops, W)
         tp = self.passive_forces(q, qd)
-        out = [_add(ta[i], tp[i]) for i in range(self.nq)]
+        out = [_add(ta[i], tp[i]) for i in range(self.nv)]
         if self._gravcomp:
             tg = self.gravity_compensation(W)
-            out = [_add(out[i], tg[i]) for i in range(self.nq)]
+            out = [_add(out[i], tg[i]) for i in range(self.nv)]
         return out
 
     def inverse_dynamics(
@@ -567,7 +597,7 @@ class RigidBodyTree:
         """``(M(q) + diag(a)) q̈ + c(q, q̇)`` ``(nq,)`` by RNEA: the generalized force that produces ``q̈``."""
         X = self._joint_transforms(q, ops) if X is None else X
         tau = self._rnea(X, qd, qdd, self._a_base)
-        return [_add(tau[i], _mul(self._armature[i], qdd[i])) for i in range(self.nq)]
+        return [_add(tau[i], _mul(self._armature[i], qdd[i])) for i in range(self.nv)]
 
     def forward_dynamics(
         self,
@@ -590,10 +620,10 @@ class RigidBodyTree:
         if self.algorithm == "aba":
             return articulated_body_accelerations(self._nodes, X, qd, tau, self._armature, self._a_base)
         M = self.mass_matrix(q, ops, X)
-        for i in range(self.nq):
+        for i in range(self.nv):
             M[i][i] = _add(M[i][i], self._armature[i])
         c = self.bias(q, qd, ops, X)
-        return _ldl_solve(M, [_sub(tau[i], c[i]) for i in range(self.nq)])
+        return _ldl_solve(M, [_sub(tau[i], c[i]) for i in range(self.nv)])
 
     def accelerations(
         self,
@@ -639,10 +669,10 @@ class RigidBodyTree:
             u: Input symbols ``(len(active),)``.
             active: The actuators ``u`` drives (see :meth:`actuator_forces`).
         """
-        n, m, na = self.nq, len(active), self.na
-        q = [x[i] for i in range(n)]
-        qd = [x[n + i] for i in range(n)]
-        act = [x[2 * n + i] for i in range(na)]
+        nq, n, m, na = self.nq, self.nv, len(active), self.na
+        q = [x[i] for i in range(nq)]
+        qd = [x[nq + i] for i in range(n)]
+        act = [x[nq + n + i] for i in range(na)]
         uu = [u[k] for k in range(m)]
         a = cs.SX.sym("qdd", n)
         X = self._joint_transforms(q, CASADI_OPS)
@@ -664,14 +694,17 @@ class RigidBodyTree:
             e = G[i, j]
             return 0.0 if e.is_zero() else -e
 
+        nx = nq + n + na
         cols = [
-            cs.vertcat(*[cs.SX(v) for v in _ldl_back(L, D, [entry(i, j) for i in range(n)])])
-            for j in range(2 * n + na + m)
+            cs.vertcat(*[cs.SX(v) for v in _ldl_back(L, D, [entry(i, j) for i in range(n)])]) for j in range(nx + m)
         ]
         Y = cs.horzcat(*cols)
-        nx = 2 * n + na
-        A = cs.vertcat(cs.horzcat(cs.SX.zeros(n, n), cs.SX.eye(n), cs.SX.zeros(n, na)), Y[:, :nx])
-        B = cs.vertcat(cs.SX.zeros(n, m), Y[:, nx:])
+        if nq == n:
+            top = cs.horzcat(cs.SX.zeros(n, n), cs.SX.eye(n), cs.SX.zeros(n, na))
+        else:  # the quaternion rates ½ q ⊗ (0, ω) (configuration.qpos_rate)
+            top = cs.jacobian(cs.vertcat(*[cs.SX(v) for v in qpos_rate(self.tree, q, qd)]), x)
+        A = cs.vertcat(top, Y[:, :nx])
+        B = cs.vertcat(cs.SX.zeros(nq, m), Y[:, nx:])
         if na:
             adot = cs.vertcat(*[cs.SX(v) for v in self.transmissions.activation_rates(uu, act, active)])
             A = cs.vertcat(A, cs.jacobian(adot, x))
@@ -680,24 +713,26 @@ class RigidBodyTree:
 
     def xdot_sx(self, x: cs.SX, u: cs.SX, active: Sequence[int]) -> cs.SX:
         """``ẋ = [q̇; q̈; ȧ]`` as a CasADi ``SX`` column from ``x = [q; q̇; a] (2nq + na,)`` and ``u (len(active),)``."""
-        n, na = self.nq, self.na
-        q = [x[i] for i in range(n)]
-        qd = [x[n + i] for i in range(n)]
-        act = [x[2 * n + i] for i in range(na)]
+        nq, n, na = self.nq, self.nv, self.na
+        q = [x[i] for i in range(nq)]
+        qd = [x[nq + i] for i in range(n)]
+        act = [x[nq + n + i] for i in range(na)]
         uu = [u[k] for k in range(len(active))]
         qdd = self.accelerations(q, qd, uu, active, CASADI_OPS, act)
         adot = self.transmissions.activation_rates(uu, act, active)
-        return cs.vertcat(*qd, *[cs.SX(v) if isinstance(v, float | int) else v for v in (*qdd, *adot)])
+        rate = qd if nq == n else qpos_rate(self.tree, q, qd)
+        return cs.vertcat(*[cs.SX(v) if isinstance(v, float | int) else v for v in (*rate, *qdd, *adot)])
 
     def xdot_numpy(self, x: ArrayLike, u: ArrayLike, active: Sequence[int]) -> np.ndarray:
         """``ẋ (2nq + na,)`` evaluated directly on numbers (float or complex; the complex-step path)."""
-        n = self.nq
+        nq, n = self.nq, self.nv
         x = np.asarray(x)
         u = np.asarray(u)
-        q, qd, act = list(x[:n]), list(x[n : 2 * n]), list(x[2 * n :])
+        q, qd, act = list(x[:nq]), list(x[nq : nq + n]), list(x[nq + n :])
         qdd = self.accelerations(q, qd, list(u), active, NUMPY_OPS, act)
         adot = self.transmissions.activation_rates(list(u), act, active)
-        return np.array([*qd, *qdd, *adot], dtype=np.result_type(x, u, float))
+        rate = qd if nq == n else qpos_rate(self.tree, q, qd)
+        return np.array([*rate, *qdd, *adot], dtype=np.result_type(x, u, float))
 
     # ---------------------------------------------- frame kinematics (equality and contact constraints)
     def transforms(self, q: Sequence[Scalar], ops: Ops = NUMPY_OPS) -> Transforms:
@@ -749,3 +784,60 @@ class RigidBodyTree:
             R = [[_dot(Rn[r], [R[0][c], R[1][c], R[2][c]]) for c in range(3)] for r in range(3)]
             node = self._nodes[node].parent
         return R, p
+
+
+def _ball_nodes(
+    tree: ModelTree, nodes: list[_Node], j: int, node: int, R: np.ndarray, p: np.ndarray
+) -> tuple[int, np.ndarray, np.ndarray]:
+    r"""Append the nodes of ball or free joint ``j``; return the body frame after it ``(node, R, p)``.
+
+    A free joint is three slides along the world axes (``qvel[0:3]``: the world velocity of the
+    body origin, ``qpos[0:3]`` its world position; MuJoCo ignores the body's ``pos``/``quat`` then)
+    followed by a ball at the body origin. A ball is three rotation nodes with the body's axes
+    ``e_x, e_y, e_z`` at one origin: the first is rotated by the quaternion ``qpos[a:a+4]``
+    (``R = R_0 R(q)``), the others by nothing, so the body's angular velocity in its own frame is
+    ``ω = Σ e_k q̇_k = qvel[d:d+3]`` (MuJoCo's body-frame convention). The velocity-product terms
+    of the rotation nodes use the angular velocity *before* the joint (``c = ω_λ × S q̇``, the true
+    spherical joint's, since ``S`` is constant in the body frame), never the partial sums a chain
+    of hinges would give (:mod:`~shinro_ctrl.multibody.aba`, :meth:`_rnea`).
+    """
+    jt = tree.joints[j]
+    a = tree.qposadr[j]
+    eye = np.eye(3)
+    if jt.type == "free":
+        if node >= 0:
+            raise ValueError(f"free joint '{jt.name}' is not on a child of the world")
+        for k in range(3):
+            nodes.append(
+                _Node(
+                    parent=node,
+                    dof=j,
+                    slide=True,
+                    R0=eye.copy(),
+                    p0=np.zeros(3),
+                    axis=eye[k].copy(),
+                    qpos0=0.0,
+                    qadr=a + k,
+                )
+            )
+            node = len(nodes) - 1
+        R, p, anchor, a = eye, np.zeros(3), np.zeros(3), a + 3
+    else:
+        anchor = np.asarray(jt.pos, dtype=float)
+    for k in range(3):
+        first = k == 0
+        nodes.append(
+            _Node(
+                parent=node,
+                dof=j,
+                slide=False,
+                R0=R.copy() if first else eye.copy(),
+                p0=(p + R @ anchor) if first else np.zeros(3),
+                axis=eye[k].copy(),
+                qpos0=0.0,
+                qadr=a,
+                ball=1 if first else 2,
+            )
+        )
+        node = len(nodes) - 1
+    return node, eye, -anchor

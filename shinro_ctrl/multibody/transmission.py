@@ -62,14 +62,14 @@ SiteFrame: TypeAlias = "tuple[list[Scalar], list[list[Scalar]], list[list[Scalar
 SiteLookup: TypeAlias = "Callable[..., SiteFrame]"
 
 
-def tendon_length(tendon: TendonInfo, q: Sequence[Scalar]) -> Scalar:
-    """``L = Σ_k c_k q_{j_k}`` of a fixed tendon."""
-    return _add(*(_mul(c, q[j]) for j, c in zip(tendon.joints, tendon.coefs, strict=True)))
+def tendon_length(tendon: TendonInfo, q: Sequence[Scalar], adr: Sequence[int] | None = None) -> Scalar:
+    """``L = Σ_k c_k q_{j_k}`` of a fixed tendon; ``adr``: each joint's index in ``q`` (default the joint index)."""
+    return _add(*(_mul(c, q[j if adr is None else adr[j]]) for j, c in zip(tendon.joints, tendon.coefs, strict=True)))
 
 
-def tendon_velocity(tendon: TendonInfo, qd: Sequence[Scalar]) -> Scalar:
-    """``L̇ = Σ_k c_k q̇_{j_k}`` of a fixed tendon."""
-    return tendon_length(tendon, qd)
+def tendon_velocity(tendon: TendonInfo, qd: Sequence[Scalar], adr: Sequence[int] | None = None) -> Scalar:
+    """``L̇ = Σ_k c_k q̇_{j_k}`` of a fixed tendon; ``adr``: each joint's index in ``q̇`` (default the joint index)."""
+    return tendon_length(tendon, qd, adr)
 
 
 class Transmissions:
@@ -79,14 +79,15 @@ class Transmissions:
         tree: The model description (actuators, tendons, sites).
 
     Attributes:
-        nq: Number of joint coordinates.
+        nq: Number of joint velocities (degrees of freedom, ``nv``): moment arms and forces have this length.
         nu: Number of actuators.
         na: Number of activation states.
     """
 
     def __init__(self, tree: ModelTree):
         self.tree = tree
-        self.nq = tree.nq
+        self.nq = tree.nv
+        self._qadr, self._dadr = tree.qposadr, tree.dofadr
         self.nu = tree.nu
         self.na = tree.na
 
@@ -127,13 +128,13 @@ class Transmissions:
         r: list[Scalar] = [0.0] * n
         g = a.gear6
         if a.transmission == "joint":
-            r[a.target] = g[0]
-            return _mul(g[0], q[a.target]), r
+            r[self._dadr[a.target]] = g[0]
+            return _mul(g[0], q[self._qadr[a.target]]), r
         if a.transmission == "tendon":
             t = self.tree.tendons[a.target]
             for j, c in zip(t.joints, t.coefs, strict=True):
-                r[j] = _add(r[j], g[0] * c)
-            return _mul(g[0], tendon_length(t, q)), r
+                r[self._dadr[j]] = _add(r[self._dadr[j]], g[0] * c)
+            return _mul(g[0], tendon_length(t, q, self._qadr)), r
         # site
         p, R, Jp, Jw = site(a.target)
         length: Scalar = 0.0

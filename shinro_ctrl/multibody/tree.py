@@ -15,7 +15,7 @@ import numpy as np
 if TYPE_CHECKING:
     from shinro_ctrl.multibody.constraints import Constraint
 
-__all__ = ["ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree", "SiteInfo", "TendonInfo"]
+__all__ = ["JOINT_QPOS", "JOINT_QVEL", "ActuatorInfo", "BodyInfo", "JointInfo", "ModelTree", "SiteInfo", "TendonInfo"]
 
 
 @dataclass(frozen=True)
@@ -50,15 +50,22 @@ class BodyInfo:
 
 @dataclass(frozen=True)
 class JointInfo:
-    """One hinge or slide joint.
+    """One joint: a hinge, a slide, a ball or a free joint.
+
+    A hinge or slide has one coordinate and one velocity; a ball joint has a unit quaternion
+    ``(w, x, y, z)`` (4 ``qpos``) and the body-frame angular velocity (3 ``qvel``); a free joint has
+    the body's world position and orientation quaternion (7 ``qpos``) and the world-frame linear
+    velocity then the body-frame angular velocity (6 ``qvel``), MuJoCo's conventions (see
+    :mod:`shinro_ctrl.multibody.configuration`).
 
     Attributes:
         name: Joint name.
-        type: ``"hinge"`` or ``"slide"``.
+        type: ``"hinge"``, ``"slide"``, ``"ball"`` or ``"free"``.
         body: Index of the body the joint moves.
         axis: Unit axis in the body frame ``(3,)``.
         pos: Anchor in the body frame ``(3,)`` [m].
-        qpos0: Reference coordinate (the body's pose in the model is at ``qpos0``).
+        qpos0: Reference coordinate (the body's pose in the model is at ``qpos0``); ball and free
+            joints: 0 (their reference configuration is the identity quaternion and the body's pose).
         damping: Viscous damping [N m s/rad or N s/m].
         armature: Rotor inertia added to ``M``'s diagonal [kg m² or kg].
         stiffness: Spring stiffness [N m/rad or N/m].
@@ -85,6 +92,11 @@ class JointInfo:
     range: tuple[float, float] = (-np.inf, np.inf)
     frictionloss: float = 0.0
     actgravcomp: bool = False
+
+
+#: Number of ``qpos`` and ``qvel`` entries of each joint type.
+JOINT_QPOS = {"hinge": 1, "slide": 1, "ball": 4, "free": 7}
+JOINT_QVEL = {"hinge": 1, "slide": 1, "ball": 3, "free": 6}
 
 
 @dataclass(frozen=True)
@@ -185,13 +197,13 @@ class ActuatorInfo:
 
 @dataclass(frozen=True)
 class ModelTree:
-    """A fixed-base kinematic tree with its actuators and options.
+    """A kinematic tree (fixed or floating base: hinge, slide, ball and free joints) with its actuators and options.
 
     Attributes:
         name: Model name.
         path: Absolute path of the model file ("" when built in memory).
         bodies: Bodies, index 0 the world; parents precede children.
-        joints: Hinge and slide joints in MuJoCo's ``qpos`` order.
+        joints: The joints in MuJoCo's ``qpos`` order (:attr:`qposadr` and :attr:`dofadr` index them).
         actuators: Actuators in MuJoCo's ``ctrl`` order.
         gravity: The model's gravity vector ``(3,)`` [m/s²] (``opt.gravity``).
         timestep: The model's ``opt.timestep`` [s].
@@ -228,8 +240,28 @@ class ModelTree:
 
     @property
     def nq(self) -> int:
-        """Number of joint coordinates (= velocities)."""
-        return len(self.joints)
+        """Number of joint coordinates (``qpos``; a ball joint has 4, a free joint 7)."""
+        return sum(JOINT_QPOS[j.type] for j in self.joints)
+
+    @property
+    def nv(self) -> int:
+        """Number of joint velocities (``qvel``, degrees of freedom; a ball joint has 3, a free joint 6)."""
+        return sum(JOINT_QVEL[j.type] for j in self.joints)
+
+    @property
+    def qposadr(self) -> tuple[int, ...]:
+        """Each joint's first index in ``qpos`` (MuJoCo's ``jnt_qposadr``)."""
+        return tuple(np.cumsum([0] + [JOINT_QPOS[j.type] for j in self.joints])[:-1].tolist())
+
+    @property
+    def dofadr(self) -> tuple[int, ...]:
+        """Each joint's first index in ``qvel`` (MuJoCo's ``jnt_dofadr``)."""
+        return tuple(np.cumsum([0] + [JOINT_QVEL[j.type] for j in self.joints])[:-1].tolist())
+
+    @property
+    def floating(self) -> bool:
+        """Whether the tree has a ball or free joint (then ``nq != nv``)."""
+        return any(j.type in ("ball", "free") for j in self.joints)
 
     @property
     def na(self) -> int:

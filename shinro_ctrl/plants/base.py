@@ -202,6 +202,43 @@ class Plant:
         """Number of inputs ``m``."""
         return len(self.input_names)
 
+    # ------------------------------------------------------ state deviations
+    @property
+    def tangent_dim(self) -> int:
+        """Dimension of a state deviation ``dx`` (:meth:`difference`): ``state_dim`` but on a floating base.
+
+        The linear models (:meth:`linearize`, :meth:`linear_model`) and every gain, covariance and
+        QP the controllers and estimators build live in these coordinates.
+        """
+        return self.state_dim
+
+    @property
+    def tangent_names(self) -> tuple[str, ...]:
+        """Names of the deviation coordinates ``(tangent_dim,)`` (:attr:`state_names` but on a floating base)."""
+        return tuple(self.state_names)
+
+    def difference(self, x: ArrayLike, x_ref: ArrayLike) -> np.ndarray:
+        """The deviation ``dx = x ⊖ x_ref`` ``(..., tangent_dim)`` of states ``x (..., n)`` from ``x_ref``.
+
+        Every controller and estimator measures a state's deviation from its reference with this
+        hook. Default ``x − x_ref``; a plant whose configuration holds unit quaternions (a floating
+        base) returns the tangent-space deviation (see :meth:`MjcfPlant.difference`).
+        """
+        return np.asarray(x, dtype=float) - np.asarray(x_ref, dtype=float)
+
+    def tangent_maps(self, x: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """``(D, E)``: ``∂ difference(·, x)/∂x``, ``∂ retract(x, ·)/∂dx`` at 0 (identities but on a floating base)."""
+        n = self.state_dim
+        return np.eye(n), np.eye(n)
+
+    def retract(self, x_ref: ArrayLike, dx: ArrayLike) -> np.ndarray:
+        """The state ``x_ref ⊕ dx`` ``(..., n)`` reached from ``x_ref`` by the deviation ``dx (..., tangent_dim)``.
+
+        The inverse of :meth:`difference`: ``difference(retract(x_ref, dx), x_ref) = dx``. Default
+        ``x_ref + dx``.
+        """
+        return np.asarray(x_ref, dtype=float) + np.asarray(dx, dtype=float)
+
     def params(self) -> dict[str, float]:
         """The physical parameters by constructor name (a copy)."""
         return dict(self._params)
@@ -489,7 +526,7 @@ class Plant:
         """
         if model.discretization == "step":
             F = self.symbolic_step()
-            return np.asarray(F(model.x0, model.u0, self._pvec), dtype=float).reshape(-1) - model.x0
+            return self.difference(np.asarray(F(model.x0, model.u0, self._pvec), dtype=float).reshape(-1), model.x0)
         drift = np.asarray(self.dynamics(model.x0, model.u0), dtype=float).reshape(-1, 1)
         return discretize(model.A_c, drift, model.dt, model.discretization)[1][:, 0]
 

@@ -1,4 +1,4 @@
-r"""Bring your own robot: any fixed-base MJCF/URDF tree of hinge and slide joints as a plant.
+r"""Bring your own robot: any MJCF/URDF tree of hinge, slide, ball and free joints as a plant.
 
 :class:`MjcfPlant` reads the model file once (MuJoCo compiles it; the
 reader ``shinro_ctrl.engine.model_tree`` is the one module of the engine
@@ -61,7 +61,8 @@ import numpy as np
 from shinro_ctrl.backend import ArrayBackend, CasadiBackend
 from shinro_ctrl.codegen import compiled_by_key
 from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
-from shinro_ctrl.multibody import RigidBodyTree
+from shinro_ctrl.linearization import LinearModel, discretize
+from shinro_ctrl.multibody import RigidBodyTree, configuration
 from shinro_ctrl.multibody.constraints import ConstrainedDynamics
 from shinro_ctrl.multibody.contacts import ContactFrame, StandingEquilibrium, contact_constraints, standing_equilibrium
 from shinro_ctrl.plants.base import MjcfPatch, Plant
@@ -77,6 +78,9 @@ if TYPE_CHECKING:
 __all__ = ["MODEL_SUFFIXES", "MjcfPlant", "is_model_file"]
 
 MODEL_SUFFIXES = (".xml", ".mjcf", ".urdf")
+
+#: How far a user's quaternion's norm may be from 1 to be normalized (with a note) rather than refused.
+QUATERNION_TOLERANCE = 1e-6
 
 #: How far inside a joint's range (as a fraction of its width) the default operating point moves a ``qpos0``
 #: that lies outside the range, or on its edge.
@@ -106,6 +110,60 @@ def is_model_file(name: object) -> bool:
     return True
 
 
+def _floating_names(tree: ModelTree, joint_names: Sequence[str]) -> tuple[list[str], list[str], list[str]]:
+    """``(qpos names, qvel names, tangent position names)`` of a tree with ball or free joints.
+
+    A free joint ``root``: ``root_x, root_y, root_z, root_qw, root_qx, root_qy, root_qz``; velocities
+    ``root_vx, root_vy, root_vz`` (world) and ``root_wx, root_wy, root_wz`` (body); the tangent
+    positions ``root_x, root_y, root_z, root_rx, root_ry, root_rz`` (a rotation vector in the body
+    frame). A ball ``b``: ``b_qw .. b_qz``, ``b_wx .. b_wz``, ``b_rx .. b_rz``.
+    """
+    qn: list[str] = []
+    vn: list[str] = []
+    tn: list[str] = []
+    for j, name in zip(tree.joints, joint_names, strict=True):
+        if j.type == "free":
+            lin = [f"{name}_{c}" for c in "xyz"]
+            qn += [*lin, *(f"{name}_q{c}" for c in "wxyz")]
+            vn += [*(f"{name}_v{c}" for c in "xyz"), *(f"{name}_w{c}" for c in "xyz")]
+            tn += [*lin, *(f"{name}_r{c}" for c in "xyz")]
+        elif j.type == "ball":
+            qn += [f"{name}_q{c}" for c in "wxyz"]
+            vn += [f"{name}_w{c}" for c in "xyz"]
+            tn += [f"{name}_r{c}" for c in "xyz"]
+        else:
+            qn.append(name)
+            vn.append(f"{name}_dot")
+            tn.append(name)
+    return qn, vn, tn
+
+
+def _plain_indices(tree: ModelTree) -> tuple[list[int], list[int]]:
+    """``(qpos indices, qvel indices)`` of the coordinates whose rate is their velocity (not the quaternions)."""
+    qi: list[int] = []
+    vi: list[int] = []
+    for j, a, d in zip(tree.joints, tree.qposadr, tree.dofadr, strict=True):
+        n = {"hinge": 1, "slide": 1, "ball": 0, "free": 3}[j.type]
+        qi += range(a, a + n)
+        vi += range(d, d + n)
+    return qi, vi
+
+
+def _qpos0(tree: ModelTree) -> np.ndarray:
+    """MuJoCo's ``qpos0``: each hinge's and slide's reference, a free body's model pose, a ball's identity."""
+    out: list[float] = []
+    for j in tree.joints:
+        if j.type == "free":
+            b = tree.bodies[j.body]
+            quat = np.asarray(b.quat, dtype=float)
+            out += [*np.asarray(b.pos, dtype=float).tolist(), *(quat / np.linalg.norm(quat)).tolist()]
+        elif j.type == "ball":
+            out += [1.0, 0.0, 0.0, 0.0]
+        else:
+            out.append(float(j.qpos0))
+    return np.array(out)
+
+
 @functools.lru_cache(maxsize=16)
 def _read(source: str, mtime_ns: int) -> tuple[RobotModel, RigidBodyTree]:
     """Read one model file version once: the checked model and its dynamics builder."""
@@ -120,7 +178,7 @@ def _read(source: str, mtime_ns: int) -> tuple[RobotModel, RigidBodyTree]:
 def _symbolic(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Function:
     """The CasADi ``SX`` function ``f(x, u) -> xdot`` of one model file version and actuator selection."""
     robot, rb = _read(source, mtime_ns)
-    x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
+    x = cs.SX.sym("x", robot.tree.nq + robot.tree.nv + robot.tree.na)
     u = cs.SX.sym("u", len(active))
     return cs.Function("f", [x, u], [rb.xdot_sx(x, u, active)], ["x", "u"], ["xdot"])
 
@@ -183,7 +241,7 @@ def _function(source: str, mtime_ns: int) -> cs.Function:
     every = tuple(range(robot.tree.nu))
 
     def build() -> cs.Function:
-        x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
+        x = cs.SX.sym("x", robot.tree.nq + robot.tree.nv + robot.tree.na)
         u = cs.SX.sym("u", robot.tree.nu)
         xdot = rb.xdot_sx(x, u, every)
         total = cs.sum1(x) + cs.sum1(u) + cs.sum1(xdot)
@@ -205,7 +263,7 @@ def _jacobian_function(source: str, mtime_ns: int) -> cs.Function:
     every = tuple(range(robot.tree.nu))
 
     def build() -> cs.Function:
-        x = cs.SX.sym("x", 2 * robot.tree.nq + robot.tree.na)
+        x = cs.SX.sym("x", robot.tree.nq + robot.tree.nv + robot.tree.na)
         u = cs.SX.sym("u", robot.tree.nu)
         A, B = rb.xdot_jacobians_sx(x, u, every)
         total = cs.sum1(cs.sum2(A)) + cs.sum1(cs.sum2(B)) + cs.sum1(x) + cs.sum1(u)
@@ -326,8 +384,8 @@ class MjcfPlant(Plant):
     stops there, and controllers that take state bounds get them.
 
     The file's kind is read from its content (``<mujoco>`` or ``<robot>``),
-    whatever its name. Everything in it the plant cannot model (free or ball
-    joints, tendon or inactive equality constraints, spatial tendons that act,
+    whatever its name. Everything in it the plant cannot model (stiffness or
+    a joint actuator on a ball or free joint, tendon or inactive equality constraints, spatial tendons that act,
     fluid forces, an unsupported actuator ...) and every invalid number (a
     ``NaN`` gravity, an infinite mass) is refused in one error that lists them
     all by element name, with the reason and the fix where one exists.
@@ -367,6 +425,17 @@ class MjcfPlant(Plant):
     Jacobians in its own buffers (created on its first call; the first
     compilation is behind a lock). :meth:`step` and the state belong to one thread (see
     :class:`~shinro_ctrl.plants.base.Plant`).
+
+    **Floating bases.** Free and ball joints hold unit quaternions: the
+    state is MuJoCo's ``[qpos; qvel; act]`` with ``nq ≠ nv`` (a free joint
+    ``root``: ``root_x .. root_z, root_qw .. root_qz``, then the world
+    velocity ``root_vx ..`` and the body rates ``root_wx ..``), stepped on
+    the manifold. The linear models live in the tangent space of
+    :attr:`tangent_dim` ``= 2 nv + na`` coordinates (:meth:`difference`,
+    :meth:`retract`, :meth:`tangent_maps`; MuJoCo's ``mj_differentiatePos``
+    / ``mj_integratePos`` and ``mjd_transitionFD`` conventions). A user's
+    quaternion within :data:`QUATERNION_TOLERANCE` of unit norm is
+    normalized with a warning, else refused.
 
     Args:
         model: MJCF/URDF path, or the name of a shipped asset; default the
@@ -458,15 +527,26 @@ class MjcfPlant(Plant):
         nq = tree.nq
         free = self.constraints.independent if self.constraints else range(nq)
         acts = sorted((a.act, a.name or f"u{k}") for k, a in enumerate(tree.actuators) if a.act >= 0)
-        self.state_names = (
-            *(self.joint_names[i] for i in free),
-            *(f"{self.joint_names[i]}_dot" for i in free),
-            *(f"{name}_act" for _, name in acts),
-        )
-        nq = len(free)  # the design coordinates
+        self.floating = tree.floating
+        if self.floating:  # quaternions: [qpos; qvel] with nq != nv (see the class docstring)
+            qn, vn, tn = _floating_names(tree, self.joint_names)
+            self.state_names = (*qn, *vn, *(f"{name}_act" for _, name in acts))
+            self._tangent_names = (*tn, *vn, *(f"{name}_act" for _, name in acts))
+            # the plain coordinates and their rates (the quaternions are stepped on the manifold)
+            qi, vi = _plain_indices(tree)
+            self.position_indices = tuple(qi)
+            self.velocity_indices = tuple(nq + i for i in vi)
+        else:
+            self.state_names = (
+                *(self.joint_names[i] for i in free),
+                *(f"{self.joint_names[i]}_dot" for i in free),
+                *(f"{name}_act" for _, name in acts),
+            )
+            self._tangent_names = self.state_names
+            nq = len(free)  # the design coordinates
+            self.position_indices = tuple(range(nq))
+            self.velocity_indices = tuple(range(nq, 2 * nq))
         self.input_names = tuple(names[k] or f"u{k}" for k in active)
-        self.position_indices = tuple(range(nq))
-        self.velocity_indices = tuple(range(nq, 2 * nq))
         self._local = threading.local()  # per-thread evaluation buffers (see the class docstring)
         self.state_bounds = self._joint_range_bounds()
         self._init(dt=tree.timestep if dt is None else check_positive("dt", dt), params={}, backend=backend)
@@ -483,7 +563,7 @@ class MjcfPlant(Plant):
             if held is not None:
                 self._x0 = held[0]
         else:
-            self._x0 = as_vector("x0", x0, self.state_dim).copy()
+            self._x0 = self._user_state(x0, "x0")
             self._check_in_range(self._x0, "x0")
         if u0 is not None:
             self._u0 = as_vector("u0", u0, self.input_dim).copy()
@@ -590,17 +670,52 @@ class MjcfPlant(Plant):
     # ------------------------------------------------------------ operating
     def _default_x0(self, keyframe: tuple[str, np.ndarray] | None) -> np.ndarray:
         """The first keyframe, else ``[qpos0; 0]`` moved inside the joint ranges (see the class docstring)."""
-        nq = self.tree.nq
         if keyframe is not None:
             name, x = keyframe
             self._check_in_range(x, f"keyframe '{name}'" if name else "the model's first keyframe")
             return x.copy()
-        x = np.r_[[j.qpos0 for j in self.tree.joints], np.zeros(nq + self.tree.na)]
-        for i, j in enumerate(self.tree.joints):
-            if j.limited:
+        x = np.r_[_qpos0(self.tree), np.zeros(self.tree.nv + self.tree.na)]
+        for i, j in zip(self.tree.qposadr, self.tree.joints, strict=True):
+            if j.limited and j.type in ("hinge", "slide"):
                 lo, hi = j.range
                 margin = RANGE_MARGIN * (hi - lo)
                 x[i] = min(max(x[i], lo + margin), hi - margin)
+        return x
+
+    def _user_state(self, x: ArrayLike, what: str) -> np.ndarray:
+        """A user's full state ``[qpos; qvel; act]``: its length checked (naming ``nq``), its quaternions made unit.
+
+        A quaternion whose norm is within :data:`QUATERNION_TOLERANCE` of 1 is normalized with a
+        one-line :class:`~shinro_ctrl.engine.warnings.ModelWarning`-free note (a ``UserWarning``);
+        farther from 1 it is refused: a typo, not rounding.
+        """
+        if self.floating and np.size(x) != self.state_dim:
+            t = self.tree
+            raise InvalidArgument(
+                f"{self._label()}: {what} has {np.size(x)} entries; expected {self.state_dim} = nq {t.nq} (qpos, "
+                f"with {len(configuration.quaternion_slices(t))} unit quaternion(s)) + nv {t.nv} (qvel)"
+                + (f" + na {t.na} (act)" if t.na else "")
+            )
+        x = as_vector(what, x, self.state_dim).copy()
+        if not self.floating:
+            return x
+        nq = self.tree.nq
+        for a, _ in configuration.quaternion_slices(self.tree):
+            q = x[a : a + 4]
+            n = float(np.linalg.norm(q))
+            names = ", ".join(self.state_names[a : a + 4])
+            if abs(n - 1.0) > QUATERNION_TOLERANCE:
+                raise InvalidArgument(
+                    f"{self._label()}: {what} quaternion ({names}) = {q.tolist()} has norm {n:.6g}, not 1 (within "
+                    f"{QUATERNION_TOLERANCE:g}); give a unit quaternion (w, x, y, z)"
+                )
+            if n != 1.0:
+                if abs(n - 1.0) > 1e-12:
+                    warnings.warn(
+                        f"{self._label()}: {what} quaternion ({names}) normalized (its norm was {n:.12g})", stacklevel=3
+                    )
+                x[a : a + 4] = q / n
+        assert x[:nq].shape == (nq,)
         return x
 
     def _hold_activations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -611,11 +726,11 @@ class MjcfPlant(Plant):
         actuator that is not an input), an integrator's input is 0 and its activation is free.
         Solves for the free unknowns in the least-squares sense and accepts an exact solution.
         """
-        nq, m = self.tree.nq, self.input_dim
+        nq, nv, m = self.tree.nq, self.tree.nv, self.input_dim
         x = x.copy()
         x[nq:] = 0.0
         z = np.zeros(m)
-        a0 = self._eval_one(x, z)[nq : 2 * nq]
+        a0 = self._eval_one(x, z)[nq : nq + nv]
         cols, unknowns = [], []  # each unknown: (input index or -1, activation index or -1)
         input_of = {a: k for k, a in enumerate(self.active_actuators)}
         for a, act in enumerate(self.tree.actuators):
@@ -626,10 +741,10 @@ class MjcfPlant(Plant):
                 continue  # a filter driven by 0 settles at 0
             xe, ue = x.copy(), z.copy()
             if act.act >= 0:
-                xe[2 * nq + act.act] = 1.0
+                xe[nq + nv + act.act] = 1.0
             if k >= 0 and act.dyntype != "integrator":
                 ue[k] = 1.0
-            cols.append(self._eval_one(xe, ue)[nq : 2 * nq] - a0)
+            cols.append(self._eval_one(xe, ue)[nq : nq + nv] - a0)
             unknowns.append((k if act.dyntype != "integrator" else -1, act.act))
         if not cols:
             return None
@@ -644,7 +759,7 @@ class MjcfPlant(Plant):
             if k >= 0:
                 u[k] = v
             if ia >= 0:
-                x[2 * nq + ia] = v
+                x[nq + nv + ia] = v
         return x, u
 
     def _joint_range_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -654,6 +769,11 @@ class MjcfPlant(Plant):
         """
         lo = np.full(self.state_dim, -np.inf)
         hi = np.full(self.state_dim, np.inf)
+        if self.floating:
+            for i, j in zip(self.tree.qposadr, self.tree.joints, strict=True):
+                if j.limited and j.type in ("hinge", "slide"):
+                    lo[i], hi[i] = j.range
+            return lo, hi
         free = self.constraints.independent if self.constraints else range(self.tree.nq)
         for k, i in enumerate(free):
             if self.tree.joints[i].limited:
@@ -679,9 +799,9 @@ class MjcfPlant(Plant):
     def _check_in_range(self, x: np.ndarray, what: str) -> None:
         """Raise InvalidArgument naming every joint of ``x`` outside its range."""
         outside = [
-            f"'{self.joint_names[i]}' = {x[i]:g} (range [{j.range[0]:g}, {j.range[1]:g}])"
-            for i, j in enumerate(self.tree.joints)
-            if j.limited and not j.range[0] <= x[i] <= j.range[1]
+            f"'{self.joint_names[k]}' = {x[i]:g} (range [{j.range[0]:g}, {j.range[1]:g}])"
+            for k, (i, j) in enumerate(zip(self.tree.qposadr, self.tree.joints, strict=True))
+            if j.limited and j.type in ("hinge", "slide") and not j.range[0] <= x[i] <= j.range[1]
         ]
         if outside:
             raise InvalidArgument(
@@ -722,7 +842,7 @@ class MjcfPlant(Plant):
             NonFiniteError: the accelerations at ``x`` overflow float64.
         """
         x = as_vector("x", x, self.state_dim)
-        nq = len(self.position_indices)
+        nq = self.tree.nq if self.constraints is None else len(self.position_indices)
         u0 = np.zeros(self.input_dim)
         a0 = self._eval_one(x, u0)[nq:]  # q̈ and ȧ
         Bq = np.column_stack([self._eval_one(x, e)[nq:] - a0 for e in np.eye(self.input_dim)])
@@ -828,6 +948,17 @@ class MjcfPlant(Plant):
         constrained model's exact Jacobians come from the implicit function
         theorem (:meth:`ConstrainedDynamics.jacobians`), not compiled.
         """
+        if self.floating:  # the tangent space: A_t = D A E, B_t = D B (see tangent_maps)
+            x0, u0 = self.operating_point(x0, u0)
+            A, B = self._full_linearize(x0, u0, method, eps)
+            D, E = self.tangent_maps(x0)
+            return D @ A @ E, D @ B
+        return self._full_linearize(x0, u0, method, eps)
+
+    def _full_linearize(
+        self, x0: ArrayLike | None, u0: ArrayLike | None, method: str, eps: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`linearize` in the full state ``[qpos; qvel; act]`` (a floating base's quaternions included)."""
         if self.constraints is not None:
             if method != "exact":
                 return super().linearize(x0, u0, method=method, eps=eps)
@@ -850,6 +981,123 @@ class MjcfPlant(Plant):
             if math.isfinite(total):
                 return A, B
         return super().linearize(x0, u0, method=method, eps=eps)
+
+    # ------------------------------------------------------ the tangent space
+    @property
+    def tangent_dim(self) -> int:
+        """``2 nv + na`` (``state_dim`` without ball or free joints): the linear models' state dimension."""
+        return len(self._tangent_names)
+
+    @property
+    def tangent_names(self) -> tuple[str, ...]:
+        """Names of the deviation coordinates: a quaternion's three rotation-vector components ``<joint>_rx`` ..."""
+        return self._tangent_names
+
+    def difference(self, x: ArrayLike, x_ref: ArrayLike) -> np.ndarray:
+        """``dx = x ⊖ x_ref`` ``(..., 2 nv + na)``: exactly MuJoCo's ``mj_differentiatePos`` on ``qpos`` (``dt = 1``).
+
+        ``dx = [qpos ⊖ qpos_ref; qvel − qvel_ref; act − act_ref]``; on a quaternion (a ball, or a
+        free joint's orientation) ``2 log(q_ref⁻¹ ⊗ q)``, the rotation vector in the reference body
+        frame taken on the short arc (see :mod:`shinro_ctrl.multibody.configuration`); elsewhere the
+        plain difference. The coordinates of ``mjd_transitionFD``'s Jacobians. Without ball or free
+        joints ``x − x_ref``.
+        """
+        if not self.floating:
+            return super().difference(x, x_ref)
+        X, R = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(x_ref, dtype=float))
+        nq, t = self.tree.nq, self.tree
+        flat_x, flat_r = X.reshape(-1, X.shape[-1]), R.reshape(-1, R.shape[-1])
+        out = np.empty((flat_x.shape[0], self.tangent_dim))
+        for k in range(flat_x.shape[0]):
+            out[k, : t.nv] = configuration.difference(t, flat_x[k, :nq], flat_r[k, :nq])
+            out[k, t.nv :] = flat_x[k, nq:] - flat_r[k, nq:]
+        return out.reshape(*X.shape[:-1], self.tangent_dim)
+
+    def retract(self, x_ref: ArrayLike, dx: ArrayLike) -> np.ndarray:
+        """``x = x_ref ⊕ dx`` ``(..., nq + nv + na)``: MuJoCo's ``mj_integratePos(qpos_ref, dx[:nv], 1)`` on ``qpos``.
+
+        The inverse of :meth:`difference`; a quaternion moves by ``q_ref ⊗ exp(φ/2)``.
+        """
+        if not self.floating:
+            return super().retract(x_ref, dx)
+        R, Dx = np.asarray(x_ref, dtype=float), np.asarray(dx, dtype=float)
+        lead = np.broadcast_shapes(R.shape[:-1], Dx.shape[:-1])
+        R = np.broadcast_to(R, (*lead, R.shape[-1])).reshape(-1, R.shape[-1])
+        Dx = np.broadcast_to(Dx, (*lead, Dx.shape[-1])).reshape(-1, Dx.shape[-1])
+        nq, t = self.tree.nq, self.tree
+        out = np.empty((R.shape[0], self.state_dim))
+        for k in range(R.shape[0]):
+            out[k, :nq] = configuration.integrate(t, R[k, :nq], Dx[k, : t.nv])
+            out[k, nq:] = R[k, nq:] + Dx[k, t.nv :]
+        return out.reshape(*lead, self.state_dim)
+
+    def tangent_maps(self, x: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        r"""``(D (n_t, n), E (n, n_t))`` at ``x``: ``D = ∂ difference(·, x)/∂x``, ``E = ∂ retract(x, ·)/∂dx`` at 0.
+
+        On a quaternion ``E = ½ L(q)[:, 1:]`` and ``D = 2 L(q̄)[1:, :]`` (``L(q) p = q ⊗ p``), identity
+        blocks elsewhere; ``D E = I``. The tangent linearization is ``A_t = D A E``, ``B_t = D B``
+        (continuous; exact: the rotation-vector rate is ``ω`` to first order, and the extra
+        ``−½ [ω₀]×`` of a spinning body comes out of ``D A E``), and the tangent step Jacobian
+        ``D(F(x₀, u₀)) (∂F/∂x) E(x₀)``.
+        """
+        x = as_vector("x", x, self.state_dim)
+        if not self.floating:
+            n = self.state_dim
+            return np.eye(n), np.eye(n)
+        t, nq, rest = self.tree, self.tree.nq, self.state_dim - self.tree.nq
+        D = np.zeros((self.tangent_dim, self.state_dim))
+        E = np.zeros((self.state_dim, self.tangent_dim))
+        D[: t.nv, :nq] = configuration.difference_jacobian(t, x[:nq])
+        E[:nq, : t.nv] = configuration.tangent_basis(t, x[:nq])
+        D[t.nv :, nq:] = np.eye(rest)
+        E[nq:, t.nv :] = np.eye(rest)
+        return D, E
+
+    def step_jacobians(self, x0: ArrayLike | None = None, u0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Exact Jacobians of the standalone step (see :meth:`Plant.step_jacobians`), in the tangent space.
+
+        With ball or free joints: ``A = D(x⁺) (∂F/∂x) E(x₀)``, ``B = D(x⁺) ∂F/∂u``, with ``x⁺ = F(x₀, u₀)``
+        (:meth:`tangent_maps`): the coordinates of MuJoCo's ``mjd_transitionFD``.
+        """
+        A, B = super().step_jacobians(x0, u0)
+        if not self.floating:
+            return A, B
+        x0, u0 = self.operating_point(x0, u0)
+        xn = np.asarray(self.symbolic_step()(x0, u0, []), dtype=float).reshape(-1)
+        Dn, _ = self.tangent_maps(xn)
+        _, E = self.tangent_maps(x0)
+        return Dn @ A @ E, Dn @ B
+
+    def discrete_offset(self, model: LinearModel) -> np.ndarray:
+        """The affine term of ``model`` (see :meth:`Plant.discrete_offset`), in the tangent space."""
+        if not self.floating or model.discretization == "step":
+            return super().discrete_offset(model)
+        D, _ = self.tangent_maps(model.x0)
+        drift = (D @ np.asarray(self.dynamics(model.x0, model.u0), dtype=float)).reshape(-1, 1)
+        return discretize(model.A_c, drift, model.dt, model.discretization)[1][:, 0]
+
+    def linear_model(
+        self,
+        x0: ArrayLike | None = None,
+        u0: ArrayLike | None = None,
+        *,
+        method: str = "exact",
+        discretization: str = "euler",
+        eps: float = 1e-6,
+    ) -> LinearModel:
+        """The discrete model (see :meth:`Plant.linear_model`); with ball or free joints in the tangent space.
+
+        ``A``, ``B`` act on ``difference(x, x0)`` (:meth:`difference`); ``x0`` stays the full state.
+        """
+        if self.floating and discretization == "step" and method != "exact":
+            raise InvalidArgument(
+                f"{self._label()}: discretization='step' with method={method!r} is not available on a floating "
+                "base; use method='exact'"
+            )
+        lm = super().linear_model(x0, u0, method=method, discretization=discretization, eps=eps)
+        if self.floating:
+            lm = dataclasses.replace(lm, state_names=self._tangent_names)
+        return lm
 
     def equations(
         self, bk: ArrayBackend, x: np.ndarray | cs.SX, u: np.ndarray | cs.SX, p: dict[str, float]
@@ -925,9 +1173,16 @@ class MjcfPlant(Plant):
         steps them (MuJoCo's ``actrange`` clamp is its loop's only). The joint
         ranges act as inelastic stops (:meth:`clip_state`).
         """
-        nq = len(self.position_indices)
         xd = self._eval_one(x, u)
         new = x.copy()
+        if self.floating:  # on the manifold: qpos⁺ = qpos ⊕ dt q̇⁺ (a quaternion times exp(dt ω⁺ / 2))
+            nq, nv = self.tree.nq, self.tree.nv
+            new[nq : nq + nv] += self.dt * xd[nq : nq + nv]
+            new[:nq] = configuration.integrate(self.tree, x[:nq], new[nq : nq + nv], self.dt)
+            if self.tree.na:
+                new[nq + nv :] += self._activation_steps * xd[nq + nv :]
+            return self.clip_state(new)
+        nq = len(self.position_indices)
         new[nq : 2 * nq] += self.dt * xd[nq : 2 * nq]
         new[:nq] += self.dt * new[nq : 2 * nq]
         if self.tree.na:
@@ -941,11 +1196,19 @@ class MjcfPlant(Plant):
         the joints and MuJoCo's own activation update, exact for ``filterexact`` and Euler for
         ``filter`` and ``integrator``.
         """
-        nq, na = len(self.position_indices), self.tree.na
+        na = self.tree.na
         x = cs.SX.sym("x", self.state_dim)
         u = cs.SX.sym("u", self.input_dim)
         p = cs.SX.sym("p", 0)
         xd = self.symbolic()(x, u)
+        if self.floating:
+            nq, nv = self.tree.nq, self.tree.nv
+            v = x[nq : nq + nv] + self.dt * xd[nq : nq + nv]
+            parts = [configuration.integrate_sx(self.tree, x[:nq], v, self.dt), v]
+            if na:
+                parts.append(x[nq + nv :] + cs.DM(self._activation_steps) * xd[nq + nv :])
+            return cs.Function("F", [x, u, p], [cs.vertcat(*parts)], ["x", "u", "p"], ["x_next"])
+        nq = len(self.position_indices)
         v = x[nq : 2 * nq] + self.dt * xd[nq : 2 * nq]
         parts = [x[:nq] + self.dt * v, v]
         if na:
@@ -979,10 +1242,14 @@ class MjcfPlant(Plant):
         )
 
     def engine_state_map(self, x0: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`)."""
+        """Identity: the state is MuJoCo's ``[qpos; qvel; act]`` (see :meth:`Plant.engine_state_map`).
+
+        On a floating base the identity of the tangent space (``2 nv + na``): the linear models are in
+        ``mjd_transitionFD``'s own coordinates (``crosscheck`` compares them directly).
+        """
         if self.constraints is not None:
             raise NotImplementedError(f"{self._label()}: a constrained model's state is its independent coordinates")
-        n = self.state_dim
+        n = self.tangent_dim
         return np.eye(n), np.arange(n)
 
     def engine_read(self, engine: MujocoEngine) -> np.ndarray:
