@@ -507,6 +507,15 @@ class MjcfPlant(Plant):
         self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
         self.constraints: ConstrainedDynamics | None = None
         self.contacts = self._contact_frames(robot.path, contacts)
+        if self.contacts and tree.floating:
+            roots = ", ".join(
+                f"'{j.name or i}' ({j.type})" for i, j in enumerate(tree.joints) if j.type in ("ball", "free")
+            )
+            raise InvalidArgument(
+                f"{self._label()}: contacts on a model with ball or free joints ({roots}) are not supported yet (the "
+                "contact-constrained dynamics are in plain joint coordinates); give the base slide and hinge joints "
+                "(e.g. a planar base: slide x, slide z, hinge pitch)"
+            )
         if (tree.equalities or self.contacts) and tree.na:
             dyn = ", ".join(f"'{a.name or f'u{k}'}' ({a.dyntype})" for k, a in enumerate(tree.actuators) if a.act >= 0)
             raise InvalidArgument(
