@@ -463,6 +463,7 @@ SOLVER_BACKENDS = {
     "controllers/qp/ltv_sparse.py": "NonlinearMPC's sparse LTV QP (holds an OsqpQP)",
     "controllers/_nmpc_rti.py": "NonlinearMPC's real-time-iteration strategy",
     "controllers/_nmpc_ipopt.py": "NonlinearMPC's IPOPT strategy (casadi.nlpsol)",
+    "multibody/contacts.py": "the standing-equilibrium QP of a contact model (casadi.nlpsol, IPOPT)",
     "controllers/_ik_parts.py": "IKQP's box QP (holds an OsqpQP)",
     "planning/collocation.py": "trajectory optimization (casadi.nlpsol with IPOPT)",
     "identification/estimate.py": "grey-box identification (casadi.nlpsol with IPOPT)",

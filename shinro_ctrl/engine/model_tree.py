@@ -49,6 +49,7 @@ from shinro_ctrl.engine.warnings import ModelWarning, collect_messages
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.multibody import ActuatorInfo, BodyInfo, JointInfo, ModelTree, SiteInfo, TendonInfo
 from shinro_ctrl.multibody.constraints import Constraint
+from shinro_ctrl.multibody.contacts import ContactFrame
 from shinro_ctrl.resources import asset_path, list_assets
 
 __all__ = [
@@ -1130,3 +1131,48 @@ def _tree_with_options(
         sites=tuple(_read_sites(m)),
         frictionloss_enabled=not flags & int(_DSBL.mjDSBL_FRICTIONLOSS),
     )
+
+
+def read_contact_frames(model: str | os.PathLike[str]) -> dict[str, ContactFrame]:
+    """Every geom, site and body of a model file that can be a contact, by name (a geom's name first, then a site's).
+
+    A sphere geom or site is a point contact, anything else a flat one (see
+    :mod:`shinro_ctrl.multibody.contacts`); the friction is the larger of the element's and the floor's
+    (the world body's geoms).
+    """
+    m, _ = load_model(model)
+    floor = max((float(m.geom_friction[g, 0]) for g in range(m.ngeom) if m.geom_bodyid[g] == 0), default=0.0)
+    sphere = int(mujoco.mjtGeom.mjGEOM_SPHERE)
+    out: dict[str, ContactFrame] = {}
+    for b in range(1, m.nbody):
+        name = m.body(b).name
+        if name:
+            own = [float(m.geom_friction[g, 0]) for g in range(m.ngeom) if m.geom_bodyid[g] == b]
+            out[name] = ContactFrame(name, "body", b, np.zeros(3), np.array([1.0, 0, 0, 0]), False, max([floor, *own]))
+    for s in range(m.nsite):
+        name = m.site(s).name
+        if name:
+            b = int(m.site_bodyid[s])
+            own = [float(m.geom_friction[g, 0]) for g in range(m.ngeom) if m.geom_bodyid[g] == b]
+            out[name] = ContactFrame(
+                name,
+                "site",
+                b,
+                np.array(m.site_pos[s], dtype=float),
+                np.array(m.site_quat[s], dtype=float),
+                int(m.site_type[s]) == sphere,
+                max([floor, *own]),
+            )
+    for g in range(m.ngeom):
+        name = m.geom(g).name
+        if name:
+            out[name] = ContactFrame(
+                name,
+                "geom",
+                int(m.geom_bodyid[g]),
+                np.array(m.geom_pos[g], dtype=float),
+                np.array(m.geom_quat[g], dtype=float),
+                int(m.geom_type[g]) == sphere,
+                max(floor, float(m.geom_friction[g, 0])),
+            )
+    return out

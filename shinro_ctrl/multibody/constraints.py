@@ -488,6 +488,26 @@ class ConstrainedDynamics:
         qdd, lam = self.kkt_function(x_full[: self.nq], x_full[self.nq :], u)
         return qdd.full().ravel(), lam.full().ravel()
 
+    def constraint_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(φ (R,), J (R, nq))`` at ``q (nq,)``: every row of every constraint, in order (redundant ones too)."""
+        phi, J = self._phi(np.asarray(q, dtype=float))
+        return phi.ravel(), J
+
+    def constraint_forces(self, x_full: np.ndarray, u: np.ndarray) -> list[np.ndarray]:
+        """Each constraint's force ``λ`` (its ``rows`` entries) at a full state ``[q; q̇]``: the minimum-norm split.
+
+        The KKT system fixes ``Jᵀλ`` (the generalized constraint force) but not how redundant
+        rows share it: this is the least-norm ``λ`` over all rows with ``J_allᵀλ = J_rᵀλ_r``.
+        """
+        _, lam_r = self.accelerations(x_full, u)
+        _, J = self.constraint_jacobian(x_full[: self.nq])
+        lam = np.linalg.lstsq(J.T, J[list(self.rows)].T @ lam_r, rcond=None)[0]
+        out, r = [], 0
+        for c in self.constraints:
+            out.append(lam[r : r + c.rows])
+            r += c.rows
+        return out
+
     def symbolic_function(self) -> cs.Function:
         """:meth:`symbolic_xdot` as the ``casadi.Function`` ``f(x (2nᵢ,), u (m,)) -> xdot`` (built once)."""
         with self._build_lock:

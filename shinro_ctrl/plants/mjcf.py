@@ -64,6 +64,7 @@ from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
 from shinro_ctrl.linearization import LinearModel, discretize
 from shinro_ctrl.multibody import RigidBodyTree, configuration
 from shinro_ctrl.multibody.constraints import ConstrainedDynamics
+from shinro_ctrl.multibody.contacts import ContactFrame, StandingEquilibrium, contact_constraints, standing_equilibrium
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_positive, closest
 
@@ -184,11 +185,28 @@ def _symbolic(source: str, mtime_ns: int, active: tuple[int, ...]) -> cs.Functio
 
 @functools.lru_cache(maxsize=16)
 def _constrained(
-    source: str, mtime_ns: int, active: tuple[int, ...], q_ref: tuple[float, ...], what: str
+    source: str,
+    mtime_ns: int,
+    active: tuple[int, ...],
+    q_ref: tuple[float, ...],
+    what: str,
+    contacts: tuple[str, ...] = (),
 ) -> ConstrainedDynamics:
-    """The constrained dynamics of one model file version, actuator selection and reference (built once)."""
+    """The constrained dynamics of one model file version, actuator selection, reference and contacts (built once).
+
+    The contacts' constraints (:func:`~shinro_ctrl.multibody.contacts.contact_constraints`) follow the model's
+    equalities and hold each contact where it is at ``q_ref`` (first projected onto the equalities).
+    """
+    from shinro_ctrl.engine.model_tree import read_contact_frames
+
     robot, rb = _read(source, mtime_ns)
-    return ConstrainedDynamics(rb, robot.tree.equalities, active=active, q_ref=np.array(q_ref), what=what)
+    frames = read_contact_frames(robot.path) if contacts else {}
+    q = np.array(q_ref)
+    equalities = list(robot.tree.equalities)
+    if contacts and equalities:
+        q = ConstrainedDynamics(rb, equalities, active=active, q_ref=q, what=what).q_ref
+    constraints = equalities + contact_constraints(rb, [frames[c] for c in contacts], q)
+    return ConstrainedDynamics(rb, constraints, active=active, q_ref=q, what=what)
 
 
 @functools.lru_cache(maxsize=1)
@@ -455,6 +473,7 @@ class MjcfPlant(Plant):
         dt: float | None = None,
         x0: ArrayLike | None = None,
         u0: ArrayLike | None = None,
+        contacts: Sequence[str] | None = None,
         backend: ArrayBackend | None = None,
     ):
         from shinro_ctrl.engine.model_tree import resolve_model_path
@@ -487,16 +506,28 @@ class MjcfPlant(Plant):
         self.source_path = str(robot.source)  # the user's file (a URDF itself for a URDF)
         self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
         self.constraints: ConstrainedDynamics | None = None
-        if tree.equalities and tree.na:
+        self.contacts = self._contact_frames(robot.path, contacts)
+        if self.contacts and tree.floating:
+            roots = ", ".join(
+                f"'{j.name or i}' ({j.type})" for i, j in enumerate(tree.joints) if j.type in ("ball", "free")
+            )
+            raise InvalidArgument(
+                f"{self._label()}: contacts on a model with ball or free joints ({roots}) are not supported yet (the "
+                "contact-constrained dynamics are in plain joint coordinates); give the base slide and hinge joints "
+                "(e.g. a planar base: slide x, slide z, hinge pitch)"
+            )
+        if (tree.equalities or self.contacts) and tree.na:
             dyn = ", ".join(f"'{a.name or f'u{k}'}' ({a.dyntype})" for k, a in enumerate(tree.actuators) if a.act >= 0)
             raise InvalidArgument(
                 f"{self._label()}: activation dynamics on actuators {dyn} with equality constraints are not "
                 'supported yet; give those actuators dyntype="none" or remove the equality constraints'
             )
-        if tree.equalities:  # exact constrained dynamics in the independent coordinates (class docstring)
+        if tree.equalities or self.contacts:  # exact constrained dynamics in the independent coordinates
             ref, key = self._default_x0(robot.keyframe), robot.keyframe
             what = f"{self._label()}: " + (f"keyframe '{key[0]}'" if key and key[0] else "the reference (qpos0)")
-            self.constraints = _constrained(str(source), mtime, active, tuple(ref[: tree.nq]), what)
+            self.constraints = _constrained(
+                str(source), mtime, active, tuple(ref[: tree.nq]), what, tuple(f.name for f in self.contacts)
+            )
         else:
             self._fun = _function(str(source), mtime)  # compiled: u_all, every actuator's control
         self.model_path = str(robot.path)  # the file plant and engine load (a URDF's translation)
@@ -543,8 +574,91 @@ class MjcfPlant(Plant):
         else:
             self._x0 = self._user_state(x0, "x0")
             self._check_in_range(self._x0, "x0")
-        self._u0 = as_vector("u0", u0, self.input_dim).copy() if u0 is not None else self._default_u0()
+        if u0 is not None:
+            self._u0 = as_vector("u0", u0, self.input_dim).copy()
+        elif self.contacts:
+            self._u0 = self.standing_equilibrium().u
+        else:
+            self._u0 = self._default_u0()
         self.state = self._x0.copy()
+
+    # ------------------------------------------------------------ contacts
+    def _contact_frames(self, path: Path, contacts: Sequence[str] | None) -> tuple[ContactFrame, ...]:
+        """The named contacts, checked (unknown names listed with the valid ones; no repeats)."""
+        if contacts is None:
+            return ()
+        if isinstance(contacts, str) or not all(isinstance(c, str) for c in contacts):
+            raise InvalidArgument(
+                f"contacts must be a list of geom, site or body names, got {contacts!r} (e.g. ['FL_foot', 'FR_foot'])"
+            )
+        if len(set(contacts)) != len(contacts):
+            raise InvalidArgument(f"contacts lists a name twice: {list(contacts)!r}")
+        from shinro_ctrl.engine.model_tree import read_contact_frames
+
+        frames = read_contact_frames(path)
+        out = []
+        for c in contacts:
+            if c not in frames:
+                near = closest(c, list(frames))
+                hint = f" (did you mean '{near}'?)" if near else ""
+                valid = ", ".join(f"{f.name} ({f.element})" for f in frames.values())
+                raise UnknownName(
+                    f"{self._label()}: unknown contact {c!r}{hint}; the model's geoms, sites and bodies: {valid}"
+                )
+            out.append(frames[c])
+        return tuple(out)
+
+    def _full_state(self, x: ArrayLike | None) -> np.ndarray:
+        """The full ``[qpos; qvel]`` of a design state (default the operating state)."""
+        x = as_vector("x", self._x0 if x is None else x, self.state_dim)
+        return x if self.constraints is None else self.constraints.complete(x, what=f"{self._label()}: x")
+
+    def standing_equilibrium(self, posture: ArrayLike | None = None) -> StandingEquilibrium:
+        """The inputs and contact forces that hold a posture still, inside the friction cones and actuator ranges.
+
+        See :func:`shinro_ctrl.multibody.contacts.standing_equilibrium` (a QP: least ``‖u‖²``, contact
+        forces inside the inner friction pyramid, ``u`` inside the ``ctrlrange``).
+
+        Args:
+            posture: Design state ``[q_I; q̇_I]`` or a full ``qpos (nq,)`` (projected onto the contacts:
+                the nearest configuration that keeps every contact where it is); default the operating state.
+
+        Raises:
+            InvalidArgument: no contacts; a posture off the contacts that cannot be projected.
+            EquilibriumNotFound: none exists; the one-line message names the failing constraint
+                (``posture``, ``friction`` or ``torque``).
+        """
+        if not self.contacts:
+            raise InvalidArgument(
+                f"{self._label()}: standing_equilibrium needs contacts (MjcfPlant(..., contacts=[...]))"
+            )
+        cd = self.constraints
+        if posture is not None and np.size(posture) == self.tree.nq:
+            q = cd.project(as_vector("posture", posture, self.tree.nq), what=f"{self._label()}: posture")
+        else:
+            xi = self._x0 if posture is None else as_vector("posture", posture, self.state_dim)
+            q = cd.complete(np.r_[xi[: cd.ni], np.zeros(cd.ni)], what=f"{self._label()}: posture")[: self.tree.nq]
+        return standing_equilibrium(
+            cd,
+            self.contacts,
+            q,
+            self.active_actuators,
+            self.input_bounds(),
+            what=f"{self._label()}: the standing equilibrium",
+        )
+
+    def contact_forces(self, x: ArrayLike | None = None, u: ArrayLike | None = None) -> dict[str, np.ndarray]:
+        """Each contact's world-frame force ``(3,)`` (point) or wrench ``(6,)`` (flat) at ``(x, u)``.
+
+        The KKT forces, split over redundant rows by least norm
+        (:meth:`ConstrainedDynamics.constraint_forces`); default the operating point.
+        """
+        if not self.contacts:
+            raise InvalidArgument(f"{self._label()}: contact_forces needs contacts (MjcfPlant(..., contacts=[...]))")
+        full = self._full_state(x)
+        u = as_vector("u", self._u0 if u is None else u, self.input_dim)
+        forces = self.constraints.constraint_forces(full, u)[-len(self.contacts) :]
+        return {f.name: w for f, w in zip(self.contacts, forces, strict=True)}
 
     # ------------------------------------------------------------ limits
     def input_bounds(self) -> tuple[np.ndarray, np.ndarray]:
