@@ -318,11 +318,8 @@ def test_tvlqr_tracks_a_drone_trajectory(drone):
     assert ends[0] < 0.75 * ends[1]  # about 0.14 against 0.22
 
 
-def test_nonlinear_mpc_and_ekf_refuse_a_floating_base_in_one_line(drone):
+def test_nonlinear_mpc_refuses_a_floating_base_in_one_line(drone):
     from shinro_ctrl.controllers.nmpc import NonlinearMPC
-    from shinro_ctrl.estimators.kalman import ExtendedKalmanFilter
 
     with pytest.raises(InvalidArgument, match=r"NonlinearMPC on a floating base .* not supported yet"):
         NonlinearMPC.from_plant(drone, [1] * 12, [1] * 4, horizon=5)
-    with pytest.raises(InvalidArgument, match=r"ExtendedKalmanFilter on a floating base .* not supported yet"):
-        ExtendedKalmanFilter(drone, np.eye(13)[:7], [1e-2] * 4, [1e-4] * 7)

@@ -360,6 +360,13 @@ class ExtendedKalmanFilter(Estimator):
     covariance) is one CasADi ``Function`` built once per filter and
     evaluated through its buffer interface into arrays the filter owns.
 
+    On a floating base (``plant.tangent_dim < plant.state_dim``: unit quaternions in the state) it is
+    an error-state filter: the prediction is the plant's own manifold step (:meth:`Plant.symbolic_step`),
+    the covariance ``P``, the gain and ``Qn_on="state"``'s ``Qn`` live in the tangent space
+    (``tangent_dim``), the correction is applied by ``plant.retract`` and a measured quaternion's
+    innovation is taken by ``plant.difference`` (see ``_ErrorStateEKF``); ``y = C x`` still measures
+    full-state components. This filter is not exported as C.
+
     Args:
         plant: The plant (its :meth:`symbolic` dynamics and ``dt``).
         C: Measurement matrix ``(p, n)``.
@@ -375,11 +382,19 @@ class ExtendedKalmanFilter(Estimator):
     """
 
     def __init__(self, plant: Plant, C: Matrix, Qn: Weight, Rn: Weight, *, Qn_on: str = "input"):
-        if plant.tangent_dim != plant.state_dim:
-            raise InvalidArgument(
-                f"ExtendedKalmanFilter on a floating base ({plant!r}: unit quaternions in the state) is not supported "
-                "yet; use KalmanFilter (it runs in the tangent space)"
-            )
+        self._error_state: _ErrorStateEKF | None = None
+        if plant.tangent_dim != plant.state_dim:  # a floating base: the error-state filter (class docstring)
+            self._error_state = _ErrorStateEKF(plant, C, Qn, Rn, Qn_on)
+            es = self._error_state
+            self.n, self.m, self.p = es.n, es.m, es.p
+            self.C, self.Qn, self.Rn, self.Qn_on = es.C, es.Qn, es.Rn, Qn_on
+            self.measured = measured_indices(es.C)
+            self.dt = es.dt
+            self.state_names = tuple(plant.state_names)
+            self.step_function = es.step_function
+            self.update_functions = None  # no C export of the error-state filter (the export refuses it)
+            self._first = True
+            return
         n, m = plant.state_dim, plant.input_dim
         C = measurement_matrix(C, n)
         p = C.shape[0]
@@ -470,18 +485,27 @@ class ExtendedKalmanFilter(Estimator):
         return cls(plant, plant.output_matrix(measured), Qn, Rn, Qn_on=Qn_on)
 
     def step_jacobians(self, x: Vector, u: Vector) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The RK4 step and its exact Jacobians at ``(x (n,), u (m,))``: ``(x_next (n,), F_x (n, n), F_u (n, m))``."""
+        """The RK4 step and its exact Jacobians at ``(x (n,), u (m,))``: ``(x_next (n,), F_x (n, n), F_u (n, m))``.
+
+        On a floating base the plant's manifold step and its tangent Jacobians ``(n_t, n_t)``, ``(n_t, m)``.
+        """
+        if self._error_state is not None:
+            return self._error_state.step_jacobians(as_vector("x", x, self.n), as_vector("u", u, self.m))
         xn, Fx, Fu = self.step_function(as_vector("x", x, self.n), as_vector("u", u, self.m))
         return np.asarray(xn).reshape(-1), np.asarray(Fx), np.asarray(Fu)
 
     @property
     def M(self) -> np.ndarray:
-        """The last filter gain ``(n, p)``."""
+        """The last filter gain ``(n, p)`` (``(n_t, p)`` on a floating base)."""
+        if self._error_state is not None:
+            return self._error_state.K.copy()
         return self._K.copy()
 
     @property
     def P(self) -> np.ndarray:
-        """Covariance of the current estimate ``(n, n)``."""
+        """Covariance of the current estimate ``(n, n)`` (``(n_t, n_t)``, of its deviation, on a floating base)."""
+        if self._error_state is not None:
+            return self._error_state.P.copy()
         return self._P.copy()
 
     def reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
@@ -490,6 +514,10 @@ class ExtendedKalmanFilter(Estimator):
             self._reset(x0_hat, P0)
 
     def _reset(self, x0_hat: Vector, P0: Weight | None = None) -> None:
+        if self._error_state is not None:
+            self._error_state.reset(as_vector("x0_hat", x0_hat, self.n), P0)
+            self._first = True
+            return
         self._x[:] = as_vector("x0_hat", x0_hat, self.n)
         self._P[:] = np.eye(self.n) if P0 is None else weight_matrix("P0", P0, self.n)
         self._first = True
@@ -500,6 +528,10 @@ class ExtendedKalmanFilter(Estimator):
             return self._update(y, u)
 
     def _update(self, y: Vector, u: Vector) -> np.ndarray:
+        if self._error_state is not None:
+            y, u = as_vector("y", y, self.p), as_vector("u", u, self.m)
+            first, self._first = self._first, False
+            return self._error_state.update(y, u, predict=not first)
         self._y[:] = as_vector("y", y, self.p)
         u = as_vector("u", u, self.m)  # checked also on the first call, whose prediction is skipped
         if self._first:
@@ -515,3 +547,101 @@ class ExtendedKalmanFilter(Estimator):
 
     def __repr__(self) -> str:
         return f"ExtendedKalmanFilter(n={self.n}, measured={self.measured}, dt={self.dt:g})"
+
+
+class _ErrorStateEKF:
+    r"""The error-state EKF of a floating-base plant (``tangent_dim < state_dim``: unit quaternions in the state).
+
+    The estimate ``x̂ (n,)`` is a full state on the manifold; the covariance ``P (n_t, n_t)`` is that of
+    its tangent deviation ``δ = difference(x, x̂)``. With the plant's manifold step ``x⁺ = F(x, u)``
+    (:meth:`Plant.symbolic_step`, the standalone loop's own step) and its tangent maps ``D(x)``, ``E(x)``
+    (:meth:`Plant.tangent_maps`):
+
+    .. math::
+
+        \bar x = F(\hat x, u), \quad A = D(\bar x) F_x E(\hat x), \quad B = D(\bar x) F_u, \quad
+        P^- = A P A^\top + G Q_n G^\top,
+
+        H = C E(\bar x), \quad \nu = y - C \bar x \ \text{(a fully measured quaternion: }
+        E_q(\bar q)\, (\bar q^{-1} \otimes q_y)^{\log}\text{)}, \quad
+        \hat x^+ = \mathrm{retract}(\bar x, M \nu),
+
+    with the Joseph-form covariance update in the tangent space (``G = B`` or ``I``). A measured
+    quaternion's innovation is its tangent difference ``difference`` mapped back by ``E``, so ``q`` and
+    ``−q`` measure the same attitude and the innovation stays on the short arc; the estimate's
+    quaternions stay unit (the correction is a retraction). The covariance is not transported by the
+    reset's Jacobian (``I + O(|δ|)``), the usual error-state choice.
+    """
+
+    def __init__(self, plant: Plant, C: Matrix, Qn: Weight, Rn: Weight, Qn_on: str):
+        from shinro_ctrl.multibody import configuration
+
+        n, nt, m = plant.state_dim, plant.tangent_dim, plant.input_dim
+        C = measurement_matrix(C, n)
+        p = C.shape[0]
+        if Qn_on not in ("input", "state"):
+            process_noise_input(Qn_on, np.zeros((n, m)))  # raises with the valid choices
+        self.Qn = noise_covariance("Qn", Qn, m if Qn_on == "input" else nt, definite=False)
+        self.Rn = noise_covariance("Rn", Rn, p, definite=True)
+        self.n, self.nt, self.m, self.p, self.C, self.Qn_on = n, nt, m, p, C, Qn_on
+        self.dt = float(plant.dt)
+        self._plant = plant
+        # a quaternion measured whole, row by row in order: (its rows in y, its qpos index, its tangent index)
+        self._quats: list[tuple[int, int, int]] = []
+        for a, d in configuration.quaternion_slices(plant.tree):  # type: ignore[attr-defined]
+            rows = [np.flatnonzero(np.all(C == np.eye(n)[a + i], axis=1)) for i in range(4)]
+            if all(len(r) for r in rows) and np.array_equal(np.diff([r[0] for r in rows]), [1, 1, 1]):
+                self._quats.append((int(rows[0][0]), a, d))
+        lm = plant.linear_model(discretization="step")
+        _, E0 = plant.tangent_maps(lm.x0)
+        measured = measured_indices(C)
+        names = [plant.state_names[i] for i in measured] if measured else None
+        check_detectable(lm.A, C @ E0, names=plant.tangent_names, seen_by=seen_from(names))
+        x = cs.SX.sym("x", n)
+        u = cs.SX.sym("u", m)
+        pv = cs.DM([plant.dynamics_params()[k] for k in plant.param_names])
+        xn = plant.symbolic_step()(x, u, pv)
+        self.step_function = cs.Function(
+            "ekf_step",
+            [x, u],
+            [xn, cs.densify(cs.jacobian(xn, x)), cs.densify(cs.jacobian(xn, u))],
+            ["x", "u"],
+            ["x_next", "F_x", "F_u"],
+        )
+        self.x = np.asarray(lm.x0, dtype=float).copy()
+        self.P = np.eye(nt)
+        self.K = np.zeros((nt, p))
+
+    def step_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(x⁺ (n,), A (n_t, n_t), B (n_t, m))``: the manifold step and its tangent Jacobians."""
+        xn, Fx, Fu = (np.asarray(v) for v in self.step_function(x, u))
+        xn = xn.reshape(-1)
+        D, _ = self._plant.tangent_maps(xn)
+        _, E = self._plant.tangent_maps(x)
+        return xn, D @ Fx @ E, D @ Fu
+
+    def reset(self, x0_hat: np.ndarray, P0: Weight | None) -> None:
+        self.x = self._plant.retract(x0_hat, np.zeros(self.nt))  # unit quaternions (checked by the plant)
+        self.P = np.eye(self.nt) if P0 is None else weight_matrix("P0", P0, self.nt)
+
+    def update(self, y: np.ndarray, u: np.ndarray, *, predict: bool) -> np.ndarray:
+        x, P = self.x, self.P
+        if predict:
+            x, A, B = self.step_jacobians(x, u)
+            G = B if self.Qn_on == "input" else np.eye(self.nt)
+            P = A @ P @ A.T + G @ self.Qn @ G.T
+        _, E = self._plant.tangent_maps(x)
+        H = self.C @ E
+        nu = y - self.C @ x
+        for r, a, d in self._quats:  # the quaternion's innovation on the manifold (short arc)
+            xy = x.copy()
+            xy[a : a + 4] = y[r : r + 4] / np.linalg.norm(y[r : r + 4])
+            nu[r : r + 4] = E[a : a + 4, d : d + 3] @ self._plant.difference(xy, x)[d : d + 3]
+        S = H @ P @ H.T + self.Rn
+        K = np.linalg.solve(S, H @ P).T
+        ImK = np.eye(self.nt) - K @ H
+        P = ImK @ P @ ImK.T + K @ self.Rn @ K.T
+        self.P = 0.5 * (P + P.T)
+        self.K = K
+        self.x = self._plant.retract(x, K @ nu)
+        return self.x.copy()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import casadi as cs
 import numpy as np
 
+from shinro_ctrl.errors import ExportError
 from shinro_ctrl.estimators.kalman import ExtendedKalmanFilter
 from shinro_ctrl.export.parts import CArray, CField, Part, casadi_source
 from shinro_ctrl.export.registry import ExportContext, register_exporter
@@ -37,6 +38,8 @@ class EKFExporter:
         assert isinstance(obj, ExtendedKalmanFilter)
         n, m, p = obj.n, obj.m, obj.p
         name = ctx.name
+        if obj.update_functions is None:
+            raise ExportError("cannot export the ExtendedKalmanFilter of a floating base (its error-state update)")
         f_pred, f_first = obj.update_functions
         fp = _renamed(f_pred, f"{name}_ekf_update")
         ff = _renamed(f_first, f"{name}_ekf_correct")
