@@ -84,3 +84,42 @@ def test_the_floating_ekf_is_not_exported_but_refused_in_one_line(drone):
     ctx = ExportContext(name="d", plant=drone, controller=None, estimator=ekf, x_hat_dim=13, initial_covariance=None)
     with pytest.raises(ExportError, match="floating base"):
         exporter_for(ekf, "estimator").part(ekf, ctx)
+
+
+NMPC = dict(Q=Q12, R=R4, horizon=8, dt=0.03, terminal_cost="lqr", u_min=[0, -1, -1, -0.5], u_max=[19.62, 1, 1, 0.5])
+
+
+def test_nmpc_rti_flies_the_drone_home_from_a_yaw_near_pi_and_a_tilt(drone):
+    from shinro_ctrl.controllers.nmpc import NonlinearMPC
+
+    nmpc = NonlinearMPC.from_plant(drone, **NMPC)  # RTI (DAQP), IPOPT cold start, 0.24 s horizon
+    assert nmpc.Q.shape == (12, 12) and nmpc.hold == 3
+    x0, _ = drone.equilibrium()
+    x = drone.retract(x0, np.r_[0.3, -0.3, 0.2, 0.3, -0.3, 3.1, np.zeros(6)])  # a yaw of 3.1 rad and a tilt
+    for _ in range(200):
+        x = drone.integrate(x, nmpc(x))
+        assert abs(np.linalg.norm(x[3:7]) - 1.0) < 1e-12
+        assert np.all(np.abs(np.linalg.norm(nmpc.last.states[:, 3:7], axis=1) - 1.0) < 1e-12)  # the prediction
+    assert nmpc.last.status == "rti"
+    assert np.abs(drone.difference(x, x0)).max() < 0.03  # home after 2 s (0.011 measured)
+
+
+def test_nmpc_rti_flies_the_drone_home_in_mujoco():
+    from shinro_ctrl.sim import RobotSim
+
+    x0 = MjcfPlant("quadrotor_free.xml").equilibrium()[0]
+    q = np.r_[np.cos(1.25), 0.0, 0.0, np.sin(1.25)]  # a yaw of 2.5 rad
+    c, s = np.cos(0.2), np.sin(0.2)
+    q = np.r_[q[0] * c, q[0] * s, -q[3] * s, q[3] * c]  # then a roll of 0.4 rad about the body x axis
+    config = {
+        "plant": {"type": "MjcfPlant", "model": "quadrotor_free.xml"},
+        "engine": {"type": "mujoco"},
+        "controller": {"type": "NonlinearMPC", **NMPC},
+        "sim": {"duration": 2.0, "initial_state": [0.3, -0.3, 1.2, *q, *np.zeros(6)]},
+    }
+    res = RobotSim.from_config(config).run(None, progress=False)
+    assert res.loop == "mujoco"
+    assert np.all(np.abs(np.linalg.norm(res.x[:, 3:7], axis=1) - 1.0) < 1e-9)
+    plant = MjcfPlant("quadrotor_free.xml")
+    assert np.abs(plant.difference(res.x[0], x0)).max() > 2.4
+    assert np.abs(plant.difference(res.x[-1], x0)).max() < 0.03

@@ -42,9 +42,16 @@ class IpoptSolver:
         self._bounded = bounded if o.soft else bounded[:0]
         ns = self._bounded.size * N  # one slack per state-bound row (stage and bounded component)
         S = cs.MX.sym("S", ns)
-        P = cs.MX.sym("P", 2 * n)
-        x_meas, r = P[:n], P[n:]
+        man = ocp.manifold
+        nt = ocp.nt
+        P = cs.MX.sym("P", 2 * n + (0 if man is None else nt * n))
+        x_meas, r = P[:n], P[n : 2 * n]
         E = X - cs.repmat(r, 1, N + 1)
+        if man is not None:
+            # a floating base (the cold start only): the deviation D(r) (x − r), on a quaternion the chordal
+            # attitude error 2 vec(q_r⁻¹ ⊗ q) (|·| = 2 sin(θ/2), the same for q and −q: smooth, no sign
+            # ambiguity); the quaternions stay unit through the manifold step from the measured x_0
+            E = cs.mtimes(cs.reshape(P[2 * n :], nt, n), E)
         dU = U - cs.repmat(cs.DM(ocp.u0), 1, N)
         J = 0.5 * cs.sum2(cs.sum1(E[:, :N] * cs.mtimes(cs.DM(ocp.Q), E[:, :N])))
         J += 0.5 * cs.bilin(cs.DM(ocp.Qf), E[:, N], E[:, N])
@@ -113,6 +120,14 @@ class IpoptSolver:
             objective=obj,
         )  # fmt: skip
 
+    def _parameters(self, x: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        """The NLP's parameters: ``[x; ref]`` (and ``D(ref)`` column-major on a floating base)."""
+        man = self.ocp.manifold
+        if man is None:
+            return np.concatenate([x, ref])
+        D, _ = man.tangent_maps(ref)
+        return np.concatenate([x, ref, D.ravel(order="F")])
+
     def trajectory(self, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, Any], float]:
         """The OCP from ``x`` solved by IPOPT, warm-started from the previous solution shifted.
 
@@ -153,7 +168,7 @@ class IpoptSolver:
                 ubx=self._ubw,
                 lbg=self._lbg,
                 ubg=self._ubg,
-                p=np.concatenate([x, ref]),
+                p=self._parameters(x, ref),
             )
         except KeyboardInterrupt:
             self._guess = None

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -37,6 +37,7 @@ __all__ = [
     "NMPCOptions",
     "NMPCProblem",
     "NMPCStrategy",
+    "StateManifold",
     "build_ocp",
     "failed_solution",
     "riccati_functions",
@@ -197,6 +198,31 @@ class NMPCOptions:
 
 
 @dataclass(frozen=True, eq=False)
+class StateManifold:
+    """A floating base's states (unit quaternions in them): the prediction's step and the deviations' maps.
+
+    The OCP then keeps full states ``x (n,)`` in its trajectory and predicts with ``step`` (the plant's
+    manifold step), while its cost, its QP and its gaps live in the tangent space (``nt`` coordinates):
+    ``e_k = difference(x_k, r)``, the stage Jacobians ``A_k = D(F̄_k) F_x E(x̄_k)``, ``B_k = D(F̄_k) F_u``
+    (``F̄_k = F(x̄_k, ū_k)``), the gaps ``d_k = difference(F̄_k, x̄_{k+1})`` and the update
+    ``x̄_k ← retract(x̄_k, Δx_k)``.
+
+    Attributes:
+        nt: Tangent dimension (``plant.tangent_dim``).
+        step: The discrete step ``F(x, u) -> x_next`` over the shooting interval (CasADi).
+        difference: ``(x, x_ref) -> dx`` (``plant.difference``; rows of states broadcast).
+        retract: ``(x_ref, dx) -> x`` (``plant.retract``).
+        tangent_maps: ``x -> (D (nt, n), E (n, nt))`` (``plant.tangent_maps``).
+    """
+
+    nt: int
+    step: cs.Function
+    difference: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    retract: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    tangent_maps: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True, eq=False)
 class NMPCProblem:
     """The OCP a strategy solves: sizes, the discrete step, the weights and the resolved options.
 
@@ -216,6 +242,8 @@ class NMPCProblem:
         compiled: The stage linearization is compiled code (``codegen`` true, or automatic on a large model):
             the strategies compile their other stage functions too (the Riccati recursion of
             :func:`riccati_functions`).
+        manifold: A floating base's :class:`StateManifold` (None: the states are plain coordinates, the
+            deviations subtractions). ``Q``, ``R``, ``Qf`` and ``W`` are then ``(nt, nt)``.
     """
 
     n: int
@@ -230,6 +258,16 @@ class NMPCProblem:
     W: np.ndarray
     options: NMPCOptions
     compiled: bool = False
+    manifold: StateManifold | None = None
+
+    @property
+    def nt(self) -> int:
+        """Dimension of a state deviation (``n`` but on a floating base)."""
+        return self.n if self.manifold is None else self.manifold.nt
+
+    def deviation(self, X: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        """``X − ref`` (rows), or ``difference(X, ref)`` on a floating base."""
+        return X - ref if self.manifold is None else self.manifold.difference(X, ref)
 
     @property
     def x0(self) -> np.ndarray:
@@ -244,7 +282,7 @@ class NMPCProblem:
     def objective(self, X: np.ndarray, U: np.ndarray, ref: np.ndarray) -> float:
         """The OCP cost of a trajectory ``X (N + 1, n)``, ``U (N, m)`` towards ``ref (n,)`` (slack terms included)."""
         o = self.options
-        E = X - ref
+        E = self.deviation(X, ref)
         dU = U - self.u0
         J = 0.5 * float(np.einsum("ki,ij,kj->", E[:-1], self.Q, E[:-1]))
         J += 0.5 * float(E[-1] @ self.Qf @ E[-1])
@@ -295,8 +333,11 @@ def build_ocp(
     horizon: int,
     dt: float,
     options: NMPCOptions,
+    manifold: StateManifold | None = None,
 ) -> NMPCProblem:
     """The OCP of dynamics ``f(x, u) -> xdot`` (CasADi) with the given weights, horizon and (unresolved) options.
+
+    With a ``manifold`` (a floating base) the prediction is its ``step`` and the weights are ``(nt, nt)``.
 
     Raises:
         InvalidArgument: an invalid weight, horizon, ``dt`` or option (the message names it).
@@ -308,13 +349,22 @@ def build_ocp(
     N = int(horizon)
     h = check_positive("dt", dt)
     o = options.resolve(n, m)
-    Qm = weight_matrix("Q", Q, n)
+    nt = n if manifold is None else manifold.nt
+    if manifold is not None:
+        if np.isfinite(o.x_min).any() or np.isfinite(o.x_max).any():  # type: ignore[arg-type]
+            raise InvalidArgument("NonlinearMPC on a floating base: state bounds (x_min, x_max) are not supported")
+        if o.solver == "ipopt":
+            raise InvalidArgument(
+                "NonlinearMPC on a floating base: solver 'ipopt' is not supported (its cost is the chordal "
+                "attitude error, only good for the cold start); use 'daqp' or 'osqp'"
+            )
+    Qm = weight_matrix("Q", Q, nt)
     Rm = weight_matrix("R", R, m, definite=True)
-    F = _discrete_step(f, n, m, h, o)
+    F = _discrete_step(f, n, m, h, o) if manifold is None else manifold.step
     if isinstance(o.terminal_cost, str):
-        Qf = Qm.copy() if o.terminal_cost == "Q" else _dare(F, n, m, Qm, Rm, o)
+        Qf = Qm.copy() if o.terminal_cost == "Q" else _dare(F, n, m, Qm, Rm, o, manifold)
     else:
-        Qf = weight_matrix("terminal_cost", o.terminal_cost, n)
+        Qf = weight_matrix("terminal_cost", o.terminal_cost, nt)
     linearization, compiled_ = _stage_linearization(F, n, m, N, o.codegen)
     return NMPCProblem(
         n=n,
@@ -329,6 +379,7 @@ def build_ocp(
         W=np.stack([Qm] * (N - 1) + [Qf]),
         options=o,
         compiled=compiled_,
+        manifold=manifold,
     )
 
 
@@ -369,11 +420,17 @@ def _stage_linearization(F: cs.Function, n: int, m: int, N: int, codegen: bool |
     return cs.Function("lin", [X, U], [stage.map(N)(X[:, :N], U, X[:, 1:])], ["X", "U"], ["G"]), compile_
 
 
-def _dare(F: cs.Function, n: int, m: int, Q: np.ndarray, R: np.ndarray, o: NMPCOptions) -> np.ndarray:
+def _dare(
+    F: cs.Function, n: int, m: int, Q: np.ndarray, R: np.ndarray, o: NMPCOptions, manifold: StateManifold | None
+) -> np.ndarray:
     xs, us = cs.SX.sym("x", n), cs.SX.sym("u", m)
     xn = F(xs, us)
-    jac = cs.Function("F_jac", [xs, us], [cs.jacobian(xn, xs), cs.jacobian(xn, us)])
-    A, B = (np.array(M, dtype=float) for M in jac(o.x0, o.u0))
+    jac = cs.Function("F_jac", [xs, us], [cs.jacobian(xn, xs), cs.jacobian(xn, us), xn])
+    A, B, x1 = (np.array(M, dtype=float) for M in jac(o.x0, o.u0))
+    if manifold is not None:  # the tangent step Jacobians D(x⁺) F_x E(x0), D(x⁺) F_u
+        D, _ = manifold.tangent_maps(x1.reshape(-1))
+        _, E = manifold.tangent_maps(np.asarray(o.x0, dtype=float))
+        A, B = D @ A @ E, D @ B
     return riccati_solution(A, B, Q, R, what="terminal_cost='lqr' at the target")
 
 

@@ -47,17 +47,30 @@ class RealTimeIteration:
         self.ocp = ocp
         o = ocp.options
         n, m, N = ocp.n, ocp.m, ocp.N
+        nt = ocp.nt  # the QP's state dimension: n, or the tangent dimension on a floating base
         self.X = np.zeros((N + 1, n))
         self.U = np.zeros((N, m))
-        self._G = np.zeros((N, n, n + m + 1))  # [A_k, B_k, d_k] of every stage
-        self.A = self._G[:, :, :n]
-        self.B = self._G[:, :, n : n + m]
-        self.D = self._G[:, :, n + m]
-        self._buf, self._eval = ocp.linearization.buffer()
+        self._G = np.zeros((N, nt, nt + m + 1))  # [A_k, B_k, d_k] of every stage
+        self.A = self._G[:, :, :nt]
+        self.B = self._G[:, :, nt : nt + m]
+        self.D = self._G[:, :, nt + m]
+        x_min, x_max = o.x_min, o.x_max
+        # on a floating base the compiled linearization writes the full-state [F_x, F_u, F̄ − x̄⁺] here, and
+        # _tangent_stages maps it into _G (StateManifold); the state-bound offsets are then unused zeros
+        self._Gfull = self._G if ocp.manifold is None else np.zeros((N, n, n + m + 1))
+        self._buf, eval_full = ocp.linearization.buffer()
         self._buf.set_arg(0, memoryview(self.X))
         self._buf.set_arg(1, memoryview(self.U))
-        self._buf.set_res(0, memoryview(self._G))
-        self._e = np.zeros(N * n)
+        self._buf.set_res(0, memoryview(self._Gfull))
+        if ocp.manifold is None:
+            self._eval = eval_full
+            self._xb = self.X[1:]
+        else:
+            self._eval_full = eval_full
+            self._eval = self._tangent_stages
+            self._xb = np.zeros((N, nt))
+            x_min, x_max = np.full(nt, -np.inf), np.full(nt, np.inf)
+        self._e = np.zeros(N * nt)
         self._du = np.zeros(N * m)
         self._ref = ocp.x0.copy()
         self.qp: CondensedLTV | SparseLTV
@@ -65,10 +78,10 @@ class RealTimeIteration:
         if o.solver == "osqp":
             settings = dict(o.osqp_settings) if o.osqp_settings is not None else None
             self.qp = SparseLTV(
-                self._G, ocp.Q, ocp.W, ocp.R, o.u_min, o.u_max, o.x_min, o.x_max, osqp_settings=settings, **soft
+                self._G, ocp.Q, ocp.W, ocp.R, o.u_min, o.u_max, x_min, x_max, osqp_settings=settings, **soft
             )
         else:
-            self.qp = CondensedLTV(self._G, ocp.W, ocp.R, o.u_min, o.u_max, o.x_min, o.x_max, **soft)
+            self.qp = CondensedLTV(self._G, ocp.W, ocp.R, o.u_min, o.u_max, x_min, x_max, **soft)
         self._ipopt: IpoptSolver | None = None  # the cold start's, built on first use
         # large condensed QPs with compiled stage functions: the Riccati step first (_riccati_step; in CasADi's
         # virtual machine the recursion costs more than the condensing it saves)
@@ -81,7 +94,7 @@ class RealTimeIteration:
     def _init_riccati(self) -> None:
         """Bind the compiled Riccati recursion's buffers (:func:`~._nmpc_ocp.riccati_functions`) once."""
         ocp = self.ocp
-        n, m, N = ocp.n, ocp.m, ocp.N
+        n, m, N = ocp.nt, ocp.m, ocp.N
         back, fwd = riccati_functions(n, m, N, codegen=True)
         # CasADi reads column-major: the C-ordered transposes are the matrices themselves
         self._Wt = np.ascontiguousarray(np.swapaxes(ocp.W, 1, 2))
@@ -109,7 +122,8 @@ class RealTimeIteration:
         # bounded state components: the predicted X̄₁…X̄_N + ΔX must lie within them too
         self._xcols = qp.bounded
         o = ocp.options
-        xmin, xmax = np.broadcast_to(o.x_min, (n,)), np.broadcast_to(o.x_max, (n,))
+        xmin = np.broadcast_to(o.x_min if ocp.manifold is None else -np.inf, (n,))
+        xmax = np.broadcast_to(o.x_max if ocp.manifold is None else np.inf, (n,))
         self._xlo = np.asarray(xmin, dtype=float)[self._xcols]
         self._xhi = np.asarray(xmax, dtype=float)[self._xcols]
         self._xpred = np.zeros((N, self._xcols.size))
@@ -123,16 +137,38 @@ class RealTimeIteration:
             self.qp.clear_active_set()
 
     # ================================================================ phases
+    def _tangent_stages(self) -> None:
+        """A floating base's stages in the tangent space (see :class:`~._nmpc_ocp.StateManifold`).
+
+        From the full-state ``[F_x, F_u, F̄_k − x̄_{k+1}]`` of the compiled linearization:
+        ``A_k = D(F̄_k) F_x E(x̄_k)``, ``B_k = D(F̄_k) F_u``, ``d_k = difference(F̄_k, x̄_{k+1})``.
+        """
+        self._eval_full()
+        man = self.ocp.manifold
+        assert man is not None
+        n, m = self.ocp.n, self.ocp.m
+        Gf, X = self._Gfull, self.X
+        Fbar = Gf[:, :, n + m] + X[1:]
+        for k in range(self.ocp.N):
+            D, _ = man.tangent_maps(Fbar[k])
+            _, E = man.tangent_maps(X[k])
+            self.A[k] = D @ Gf[k, :, :n] @ E
+            self.B[k] = D @ Gf[k, :, n : n + m]
+        self.D[:] = man.difference(Fbar, X[1:])
+
     def _condense(self) -> None:
-        N, n = self.ocp.N, self.ocp.n
-        np.subtract(self.X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
+        N, n = self.ocp.N, self.ocp.nt
+        if self.ocp.manifold is None:
+            np.subtract(self.X[1:].reshape(N, n), self._ref, out=self._e.reshape(N, n))
+        else:
+            self._e.reshape(N, n)[:] = self.ocp.manifold.difference(self.X[1:], self._ref)
         np.subtract(self.U, self.ocp.u0, out=self._du.reshape(N, self.ocp.m))
         if self.riccati:  # the condensed QP is built only when a bound is reached (_riccati_step)
             self._back()
             self._built = False
         else:
             self._build()
-        self.qp.set_bounds(self.U, self.X[1:])
+        self.qp.set_bounds(self.U, self._xb)
 
     def _build(self) -> None:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by solve
@@ -220,7 +256,7 @@ class RealTimeIteration:
             self._condense()
             t_lin, t_cond = t1 - t0, time.perf_counter() - t1
         self._prepared = False
-        dx0 = x - self.X[0]
+        dx0 = x - self.X[0] if ocp.manifold is None else ocp.manifold.difference(x, self.X[0])
         status = "rti"
         kkt = math.inf
         it = 0
@@ -238,7 +274,7 @@ class RealTimeIteration:
                     t1 = time.perf_counter()
                     self._build()
                     if self.qp.rows.size:  # the state rows' offsets come from the condensed matrices just built
-                        self.qp.set_bounds(self.U, self.X[1:])
+                        self.qp.set_bounds(self.U, self._xb)
                     t1 = time.perf_counter() - t1
                     t_cond += t1
                     t_qp -= t1
@@ -255,7 +291,7 @@ class RealTimeIteration:
             self._step(x, dU, dX, line_search=it > 1 or cold)
             if it >= budget:
                 break
-            dx0 = np.zeros(ocp.n)
+            dx0 = np.zeros(ocp.nt)
             t0 = time.perf_counter()
             self._eval()
             t1 = time.perf_counter()
@@ -310,18 +346,21 @@ class RealTimeIteration:
         else:
             alpha = 1.0
         self.X[0] = x
-        self.X[1:] += alpha * dX
+        if self.ocp.manifold is None:
+            self.X[1:] += alpha * dX
+        else:
+            self.X[1:] = self.ocp.manifold.retract(self.X[1:], alpha * dX)
         self.U += alpha * dU.reshape(N, m)
 
     # ============================================================= SQP merit
     def _multiplier_bound(self, dX: np.ndarray) -> float:
         """``‖λ‖_∞`` of the dynamics multipliers of the QP solution (backward recursion)."""
-        N, n = self.ocp.N, self.ocp.n
+        N, n = self.ocp.N, self.ocp.nt
         qp = self.qp
         if isinstance(qp, SparseLTV):  # the sparse QP has them
             return float(np.max(np.abs(qp.dynamics_multipliers())))
         nu_rows = qp.state_bound_multipliers()
-        Xp = self.X[1:] + dX - self._ref
+        Xp = self.ocp.deviation(self.X[1:], self._ref) + dX if self.ocp.manifold else self.X[1:] + dX - self._ref
         W = self.ocp.W
         lam_next = np.zeros(n)
         big = 0.0
@@ -340,13 +379,13 @@ class RealTimeIteration:
         X0, U0 = self.X.copy(), self.U.copy()
         defect0 = float(np.abs(self.D).sum())
         phi0 = ocp.objective(X0, U0, self._ref) + mu * defect0
-        E = X0 - self._ref
+        E = X0 - self._ref if ocp.manifold is None else ocp.manifold.difference(X0, self._ref)
         grad = float(np.einsum("ki,ij,kj->", E[1:-1], ocp.Q, dX[:-1])) + float(E[-1] @ ocp.Qf @ dX[-1])
         grad += float(np.einsum("ki,ij,kj->", U0 - ocp.u0, ocp.R, dU))
         slope = grad - mu * defect0
         alpha = 1.0
         for _ in range(30):
-            self.X[1:] = X0[1:] + alpha * dX
+            self.X[1:] = X0[1:] + alpha * dX if ocp.manifold is None else ocp.manifold.retract(X0[1:], alpha * dX)
             self.U[:] = U0 + alpha * dU
             self._eval()
             phi = ocp.objective(self.X, self.U, self._ref) + mu * float(np.abs(self.D).sum())

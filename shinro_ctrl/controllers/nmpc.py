@@ -57,7 +57,14 @@ import numpy as np
 
 from shinro_ctrl.concurrency import CallGuard
 from shinro_ctrl.controllers._nmpc_ipopt import IpoptSolver
-from shinro_ctrl.controllers._nmpc_ocp import PLANT_GIVEN, NMPCOptions, NMPCStrategy, build_ocp, rk4_step
+from shinro_ctrl.controllers._nmpc_ocp import (
+    PLANT_GIVEN,
+    NMPCOptions,
+    NMPCStrategy,
+    StateManifold,
+    build_ocp,
+    rk4_step,
+)
 from shinro_ctrl.controllers._nmpc_rti import RealTimeIteration
 from shinro_ctrl.controllers.base import Controller, default_input_bounds, default_state_bounds
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
@@ -91,6 +98,8 @@ class NonlinearMPC(Controller):
         horizon: ``N`` >= 1 steps of ``dt``.
         dt: Shooting interval [s].
         options: The :class:`NMPCOptions` (default: all defaults).
+        manifold: A floating base's :class:`~._nmpc_ocp.StateManifold` (``from_plant`` makes it): the
+            prediction is then its manifold step and ``Q`` is ``(tangent_dim, tangent_dim)``.
         **kwargs: Fields of :class:`NMPCOptions` overriding ``options``
             (``NonlinearMPC(f, Q, R, 20, 0.05, u_max=3.0)``).
 
@@ -113,12 +122,13 @@ class NonlinearMPC(Controller):
         dt: float,
         *,
         options: NMPCOptions | None = None,
+        manifold: StateManifold | None = None,
         **kwargs: object,
     ):
         opts = options if options is not None else NMPCOptions()
         if kwargs:
             opts = dataclasses.replace(opts, **kwargs)  # TypeError names a misspelt option
-        self.ocp = ocp = build_ocp(f, Q, R, horizon, dt, opts)
+        self.ocp = ocp = build_ocp(f, Q, R, horizon, dt, opts, manifold)
         o = self.options = ocp.options
         self.n, self.m = self.state_dim, self.input_dim = ocp.n, ocp.m
         self.N = self.horizon = ocp.N
@@ -192,10 +202,14 @@ class NonlinearMPC(Controller):
             hold = round(ratio)
             if hold < 1 or abs(ratio - hold) > 1e-9 * max(1.0, ratio):
                 raise InvalidArgument(f"dt must be a whole multiple of the plant's dt = {step:g} s, got {h:g}")
-        if plant.tangent_dim != plant.state_dim:
-            raise InvalidArgument(
-                f"NonlinearMPC on a floating base ({plant!r}: unit quaternions in the state) is not supported yet; "
-                "use LinearMPC, LQR or TVLQR (they work in the tangent space)"
+        manifold = None
+        if plant.tangent_dim != plant.state_dim:  # a floating base: the plant's manifold step, held `hold` steps
+            manifold = StateManifold(
+                nt=plant.tangent_dim,
+                step=_held_step(plant, hold),
+                difference=plant.difference,
+                retract=plant.retract,
+                tangent_maps=plant.tangent_maps,
             )
         return cls(
             plant.symbolic(),
@@ -208,6 +222,7 @@ class NonlinearMPC(Controller):
             velocity_indices=tuple(getattr(plant, "velocity_indices", ())),
             state_names=plant.state_names,
             input_names=plant.input_names,
+            manifold=manifold,
             **options,
         )
 
@@ -319,6 +334,17 @@ class NonlinearMPC(Controller):
 
     def __repr__(self) -> str:
         return f"NonlinearMPC(n={self.n}, m={self.m}, N={self.N}, dt={self.dt:g}, solver={self.solver!r})"
+
+
+def _held_step(plant: Plant, hold: int) -> cs.Function:
+    """``F(x, u)``: ``hold`` of the plant's own steps ``plant.symbolic_step()`` with ``u`` held."""
+    step = plant.symbolic_step()
+    pv = cs.DM([plant.dynamics_params()[k] for k in plant.param_names])
+    x, u = cs.SX.sym("x", plant.state_dim), cs.SX.sym("u", plant.input_dim)
+    xn = x
+    for _ in range(hold):
+        xn = step(xn, u, pv)
+    return cs.Function("F", [x, u], [xn], ["x", "u"], ["x_next"])
 
 
 def _add_preparation(last: NMPCSolution, lin: float, cond: float, other: float, total: float) -> NMPCSolution:
