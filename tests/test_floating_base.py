@@ -316,10 +316,3 @@ def test_tvlqr_tracks_a_drone_trajectory(drone):
             x = drone.integrate(x, ctrl(x) if feedback else U[k])
         ends.append(np.linalg.norm(drone.difference(x, X[43])))
     assert ends[0] < 0.75 * ends[1]  # about 0.14 against 0.22
-
-
-def test_nonlinear_mpc_refuses_a_floating_base_in_one_line(drone):
-    from shinro_ctrl.controllers.nmpc import NonlinearMPC
-
-    with pytest.raises(InvalidArgument, match=r"NonlinearMPC on a floating base .* not supported yet"):
-        NonlinearMPC.from_plant(drone, [1] * 12, [1] * 4, horizon=5)
