@@ -46,10 +46,12 @@ from shinro_ctrl.errors import ExportError, ShinroError
 from shinro_ctrl.export.parts import CArray, CField, Part, casadi_source
 from shinro_ctrl.export.registry import ExportContext, register_exporter
 
-__all__ = ["MAX_ITER", "PRIMAL_TOL", "NonlinearMPCExporter"]
+__all__ = ["MAX_ITER", "PRIMAL_TOL", "REFINE_STEPS", "NonlinearMPCExporter"]
 
 #: Active-set iterations per step before the exported solver gives up (status SOLVER_MAX_ITER).
 MAX_ITER = 1000
+#: Steps of iterative refinement of the final working set's KKT system (long double residuals).
+REFINE_STEPS = 1
 #: DAQP's default primal tolerance (the Python RTI calls ``daqp.solve`` with its defaults).
 PRIMAL_TOL = 1e-6
 
@@ -153,10 +155,19 @@ class NonlinearMPCExporter:
             CField("g", nvar, "gradient"),
             CField("L", nu * nu, "Cholesky factor of H (lower)"),
             CField("Li", nu * nu, "its inverse (lower)"),
+            CField("LiT", nu * nu, "the inverse's transpose (columns of L^-1 as rows)"),
+            CField("dinv", nu, "reciprocals of L's diagonal"),
             CField("v", nvar, "H^-1 g"),
             CField("dx0", n, "x_hat - x_bar_0"),
             CField("dx", n, "rollout of the state step"),
             CField("dU", nu, "input steps"),
+            CField("z", nvar, "QP solution (input steps, slacks)"),
+            CField("rz", nvar, "refinement: H^-1 r1"),
+            CField("qv", nvar, "refinement: H^-1 A_W^T dlam"),
+            CField("hz", nvar, "refinement scratch"),
+            CField("nrm", mt, "row norms of M (the normalization)"),
+            CField("zlo", mt, "lower bounds of the QP's rows in z (unnormalized)"),
+            CField("zhi", mt, "upper bounds of the QP's rows in z (unnormalized)"),
             CField("Mu", mt * nu, "least-distance rows M = A L^-T: their input-step part (mt x N m), normalized"),
             CField("mlo", mt, "first nonzero column of each row's input part", ctype="int"),
             CField("sidx", mt, "slack column of each row (-1: none)", ctype="int"),
@@ -269,16 +280,9 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         }}
         /* M row = Gamma_r L^-T: entry l = sum_(j <= l) Gamma_rj Li_lj */
         for (l = 0; l < {nu}; ++l) {{
-            const double *li = ws->ctl_Li + l * {nu};
-            double s = 0.0;
-            for (j = 0; j <= l; ++j) {{
-                s += gr[j] * li[j];
-            }}
-            mrow[l] = s;
+            mrow[l] = @N@_ctl_dot(gr, ws->ctl_Li + l * {nu}, l + 1);
         }}
-        for (j = 0; j < {nu}; ++j) {{
-            av += gr[j] * ws->ctl_v[j];
-        }}
+        av = @N@_ctl_dot(gr, ws->ctl_v, {nu});
         ws->ctl_mlo[{nvar} + r] = 0;
 """
         if soft:
@@ -290,6 +294,10 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         ws->ctl_sval[{nvar + nr} + r] = {isq!r};
         /* upper row: Gamma dU - s <= x_hi - off; lower row: Gamma dU + s >= x_lo - off */
         ws->ctl_blo[{nvar} + r] = -INFINITY;
+        ws->ctl_zlo[{nvar} + r] = -INFINITY;
+        ws->ctl_zhi[{nvar} + r] = @N@_ctl_x_hi[r % {w}] - off;
+        ws->ctl_zlo[{nvar + nr} + r] = @N@_ctl_x_lo[r % {w}] - off;
+        ws->ctl_zhi[{nvar + nr} + r] = INFINITY;
         ws->ctl_bhi[{nvar} + r] = @N@_ctl_x_hi[r % {w}] - off + (av - ws->ctl_v[{nu} + r]);
         ws->ctl_blo[{nvar + nr} + r] = @N@_ctl_x_lo[r % {w}] - off + (av + ws->ctl_v[{nu} + r]);
         ws->ctl_bhi[{nvar + nr} + r] = INFINITY;
@@ -298,6 +306,8 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         else:
             grow += f"""        ws->ctl_sidx[{nvar} + r] = -1;
         ws->ctl_sval[{nvar} + r] = 0.0;
+        ws->ctl_zlo[{nvar} + r] = @N@_ctl_x_lo[r % {w}] - off;
+        ws->ctl_zhi[{nvar} + r] = @N@_ctl_x_hi[r % {w}] - off;
         ws->ctl_blo[{nvar} + r] = @N@_ctl_x_lo[r % {w}] - off + av;
         ws->ctl_bhi[{nvar} + r] = @N@_ctl_x_hi[r % {w}] - off + av;
     }}
@@ -311,10 +321,63 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         ws->ctl_sidx[i] = i - {nu};
         ws->ctl_sval[i] = {isq!r};
         ws->ctl_v[i] = {w1 / w2!r}; /* H^-1 g of the slacks: w1 / w2 */
+        ws->ctl_zlo[i] = 0.0;
+        ws->ctl_zhi[i] = INFINITY;
         ws->ctl_blo[i] = ws->ctl_v[i];
         ws->ctl_bhi[i] = INFINITY;
     }}
 """
+    if nr and soft:
+        zdot_rows = f"""{{
+        int r = i - {nvar}, l;
+        long double s = 0.0L, sl;
+        const double *gr;
+        if (r >= {nr}) {{
+            r -= {nr};
+            sl = x[{nu} + r];
+        }} else {{
+            sl = -(long double)x[{nu} + r];
+        }}
+        gr = ws->ctl_Gr + r * {nu};
+        for (l = 0; l < {nu}; ++l) {{
+            s += (long double)gr[l] * x[l];
+        }}
+        return s + sl;
+    }}"""
+        zaxpy_rows = f"""{{
+        int r = i - {nvar}, l;
+        const double *gr;
+        if (r >= {nr}) {{
+            r -= {nr};
+            x[{nu} + r] += c;
+        }} else {{
+            x[{nu} + r] -= c;
+        }}
+        gr = ws->ctl_Gr + r * {nu};
+        for (l = 0; l < {nu}; ++l) {{
+            x[l] += c * gr[l];
+        }}
+    }}"""
+    elif nr:
+        zdot_rows = f"""{{
+        int l;
+        long double s = 0.0L;
+        const double *gr = ws->ctl_Gr + (i - {nvar}) * {nu};
+        for (l = 0; l < {nu}; ++l) {{
+            s += (long double)gr[l] * x[l];
+        }}
+        return s;
+    }}"""
+        zaxpy_rows = f"""{{
+        int l;
+        const double *gr = ws->ctl_Gr + (i - {nvar}) * {nu};
+        for (l = 0; l < {nu}; ++l) {{
+            x[l] += c * gr[l];
+        }}
+    }}"""
+    else:
+        zdot_rows = "(void)ws;\n    return 0.0L;"
+        zaxpy_rows = "(void)ws;"
     init_ws = (
         f"""    /* DAQP starts with every slack at its bound s = 0 (the Python RTI's sense ACTIVE | LOWER) */
     for (p = 0; p < {ns}; ++p) {{
@@ -326,7 +389,23 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         if soft
         else "    ws->ctl_nW = 0;\n"
     )
-    return f"""/* ---- the stage linearization (CasADi) ---- */
+    return f"""/* a . b over len entries, in four partial sums (independent chains: the compiler may overlap them) */
+static inline double @N@_ctl_dot(const double *a, const double *b, int len) {{
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    int i = 0;
+    for (; i + 4 <= len; i += 4) {{
+        s0 += a[i] * b[i];
+        s1 += a[i + 1] * b[i + 1];
+        s2 += a[i + 2] * b[i + 2];
+        s3 += a[i + 3] * b[i + 3];
+    }}
+    for (; i < len; ++i) {{
+        s0 += a[i] * b[i];
+    }}
+    return (s0 + s1) + (s2 + s3);
+}}
+
+/* ---- the stage linearization (CasADi) ---- */
 static int @N@_ctl_linearize(@N@_workspace *ws) {{
     const double *arg[{max(sz_arg, 3)}];
     double *res[{max(sz_res, 1)}];
@@ -490,12 +569,9 @@ static void @N@_ctl_condense(@N@_workspace *ws, const double *ref) {{
 
 /* ---- the QP: dual active-set method on the least-distance form, rows computed each step ---- */
 static double @N@_ctl_rowdot(const @N@_workspace *ws, int a, int b) {{
-    int l, lo = ws->ctl_mlo[a] > ws->ctl_mlo[b] ? ws->ctl_mlo[a] : ws->ctl_mlo[b];
+    int lo = ws->ctl_mlo[a] > ws->ctl_mlo[b] ? ws->ctl_mlo[a] : ws->ctl_mlo[b];
     const double *ra = ws->ctl_Mu + (long)a * {nu}, *rb = ws->ctl_Mu + (long)b * {nu};
-    double s = 0.0;
-    for (l = lo; l < {nu}; ++l) {{
-        s += ra[l] * rb[l];
-    }}
+    double s = @N@_ctl_dot(ra + lo, rb + lo, {nu} - lo);
     if (ws->ctl_sidx[a] >= 0 && ws->ctl_sidx[a] == ws->ctl_sidx[b]) {{
         s += ws->ctl_sval[a] * ws->ctl_sval[b];
     }}
@@ -503,12 +579,9 @@ static double @N@_ctl_rowdot(const @N@_workspace *ws, int a, int b) {{
 }}
 
 static double @N@_ctl_rowvec(const @N@_workspace *ws, int a, const double *x) {{
-    int l;
+    int lo = ws->ctl_mlo[a];
     const double *ra = ws->ctl_Mu + (long)a * {nu};
-    double s = 0.0;
-    for (l = ws->ctl_mlo[a]; l < {nu}; ++l) {{
-        s += ra[l] * x[l];
-    }}
+    double s = @N@_ctl_dot(ra + lo, x + lo, {nu} - lo);
     if (ws->ctl_sidx[a] >= 0) {{
         s += ws->ctl_sval[a] * x[{nu} + ws->ctl_sidx[a]];
     }}
@@ -532,7 +605,7 @@ static double @N@_ctl_bound(const @N@_workspace *ws, int row, int sign) {{
 }}
 
 static int @N@_ctl_factor(@N@_workspace *ws) {{
-    int i, j, l, k = ws->ctl_nW;
+    int i, j, k = ws->ctl_nW;
     double *L = ws->ctl_chol;
     for (i = 0; i < k; ++i) {{
         for (j = 0; j <= i; ++j) {{
@@ -540,9 +613,7 @@ static int @N@_ctl_factor(@N@_workspace *ws) {{
             if (ws->ctl_Ws[i] != ws->ctl_Ws[j]) {{
                 s = -s;
             }}
-            for (l = 0; l < j; ++l) {{
-                s -= L[i * {kmax} + l] * L[j * {kmax} + l];
-            }}
+            s -= @N@_ctl_dot(L + i * {kmax}, L + j * {kmax}, j);
             if (i == j) {{
                 if (!(s > 1e-12)) {{
                     return 1;
@@ -557,14 +628,10 @@ static int @N@_ctl_factor(@N@_workspace *ws) {{
 }}
 
 static void @N@_ctl_forward(const @N@_workspace *ws, int k, double *y) {{
-    int i, l;
+    int i;
     const double *L = ws->ctl_chol;
     for (i = 0; i < k; ++i) {{
-        double s = y[i];
-        for (l = 0; l < i; ++l) {{
-            s -= L[i * {kmax} + l] * y[l];
-        }}
-        y[i] = s / L[i * {kmax} + i];
+        y[i] = (y[i] - @N@_ctl_dot(L + i * {kmax}, y, i)) / L[i * {kmax} + i];
     }}
 }}
 
@@ -731,36 +798,123 @@ static int @N@_ctl_ldp(@N@_workspace *ws) {{
     return rc;
 }}
 
+/* z-space row i of the QP (A_i, unnormalized) times x, in long double */
+static long double @N@_ctl_zdot(const @N@_workspace *ws, int i, const double *x) {{
+    if (i < {nvar}) {{
+        return (long double)x[i];
+    }}
+    {zdot_rows}
+}}
+
+/* x += c A_i^T */
+static void @N@_ctl_zaxpy(const @N@_workspace *ws, int i, long double c, long double *x) {{
+    if (i < {nvar}) {{
+        x[i] += c;
+        return;
+    }}
+    {zaxpy_rows}
+}}
+
+/* x = H^-1 x (input part by the Cholesky factor, slack part / w2) */
+static void @N@_ctl_hsolve(@N@_workspace *ws, double *x) {{
+    int i;
+    for (i = 0; i < {nu}; ++i) {{
+        ws->ctl_hz[i] = @N@_ctl_dot(ws->ctl_Li + i * {nu}, x, i + 1);
+    }}
+    for (i = 0; i < {nu}; ++i) {{
+        x[i] = @N@_ctl_dot(ws->ctl_LiT + i * {nu} + i, ws->ctl_hz + i, {nu} - i);
+    }}
+    for (i = {nu}; i < {nvar}; ++i) {{
+        x[i] /= {w2!r};
+    }}
+}}
+
+/* Iterative refinement of the KKT system of the final working set (as the Python RTI refines DAQP's answer):
+   [H A_W^T; A_W 0] [z; lam] = [-g; b_W] with the residuals in long double, corrections by the factors at hand
+   (dlam = G_W^-1 (A_W H^-1 r1 - r2), dz = H^-1 (r1 - A_W^T dlam), G_W = A_W H^-1 A_W^T the working set's). */
+static void @N@_ctl_refine(@N@_workspace *ws) {{
+    int it, i, j, p, k = ws->ctl_nW;
+    long double r1[{nvar}];
+    for (it = 0; it < {REFINE_STEPS}; ++it) {{
+        for (i = 0; i < {nu}; ++i) {{
+            long double s = -(long double)ws->ctl_g[i];
+            for (j = 0; j < {nu}; ++j) {{
+                s -= (long double)ws->ctl_H[i * {nu} + j] * ws->ctl_z[j];
+            }}
+            r1[i] = s;
+        }}
+        for (i = {nu}; i < {nvar}; ++i) {{
+            r1[i] = -(long double){w1!r} - (long double){w2!r} * ws->ctl_z[i];
+        }}
+        for (p = 0; p < k; ++p) {{
+            int row = ws->ctl_Wr[p];
+            long double c = -(long double)ws->ctl_lam[p] * ws->ctl_Ws[p] / ws->ctl_nrm[row];
+            @N@_ctl_zaxpy(ws, row, c, r1);
+        }}
+        for (p = 0; p < k; ++p) {{
+            int row = ws->ctl_Wr[p];
+            long double b = ws->ctl_Ws[p] > 0 ? ws->ctl_zhi[row] : ws->ctl_zlo[row];
+            ws->ctl_qr[p] = (double)(ws->ctl_Ws[p] * (b - @N@_ctl_zdot(ws, row, ws->ctl_z)) / ws->ctl_nrm[row]);
+        }}
+        for (i = 0; i < {nvar}; ++i) {{
+            ws->ctl_rz[i] = (double)r1[i];
+        }}
+        @N@_ctl_hsolve(ws, ws->ctl_rz); /* t = H^-1 r1 */
+        for (p = 0; p < k; ++p) {{
+            int row = ws->ctl_Wr[p];
+            ws->ctl_qy[p] = (double)(ws->ctl_Ws[p] * @N@_ctl_zdot(ws, row, ws->ctl_rz) / ws->ctl_nrm[row]) -
+                            ws->ctl_qr[p];
+        }}
+        @N@_ctl_forward(ws, k, ws->ctl_qy);
+        @N@_ctl_backward(ws, k, ws->ctl_qy); /* dlam */
+        for (i = 0; i < {nvar}; ++i) {{
+            r1[i] = 0.0L;
+        }}
+        for (p = 0; p < k; ++p) {{
+            int row = ws->ctl_Wr[p];
+            @N@_ctl_zaxpy(ws, row, (long double)ws->ctl_qy[p] * ws->ctl_Ws[p] / ws->ctl_nrm[row], r1);
+            ws->ctl_lam[p] += ws->ctl_qy[p];
+        }}
+        for (i = 0; i < {nvar}; ++i) {{
+            ws->ctl_qv[i] = (double)r1[i];
+        }}
+        @N@_ctl_hsolve(ws, ws->ctl_qv);
+        for (i = 0; i < {nvar}; ++i) {{
+            ws->ctl_z[i] += ws->ctl_rz[i] - ws->ctl_qv[i];
+        }}
+    }}
+}}
+
 /* H = L L^T and Li = L^-1 (lower); 0 on success */
 static int @N@_ctl_cholesky(@N@_workspace *ws) {{
-    int i, j, l;
+    int i, j;
     double *L = ws->ctl_L, *Li = ws->ctl_Li;
     for (i = 0; i < {nu}; ++i) {{
         for (j = 0; j <= i; ++j) {{
-            double s = ws->ctl_H[i * {nu} + j];
-            for (l = 0; l < j; ++l) {{
-                s -= L[i * {nu} + l] * L[j * {nu} + l];
-            }}
+            double s = ws->ctl_H[i * {nu} + j] - @N@_ctl_dot(L + i * {nu}, L + j * {nu}, j);
             if (i == j) {{
                 if (!(s > 0.0)) {{
                     return 1;
                 }}
                 L[i * {nu} + i] = sqrt(s);
+                ws->ctl_dinv[i] = 1.0 / L[i * {nu} + i];
             }} else {{
-                L[i * {nu} + j] = s / L[j * {nu} + j];
+                L[i * {nu} + j] = s * ws->ctl_dinv[j];
             }}
         }}
     }}
-    for (j = 0; j < {nu}; ++j) {{ /* column j of L^-1 by forward substitution */
+    for (j = 0; j < {nu}; ++j) {{ /* column j of L^-1 (row j of LiT) by forward substitution */
+        double *col = ws->ctl_LiT + j * {nu};
         for (i = 0; i < j; ++i) {{
-            Li[i * {nu} + j] = 0.0;
+            col[i] = 0.0;
         }}
         for (i = j; i < {nu}; ++i) {{
-            double s = i == j ? 1.0 : 0.0;
-            for (l = j; l < i; ++l) {{
-                s -= L[i * {nu} + l] * Li[l * {nu} + j];
-            }}
-            Li[i * {nu} + j] = s / L[i * {nu} + i];
+            col[i] = ((i == j ? 1.0 : 0.0) - @N@_ctl_dot(L + i * {nu} + j, col + j, i - j)) * ws->ctl_dinv[i];
+        }}
+    }}
+    for (i = 0; i < {nu}; ++i) {{
+        for (j = 0; j < {nu}; ++j) {{
+            Li[i * {nu} + j] = ws->ctl_LiT[j * {nu} + i];
         }}
     }}
     return 0;
@@ -793,28 +947,22 @@ static int @N@_ctl_qp(@N@_workspace *ws) {{
     }}
     /* v = H^-1 g = Li^T Li g */
     for (i = 0; i < {nu}; ++i) {{
-        double s = 0.0;
-        for (j = 0; j <= i; ++j) {{
-            s += ws->ctl_Li[i * {nu} + j] * ws->ctl_g[j];
-        }}
-        ws->ctl_dU[i] = s;
+        ws->ctl_dU[i] = @N@_ctl_dot(ws->ctl_Li + i * {nu}, ws->ctl_g, i + 1);
     }}
     for (i = 0; i < {nu}; ++i) {{
-        double s = 0.0;
-        for (j = i; j < {nu}; ++j) {{
-            s += ws->ctl_Li[j * {nu} + i] * ws->ctl_dU[j];
-        }}
-        v[i] = s;
+        v[i] = @N@_ctl_dot(ws->ctl_LiT + i * {nu} + i, ws->ctl_dU + i, {nu} - i);
     }}
     /* input-step bounds: rows M_i = e_i^T L^-T (column i of Li), bounds + A_i v */
     for (i = 0; i < {nu}; ++i) {{
         double *mrow = ws->ctl_Mu + (long)i * {nu};
         for (l = 0; l < {nu}; ++l) {{
-            mrow[l] = l < i ? 0.0 : ws->ctl_Li[l * {nu} + i];
+            mrow[l] = l < i ? 0.0 : ws->ctl_LiT[i * {nu} + l];
         }}
         ws->ctl_mlo[i] = i;
         ws->ctl_sidx[i] = -1;
         ws->ctl_sval[i] = 0.0;
+        ws->ctl_zlo[i] = @N@_ctl_u_lo[i % {m}] - ws->ctl_U[i];
+        ws->ctl_zhi[i] = @N@_ctl_u_hi[i % {m}] - ws->ctl_U[i];
         ws->ctl_blo[i] = @N@_ctl_u_lo[i % {m}] - ws->ctl_U[i] + v[i];
         ws->ctl_bhi[i] = @N@_ctl_u_hi[i % {m}] - ws->ctl_U[i] + v[i];
     }}
@@ -826,13 +974,15 @@ static int @N@_ctl_qp(@N@_workspace *ws) {{
         }}
         nrm += ws->ctl_sval[i] * ws->ctl_sval[i];
         nrm = sqrt(nrm);
+        ws->ctl_nrm[i] = nrm > 0.0 ? nrm : 1.0;
         if (nrm > 0.0) {{
+            double inv = 1.0 / nrm;
             for (l = ws->ctl_mlo[i]; l < {nu}; ++l) {{
-                mrow[l] /= nrm;
+                mrow[l] *= inv;
             }}
-            ws->ctl_sval[i] /= nrm;
-            ws->ctl_blo[i] /= nrm;
-            ws->ctl_bhi[i] /= nrm;
+            ws->ctl_sval[i] *= inv;
+            ws->ctl_blo[i] *= inv;
+            ws->ctl_bhi[i] *= inv;
         }}
     }}
 {init_ws}    rc = @N@_ctl_ldp(ws);
@@ -841,12 +991,13 @@ static int @N@_ctl_qp(@N@_workspace *ws) {{
     }}
     /* dU = L^-T w_u - v_u */
     for (i = 0; i < {nu}; ++i) {{
-        double s = 0.0;
-        for (j = i; j < {nu}; ++j) {{
-            s += ws->ctl_Li[j * {nu} + i] * ws->ctl_w[j];
-        }}
-        ws->ctl_dU[i] = s - v[i];
+        ws->ctl_z[i] = @N@_ctl_dot(ws->ctl_LiT + i * {nu} + i, ws->ctl_w + i, {nu} - i) - v[i];
     }}
+    for (i = {nu}; i < {nvar}; ++i) {{
+        ws->ctl_z[i] = {isq!r} * ws->ctl_w[i] - v[i];
+    }}
+    @N@_ctl_refine(ws);
+    memcpy(ws->ctl_dU, ws->ctl_z, {nu} * sizeof(double));
     return rc;
 }}
 
