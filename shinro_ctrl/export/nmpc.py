@@ -234,36 +234,35 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
     gr = "ws->ctl_Gr" if nr else "((double *)0)"
     rows_build = ""
     if nr:
-        rows_build = f"""    /* rows of Gamma of the bounded states: e_b^T A_k .. A_(j+1) B_j */
+        rows_build = f"""    /* rows of Gamma of the bounded states: Gamma_k = [A_k Gamma_(k-1) | B_k] forward
+       (the full n rows in the scratch Xb, which the backward recursion overwrites afterwards) */
     for (k = 0; k < {N}; ++k) {{
+        int cols = k * {m};
+        double *Gf = ws->ctl_Xb, *Gt = ws->ctl_Xt;
+        for (i = 0; i < {n}; ++i) {{
+            double *gt = Gt + i * {nu};
+            for (q = 0; q < cols; ++q) {{
+                gt[q] = 0.0;
+            }}
+            for (j = 0; j < {n}; ++j) {{
+                double a = @N@_ctl_A(k, i, j);
+                const double *gf = Gf + j * {nu};
+                for (q = 0; q < cols; ++q) {{
+                    gt[q] += a * gf[q];
+                }}
+            }}
+            for (l = 0; l < {m}; ++l) {{
+                gt[cols + l] = @N@_ctl_B(k, i, l);
+            }}
+        }}
+        for (i = 0; i < {n}; ++i) {{
+            memcpy(Gf + i * {nu}, Gt + i * {nu}, (cols + {m}) * sizeof(double));
+        }}
         for (q = 0; q < {w}; ++q) {{
             double *row = {gr} + (k * {w} + q) * {nu};
-            for (i = 0; i < {nu}; ++i) {{
-                row[i] = 0.0;
-            }}
-            for (i = 0; i < {n}; ++i) {{
-                t[i] = 0.0;
-            }}
-            t[@N@_ctl_bidx[q]] = 1.0;
-            for (j = k; j >= 0; --j) {{
-                const double *G = ws->ctl_G + j * {n * g1};
-                for (l = 0; l < {m}; ++l) {{
-                    double s = 0.0;
-                    for (i = 0; i < {n}; ++i) {{
-                        s += t[i] * G[i * {g1} + {n} + l];
-                    }}
-                    row[j * {m} + l] = s;
-                }}
-                if (j > 0) {{
-                    for (l = 0; l < {n}; ++l) {{
-                        double s = 0.0;
-                        for (i = 0; i < {n}; ++i) {{
-                            s += t[i] * G[i * {g1} + l];
-                        }}
-                        ws->ctl_tv[l] = s;
-                    }}
-                    memcpy(t, ws->ctl_tv, {n} * sizeof(double));
-                }}
+            memcpy(row, Gf + @N@_ctl_bidx[q] * {nu}, (cols + {m}) * sizeof(double));
+            for (l = cols + {m}; l < {nu}; ++l) {{
+                row[l] = 0.0;
             }}
         }}
     }}
@@ -280,7 +279,14 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         }}
         /* M row = Gamma_r L^-T: entry l = sum_(j <= l) Gamma_rj Li_lj */
         for (l = 0; l < {nu}; ++l) {{
-            mrow[l] = @N@_ctl_dot(gr, ws->ctl_Li + l * {nu}, l + 1);
+            mrow[l] = 0.0;
+        }}
+        for (j = 0; j < {nu}; ++j) {{ /* M row += Gamma_rj (column j of L^-1)^T: entries l >= j */
+            const double *lt = ws->ctl_LiT + j * {nu};
+            double gj = gr[j];
+            for (l = j; l < {nu}; ++l) {{
+                mrow[l] += gj * lt[l];
+            }}
         }}
         av = @N@_ctl_dot(gr, ws->ctl_v, {nu});
         ws->ctl_mlo[{nvar} + r] = 0;
@@ -517,13 +523,17 @@ static void @N@_ctl_condense(@N@_workspace *ws, const double *ref) {{
         }}
         /* X_(k-1) blocks >= k = A_k^T X_k; y_(k-1) = W_(k-1) (e_(k-1) + c_(k-1)) + A_k^T y_k;
            S_(k-1) = W_(k-1) + A_k^T S_k A_k */
-        for (i = 0; i < {n}; ++i) {{
+        for (i = 0; i < {n}; ++i) {{ /* row i of A_k^T X_k: sum_j A_k[j, i] X_k[j, :] (contiguous rows) */
+            double *xt = ws->ctl_Xt + i * {nu};
             for (q = k * {m}; q < {nu}; ++q) {{
-                double s = 0.0;
-                for (j = 0; j < {n}; ++j) {{
-                    s += @N@_ctl_A(k, j, i) * Xb[j * {nu} + q];
+                xt[q] = 0.0;
+            }}
+            for (j = 0; j < {n}; ++j) {{
+                double a = @N@_ctl_A(k, j, i);
+                const double *xb = Xb + j * {nu};
+                for (q = k * {m}; q < {nu}; ++q) {{
+                    xt[q] += a * xb[q];
                 }}
-                ws->ctl_Xt[i * {nu} + q] = s;
             }}
         }}
         for (i = 0; i < {n}; ++i) {{
