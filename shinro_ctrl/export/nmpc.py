@@ -16,9 +16,13 @@ preparation before it:
 4. **solve** the QP in ``z = (ΔU, s)`` (``s``: one slack per state-bound row when ``soft``) exactly, by the
    dual active-set method of :mod:`~shinro_ctrl.export.qp_c` generalized to a Hessian that changes each
    step: ``H_u = L Lᵀ`` (Cholesky, every step), the least-distance rows ``M = A L^{-T}`` normalized to unit
-   length as DAQP normalizes them, the same primal tolerance (DAQP's default ``1e-6``) and, at the end, the
-   multipliers of the final working set from its own equations — the unique optimum of the strictly convex
-   QP, the point DAQP returns;
+   length as DAQP normalizes them, the same primal tolerance (DAQP's default ``1e-6``), the slack bounds
+   ``s ≥ 0`` in the starting working set (the Python RTI's ``sense``) and, at the end, the multipliers of the
+   final working set from its own equations and :data:`REFINE_STEPS` of iterative refinement of its KKT
+   system with ``long double`` residuals — the optimum of the strictly convex QP to rounding. (During a
+   swing-up the condensed Hessian's condition number reaches 10⁸–10⁹ and the optimum moves by ~1e-8 when
+   ``H`` is rounded differently, so C and Python, whose condensing sums in different orders, agree there to
+   ~1e-8 rather than 1e-9: ``docs/deploying.md``);
 5. **step**: ``Δx_{k+1} = A_k Δx_k + B_k Δu_k + d_k`` from ``Δx_0 = x̂ − x̄_0``, ``X̄ += ΔX`` (``x̄_0 = x̂``),
    ``Ū += ΔU``, and apply ``u = clip(ū_0, u_min, u_max)``.
 
