@@ -158,8 +158,6 @@ class NonlinearMPCExporter:
             CField("Gx", nu * n, "gradient's dependence on dx0"),
             CField("g", nvar, "gradient"),
             CField("L", nu * nu, "Cholesky factor of H (lower)"),
-            CField("Li", nu * nu, "its inverse (lower)"),
-            CField("LiT", nu * nu, "the inverse's transpose (columns of L^-1 as rows)"),
             CField("dinv", nu, "reciprocals of L's diagonal"),
             CField("v", nvar, "H^-1 g"),
             CField("dx0", n, "x_hat - x_bar_0"),
@@ -175,7 +173,9 @@ class NonlinearMPCExporter:
             CField("Mu", mt * nu, "least-distance rows M = A L^-T: their input-step part (mt x N m), normalized"),
             CField("mlo", mt, "first nonzero column of each row's input part", ctype="int"),
             CField("sidx", mt, "slack column of each row (-1: none)", ctype="int"),
-            CField("sval", mt, "its value"),
+            CField("sval", mt, "its value (unnormalized)"),
+            CField("msv", mt, "its value in the normalized row"),
+            CField("have", mt, "whether the row of M is formed at this step", ctype="int"),
             CField("blo", mt, "lower bounds of M w (normalized)"),
             CField("bhi", mt, "upper bounds of M w (normalized)"),
             CField("mw", mt, "M w"),
@@ -276,41 +276,24 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         grow = f"""    for (r = 0; r < {nr}; ++r) {{
         const double *gr = {gr} + r * {nu};
         int k = r / {w}, b = @N@_ctl_bidx[r % {w}];
-        double *mrow = ws->ctl_Mu + (long)({nvar} + r) * {nu};
-        double off = ws->ctl_X[(k + 1) * {n} + b] + ws->ctl_c[k * {n} + b], av = 0.0;
+        double off = ws->ctl_X[(k + 1) * {n} + b] + ws->ctl_c[k * {n} + b];
+        (void)gr;
         for (j = 0; j < {n}; ++j) {{
             off += ws->ctl_Phi[(k * {n} + b) * {n} + j] * ws->ctl_dx0[j];
         }}
-        /* M row = Gamma_r L^-T: entry l = sum_(j <= l) Gamma_rj Li_lj */
-        for (l = 0; l < {nu}; ++l) {{
-            mrow[l] = 0.0;
-        }}
-        for (j = 0; j < {nu}; ++j) {{ /* M row += Gamma_rj (column j of L^-1)^T: entries l >= j */
-            const double *lt = ws->ctl_LiT + j * {nu};
-            double gj = gr[j];
-            for (l = j; l < {nu}; ++l) {{
-                mrow[l] += gj * lt[l];
-            }}
-        }}
-        av = @N@_ctl_dot(gr, ws->ctl_v, {nu});
         ws->ctl_mlo[{nvar} + r] = 0;
 """
         if soft:
-            grow += f"""        memcpy(ws->ctl_Mu + (long)({nvar + nr} + r) * {nu}, mrow, {nu} * sizeof(double));
-        ws->ctl_mlo[{nvar + nr} + r] = 0;
+            grow += f"""        ws->ctl_mlo[{nvar + nr} + r] = 0;
         ws->ctl_sidx[{nvar} + r] = r;
         ws->ctl_sval[{nvar} + r] = -{isq!r};
         ws->ctl_sidx[{nvar + nr} + r] = r;
         ws->ctl_sval[{nvar + nr} + r] = {isq!r};
         /* upper row: Gamma dU - s <= x_hi - off; lower row: Gamma dU + s >= x_lo - off */
-        ws->ctl_blo[{nvar} + r] = -INFINITY;
         ws->ctl_zlo[{nvar} + r] = -INFINITY;
         ws->ctl_zhi[{nvar} + r] = @N@_ctl_x_hi[r % {w}] - off;
         ws->ctl_zlo[{nvar + nr} + r] = @N@_ctl_x_lo[r % {w}] - off;
         ws->ctl_zhi[{nvar + nr} + r] = INFINITY;
-        ws->ctl_bhi[{nvar} + r] = @N@_ctl_x_hi[r % {w}] - off + (av - ws->ctl_v[{nu} + r]);
-        ws->ctl_blo[{nvar + nr} + r] = @N@_ctl_x_lo[r % {w}] - off + (av + ws->ctl_v[{nu} + r]);
-        ws->ctl_bhi[{nvar + nr} + r] = INFINITY;
     }}
 """
         else:
@@ -318,8 +301,6 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         ws->ctl_sval[{nvar} + r] = 0.0;
         ws->ctl_zlo[{nvar} + r] = @N@_ctl_x_lo[r % {w}] - off;
         ws->ctl_zhi[{nvar} + r] = @N@_ctl_x_hi[r % {w}] - off;
-        ws->ctl_blo[{nvar} + r] = @N@_ctl_x_lo[r % {w}] - off + av;
-        ws->ctl_bhi[{nvar} + r] = @N@_ctl_x_hi[r % {w}] - off + av;
     }}
 """
     else:
@@ -333,10 +314,21 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         ws->ctl_v[i] = {w1 / w2!r}; /* H^-1 g of the slacks: w1 / w2 */
         ws->ctl_zlo[i] = 0.0;
         ws->ctl_zhi[i] = INFINITY;
-        ws->ctl_blo[i] = ws->ctl_v[i];
-        ws->ctl_bhi[i] = INFINITY;
     }}
 """
+    if nr:
+        zdotd_rows = (
+            f"{{\n        int r = (i - {nvar}) % {nr};\n"
+            f"        double s = @N@_ctl_dot(ws->ctl_Gr + r * {nu}, x, {nu});\n"
+            + (
+                f"        return i < {nvar + nr} ? s - x[{nu} + r] : s + x[{nu} + r];\n"
+                if soft
+                else "        return s;\n"
+            )
+            + "    }"
+        )
+    else:
+        zdotd_rows = "(void)ws;\n    return 0.0;"
     if nr and soft:
         zdot_rows = f"""{{
         int r = i - {nvar}, l;
@@ -388,6 +380,13 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
     else:
         zdot_rows = "(void)ws;\n    return 0.0L;"
         zaxpy_rows = "(void)ws;"
+    if nr:
+        ensure_rows = (
+            f"memcpy(mrow, ws->ctl_Gr + ((i - {nvar}) % {nr}) * {nu}, {nu} * sizeof(double));\n"
+            "        @N@_ctl_lsolve(ws, mrow, 0);"
+        )
+    else:
+        ensure_rows = "(void)0;"
     init_ws = (
         f"""    /* DAQP starts with every slack at its bound s = 0 (the Python RTI's sense ACTIVE | LOWER) */
     for (p = 0; p < {ns}; ++p) {{
@@ -414,6 +413,12 @@ static inline double @N@_ctl_dot(const double *a, const double *b, int len) {{
     }}
     return (s0 + s1) + (s2 + s3);
 }}
+
+static void @N@_ctl_ensure(@N@_workspace *ws, int i);
+static void @N@_ctl_lsolve(const @N@_workspace *ws, double *x, int from);
+static void @N@_ctl_ltsolve(const @N@_workspace *ws, double *x);
+static long double @N@_ctl_zdot(const @N@_workspace *ws, int i, const double *x);
+static double @N@_ctl_zdotd(const @N@_workspace *ws, int i, const double *x);
 
 /* ---- the stage linearization (CasADi) ---- */
 static int @N@_ctl_linearize(@N@_workspace *ws) {{
@@ -587,7 +592,7 @@ static double @N@_ctl_rowdot(const @N@_workspace *ws, int a, int b) {{
     const double *ra = ws->ctl_Mu + (long)a * {nu}, *rb = ws->ctl_Mu + (long)b * {nu};
     double s = @N@_ctl_dot(ra + lo, rb + lo, {nu} - lo);
     if (ws->ctl_sidx[a] >= 0 && ws->ctl_sidx[a] == ws->ctl_sidx[b]) {{
-        s += ws->ctl_sval[a] * ws->ctl_sval[b];
+        s += ws->ctl_msv[a] * ws->ctl_msv[b];
     }}
     return s;
 }}
@@ -597,7 +602,7 @@ static double @N@_ctl_rowvec(const @N@_workspace *ws, int a, const double *x) {{
     const double *ra = ws->ctl_Mu + (long)a * {nu};
     double s = @N@_ctl_dot(ra + lo, x + lo, {nu} - lo);
     if (ws->ctl_sidx[a] >= 0) {{
-        s += ws->ctl_sval[a] * x[{nu} + ws->ctl_sidx[a]];
+        s += ws->ctl_msv[a] * x[{nu} + ws->ctl_sidx[a]];
     }}
     return s;
 }}
@@ -610,7 +615,7 @@ static void @N@_ctl_rowaxpy(const @N@_workspace *ws, int a, double c, double *x)
         x[l] += c * ra[l];
     }}
     if (ws->ctl_sidx[a] >= 0) {{
-        x[{nu} + ws->ctl_sidx[a]] += c * ws->ctl_sval[a];
+        x[{nu} + ws->ctl_sidx[a]] += c * ws->ctl_msv[a];
     }}
 }}
 
@@ -693,6 +698,9 @@ static void @N@_ctl_drop(@N@_workspace *ws, int q) {{
 static int @N@_ctl_ldp(@N@_workspace *ws) {{
     int p, i, it = 0, rc = 0;
     double *y = ws->ctl_qy, *r = ws->ctl_qr, *w = ws->ctl_w;
+    for (p = 0; p < ws->ctl_nW; ++p) {{
+        @N@_ctl_ensure(ws, ws->ctl_Wr[p]);
+    }}
     while (ws->ctl_nW > 0) {{ /* keep the start's constraints with multipliers >= 0 */
         int kept = 0;
         if (@N@_ctl_factor(ws) != 0) {{
@@ -716,19 +724,28 @@ static int @N@_ctl_ldp(@N@_workspace *ws) {{
     @N@_ctl_primal(ws);
     for (;;) {{
         int jr = -1, js = 0, k;
-        double worst = {PRIMAL_TOL!r}, bj, lamj = 0.0;
+        double worst = {PRIMAL_TOL!r}, bj, lamj = 0.0, *zt = ws->ctl_mw;
+        /* M_i w - b_i = (A_i z - b_z,i) / |M_i| with z = L^-T w - v: rows are formed only where A_i z leaves
+           its bounds */
+        memcpy(zt, w, {nvar} * sizeof(double));
+        @N@_ctl_ltsolve(ws, zt);
+        for (i = 0; i < {nvar}; ++i) {{
+            zt[i] = (i < {nu} ? zt[i] : {isq!r} * zt[i]) - ws->ctl_v[i];
+        }}
         for (i = 0; i < {mt}; ++i) {{
-            double mwi = @N@_ctl_rowvec(ws, i, w);
-            ws->ctl_mw[i] = mwi;
-            if (mwi - ws->ctl_bhi[i] > worst) {{
-                worst = mwi - ws->ctl_bhi[i];
-                jr = i;
-                js = 1;
-            }}
-            if (ws->ctl_blo[i] - mwi > worst) {{
-                worst = ws->ctl_blo[i] - mwi;
-                jr = i;
-                js = -1;
+            double az = @N@_ctl_zdotd(ws, i, zt), hi = az - ws->ctl_zhi[i], lo = ws->ctl_zlo[i] - az;
+            if (hi > 0.0 || lo > 0.0) {{
+                @N@_ctl_ensure(ws, i);
+                if (hi / ws->ctl_nrm[i] > worst) {{
+                    worst = hi / ws->ctl_nrm[i];
+                    jr = i;
+                    js = 1;
+                }}
+                if (lo / ws->ctl_nrm[i] > worst) {{
+                    worst = lo / ws->ctl_nrm[i];
+                    jr = i;
+                    js = -1;
+                }}
             }}
         }}
         if (jr < 0) {{
@@ -820,6 +837,14 @@ static long double @N@_ctl_zdot(const @N@_workspace *ws, int i, const double *x)
     {zdot_rows}
 }}
 
+/* the same in double (the solver's violation check) */
+static double @N@_ctl_zdotd(const @N@_workspace *ws, int i, const double *x) {{
+    if (i < {nvar}) {{
+        return x[i];
+    }}
+    {zdotd_rows}
+}}
+
 /* x += c A_i^T */
 static void @N@_ctl_zaxpy(const @N@_workspace *ws, int i, long double c, long double *x) {{
     if (i < {nvar}) {{
@@ -832,12 +857,8 @@ static void @N@_ctl_zaxpy(const @N@_workspace *ws, int i, long double c, long do
 /* x = H^-1 x (input part by the Cholesky factor, slack part / w2) */
 static void @N@_ctl_hsolve(@N@_workspace *ws, double *x) {{
     int i;
-    for (i = 0; i < {nu}; ++i) {{
-        ws->ctl_hz[i] = @N@_ctl_dot(ws->ctl_Li + i * {nu}, x, i + 1);
-    }}
-    for (i = 0; i < {nu}; ++i) {{
-        x[i] = @N@_ctl_dot(ws->ctl_LiT + i * {nu} + i, ws->ctl_hz + i, {nu} - i);
-    }}
+    @N@_ctl_lsolve(ws, x, 0);
+    @N@_ctl_ltsolve(ws, x);
     for (i = {nu}; i < {nvar}; ++i) {{
         x[i] /= {w2!r};
     }}
@@ -902,7 +923,7 @@ static void @N@_ctl_refine(@N@_workspace *ws) {{
 /* H = L L^T and Li = L^-1 (lower); 0 on success */
 static int @N@_ctl_cholesky(@N@_workspace *ws) {{
     int i, j;
-    double *L = ws->ctl_L, *Li = ws->ctl_Li;
+    double *L = ws->ctl_L;
     for (i = 0; i < {nu}; ++i) {{
         for (j = 0; j <= i; ++j) {{
             double s = ws->ctl_H[i * {nu} + j] - @N@_ctl_dot(L + i * {nu}, L + j * {nu}, j);
@@ -917,27 +938,74 @@ static int @N@_ctl_cholesky(@N@_workspace *ws) {{
             }}
         }}
     }}
-    for (j = 0; j < {nu}; ++j) {{ /* column j of L^-1 (row j of LiT) by forward substitution */
-        double *col = ws->ctl_LiT + j * {nu};
-        for (i = 0; i < j; ++i) {{
-            col[i] = 0.0;
-        }}
-        for (i = j; i < {nu}; ++i) {{
-            col[i] = ((i == j ? 1.0 : 0.0) - @N@_ctl_dot(L + i * {nu} + j, col + j, i - j)) * ws->ctl_dinv[i];
-        }}
-    }}
-    for (i = 0; i < {nu}; ++i) {{
-        for (j = 0; j < {nu}; ++j) {{
-            Li[i * {nu} + j] = ws->ctl_LiT[j * {nu} + i];
-        }}
-    }}
     return 0;
+}}
+
+/* x = L^-1 x (entries from `from` on; those before are zero) */
+static void @N@_ctl_lsolve(const @N@_workspace *ws, double *x, int from) {{
+    int i;
+    const double *L = ws->ctl_L;
+    for (i = from; i < {nu}; ++i) {{
+        x[i] = (x[i] - @N@_ctl_dot(L + i * {nu} + from, x + from, i - from)) * ws->ctl_dinv[i];
+    }}
+}}
+
+/* x = L^-T x (by rows of L: x_i final, then subtracted from the entries before it) */
+static void @N@_ctl_ltsolve(const @N@_workspace *ws, double *x) {{
+    int i, l;
+    const double *L = ws->ctl_L;
+    for (i = {nu} - 1; i >= 0; --i) {{
+        const double *li = L + i * {nu};
+        double xi = x[i] * ws->ctl_dinv[i];
+        x[i] = xi;
+        for (l = 0; l < i; ++l) {{
+            x[l] -= li[l] * xi;
+        }}
+    }}
+}}
+
+/* form row i of the least-distance problem when first needed: M_i = (L^-1 A_i^T)^T scaled to unit length
+   (as DAQP normalizes its rows), its bounds (b_z + A_i v) / |M_i| */
+static void @N@_ctl_ensure(@N@_workspace *ws, int i) {{
+    int l, lo = ws->ctl_mlo[i];
+    double *mrow = ws->ctl_Mu + (long)i * {nu}, nrm, inv, av;
+    if (ws->ctl_have[i]) {{
+        return;
+    }}
+    for (l = 0; l < {nu}; ++l) {{
+        mrow[l] = 0.0;
+    }}
+    if (i < {nu}) {{
+        mrow[i] = 1.0;
+        @N@_ctl_lsolve(ws, mrow, i);
+    }} else if (i >= {nvar}) {{
+        {ensure_rows}
+    }}
+    nrm = ws->ctl_sval[i] * ws->ctl_sval[i];
+    for (l = lo; l < {nu}; ++l) {{
+        nrm += mrow[l] * mrow[l];
+    }}
+    nrm = sqrt(nrm);
+    if (!(nrm > 0.0)) {{
+        nrm = 1.0;
+    }}
+    inv = 1.0 / nrm;
+    for (l = lo; l < {nu}; ++l) {{
+        mrow[l] *= inv;
+    }}
+    ws->ctl_nrm[i] = nrm;
+    ws->ctl_msv[i] = ws->ctl_sval[i] * inv;
+    av = (double)@N@_ctl_zdot(ws, i, ws->ctl_v);
+    ws->ctl_blo[i] = (ws->ctl_zlo[i] + av) * inv;
+    ws->ctl_bhi[i] = (ws->ctl_zhi[i] + av) * inv;
+    ws->ctl_have[i] = 1;
 }}
 
 static int @N@_ctl_qp(@N@_workspace *ws) {{
     int i, j, l, p, rc;
     double *v = ws->ctl_v;
     (void)p;
+    (void)l;
     /* g = g0 + Gx dx0 */
     for (i = 0; i < {nu}; ++i) {{
         double s = 0.0;
@@ -959,53 +1027,28 @@ static int @N@_ctl_qp(@N@_workspace *ws) {{
     if (@N@_ctl_cholesky(ws) != 0) {{
         return 1;
     }}
-    /* v = H^-1 g = Li^T Li g */
+    /* v = H^-1 g = L^-T L^-1 g */
+    memcpy(v, ws->ctl_g, {nu} * sizeof(double));
+    @N@_ctl_lsolve(ws, v, 0);
+    @N@_ctl_ltsolve(ws, v);
+    /* input-step bounds (their rows of M are formed when the solver needs them) */
     for (i = 0; i < {nu}; ++i) {{
-        ws->ctl_dU[i] = @N@_ctl_dot(ws->ctl_Li + i * {nu}, ws->ctl_g, i + 1);
-    }}
-    for (i = 0; i < {nu}; ++i) {{
-        v[i] = @N@_ctl_dot(ws->ctl_LiT + i * {nu} + i, ws->ctl_dU + i, {nu} - i);
-    }}
-    /* input-step bounds: rows M_i = e_i^T L^-T (column i of Li), bounds + A_i v */
-    for (i = 0; i < {nu}; ++i) {{
-        double *mrow = ws->ctl_Mu + (long)i * {nu};
-        for (l = 0; l < {nu}; ++l) {{
-            mrow[l] = l < i ? 0.0 : ws->ctl_LiT[i * {nu} + l];
-        }}
         ws->ctl_mlo[i] = i;
         ws->ctl_sidx[i] = -1;
         ws->ctl_sval[i] = 0.0;
         ws->ctl_zlo[i] = @N@_ctl_u_lo[i % {m}] - ws->ctl_U[i];
         ws->ctl_zhi[i] = @N@_ctl_u_hi[i % {m}] - ws->ctl_U[i];
-        ws->ctl_blo[i] = @N@_ctl_u_lo[i % {m}] - ws->ctl_U[i] + v[i];
-        ws->ctl_bhi[i] = @N@_ctl_u_hi[i % {m}] - ws->ctl_U[i] + v[i];
     }}
-{slack_rows}{_indent_rows(grow)}    /* normalize every row to unit length (as DAQP does) */
-    for (i = 0; i < {mt}; ++i) {{
-        double *mrow = ws->ctl_Mu + (long)i * {nu}, nrm = 0.0;
-        for (l = ws->ctl_mlo[i]; l < {nu}; ++l) {{
-            nrm += mrow[l] * mrow[l];
-        }}
-        nrm += ws->ctl_sval[i] * ws->ctl_sval[i];
-        nrm = sqrt(nrm);
-        ws->ctl_nrm[i] = nrm > 0.0 ? nrm : 1.0;
-        if (nrm > 0.0) {{
-            double inv = 1.0 / nrm;
-            for (l = ws->ctl_mlo[i]; l < {nu}; ++l) {{
-                mrow[l] *= inv;
-            }}
-            ws->ctl_sval[i] *= inv;
-            ws->ctl_blo[i] *= inv;
-            ws->ctl_bhi[i] *= inv;
-        }}
-    }}
+{slack_rows}{_indent_rows(grow)}    memset(ws->ctl_have, 0, {mt} * sizeof(int));
 {init_ws}    rc = @N@_ctl_ldp(ws);
     if (rc == 1) {{
         return 1;
     }}
     /* dU = L^-T w_u - v_u */
+    memcpy(ws->ctl_z, ws->ctl_w, {nu} * sizeof(double));
+    @N@_ctl_ltsolve(ws, ws->ctl_z);
     for (i = 0; i < {nu}; ++i) {{
-        ws->ctl_z[i] = @N@_ctl_dot(ws->ctl_LiT + i * {nu} + i, ws->ctl_w + i, {nu} - i) - v[i];
+        ws->ctl_z[i] -= v[i];
     }}
     for (i = {nu}; i < {nvar}; ++i) {{
         ws->ctl_z[i] = {isq!r} * ws->ctl_w[i] - v[i];
