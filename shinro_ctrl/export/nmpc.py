@@ -16,7 +16,9 @@ preparation before it:
 4. **solve** the QP in ``z = (ΔU, s)`` (``s``: one slack per state-bound row when ``soft``) exactly, by the
    dual active-set method of :mod:`~shinro_ctrl.export.qp_c` generalized to a Hessian that changes each
    step: ``H_u = L Lᵀ`` (Cholesky, every step), the least-distance rows ``M = A L^{-T}`` normalized to unit
-   length as DAQP normalizes them, the same primal tolerance (DAQP's default ``1e-6``), the slack bounds
+   length as DAQP normalizes them (a row is formed, by one triangular solve, only when it leaves its bounds
+   or joins the working set: the violation check runs on ``A z`` with ``z = L^{-T} w − H^{-1} g``), the same
+   primal tolerance (DAQP's default ``1e-6``), the slack bounds
    ``s ≥ 0`` in the starting working set (the Python RTI's ``sense``) and, at the end, the multipliers of the
    final working set from its own equations and :data:`REFINE_STEPS` of iterative refinement of its KKT
    system with ``long double`` residuals — the optimum of the strictly convex QP to rounding. (During a
