@@ -21,9 +21,10 @@ __all__ = ["EKFExporter"]
 
 
 def _renamed(f: cs.Function, name: str) -> cs.Function:
-    """``f`` under another name (the same expression graph)."""
+    """``f`` under another name, with its first two results (estimate, covariance): the same expression graph,
+    less what only the gain (which the C does not return) needs."""
     args = f.sx_in()
-    return cs.Function(name, args, f.call(args), f.name_in(), f.name_out())
+    return cs.Function(name, args, f.call(args)[:2], f.name_in(), f.name_out()[:2])
 
 
 @register_exporter(ExtendedKalmanFilter)
@@ -52,7 +53,6 @@ class EKFExporter:
             CField("P", n * n, "its covariance (row-major)"),
             CField("xo", n, "the update's estimate"),
             CField("Po", n * n, "the update's covariance"),
-            CField("K", n * p, "the update's gain (transposed)"),
             CField("u", m, "the input of the prediction"),
             CField("y", p, "the measurement"),
             CField("w", sz_w, "CasADi work array"),
@@ -76,7 +76,6 @@ int @N@_est_update(@N@_workspace *ws, const double *y, const double *u_prev, dou
     arg[3] = ws->est_y;
     res[0] = ws->est_xo;
     res[1] = ws->est_Po;
-    res[2] = ws->est_K;
     if (ws->est_first) {{
         ws->est_first = 0;
         if (@N@_ekf_correct(arg, res, ws->est_iw, ws->est_w, 0) != 0) {{
