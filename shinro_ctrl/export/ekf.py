@@ -20,11 +20,27 @@ from shinro_ctrl.validation import weight_matrix
 __all__ = ["EKFExporter"]
 
 
-def _renamed(f: cs.Function, name: str) -> cs.Function:
-    """``f`` under another name, with its first two results (estimate, covariance): the same expression graph,
-    less what only the gain (which the C does not return) needs."""
-    args = f.sx_in()
-    return cs.Function(name, args, f.call(args)[:2], f.name_in(), f.name_out()[:2])
+def _upper(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the upper triangle of an ``(n, n)`` matrix, row by row (the packed order)."""
+    return np.triu_indices(n)
+
+
+def _packed(f: cs.Function, name: str, n: int) -> cs.Function:
+    """``f`` on packed covariances: ``(x, P_u, u, y) -> (x̂, P̂_u)`` with ``P_u`` the upper triangle, row by row.
+
+    The same expression graph (``f`` called on the symmetric matrix the ``n (n + 1) / 2`` entries make), less
+    what only the gain (which the C does not return) needs: the update reads one triangle and writes one.
+    """
+    x, _, u, y = f.sx_in()
+    rows, cols = _upper(n)
+    Pu = cs.SX.sym("P_u", len(rows))
+    P = cs.SX(n, n)
+    for k, (i, j) in enumerate(zip(rows, cols, strict=True)):
+        P[i, j] = Pu[k]
+        P[j, i] = Pu[k]
+    xo, Po = f.call([x, P, u, y])[:2]
+    Pou = cs.vertcat(*[Po[i, j] for i, j in zip(rows, cols, strict=True)])
+    return cs.Function(name, [x, Pu, u, y], [xo, Pou], ["x", "P_u", "u", "y"], ["x_hat", "P_hat_u"])
 
 
 @register_exporter(ExtendedKalmanFilter)
@@ -39,20 +55,21 @@ class EKFExporter:
         n, m, p = obj.n, obj.m, obj.p
         name = ctx.name
         f_pred, f_first = obj.update_functions
-        fp = _renamed(f_pred, f"{name}_ekf_update")
-        ff = _renamed(f_first, f"{name}_ekf_correct")
+        fp = _packed(f_pred, f"{name}_ekf_update", n)
+        ff = _packed(f_first, f"{name}_ekf_correct", n)
+        nt = n * (n + 1) // 2
         sz_w = max(fp.sz_w(), ff.sz_w(), 1)
         sz_iw = max(fp.sz_iw(), ff.sz_iw(), 1)
         sz_arg = max(fp.sz_arg(), ff.sz_arg())
         sz_res = max(fp.sz_res(), ff.sz_res())
         c_src, h_src = casadi_source([fp, ff], name, "@N@_ekf")
         P0 = ctx_P0(ctx, n)
-        tables = (CArray("P0", P0, "initial covariance P0 (row-major)"),)
+        tables = (CArray("P0", P0[_upper(n)], "initial covariance P0 (upper triangle, row by row)"),)
         fields = (
             CField("x", n, "the estimate"),
-            CField("P", n * n, "its covariance (row-major)"),
+            CField("P", nt, "its covariance (upper triangle, row by row)"),
             CField("xo", n, "the update's estimate"),
-            CField("Po", n * n, "the update's covariance"),
+            CField("Po", nt, "the update's covariance (upper triangle)"),
             CField("u", m, "the input of the prediction"),
             CField("y", p, "the measurement"),
             CField("w", sz_w, "CasADi work array"),
@@ -61,7 +78,7 @@ class EKFExporter:
         )
         code = f"""void @N@_est_reset(@N@_workspace *ws, const double *x_hat0) {{
     memcpy(ws->est_x, x_hat0, {n} * sizeof(double));
-    memcpy(ws->est_P, @N@_est_P0, {n * n} * sizeof(double));
+    memcpy(ws->est_P, @N@_est_P0, {nt} * sizeof(double));
     ws->est_first = 1;
 }}
 
@@ -93,7 +110,7 @@ int @N@_est_update(@N@_workspace *ws, const double *y, const double *u_prev, dou
         }}
     }}
     memcpy(ws->est_x, ws->est_xo, {n} * sizeof(double));
-    memcpy(ws->est_P, ws->est_Po, {n * n} * sizeof(double));
+    memcpy(ws->est_P, ws->est_Po, {nt} * sizeof(double));
     memcpy(x_hat, ws->est_xo, {n} * sizeof(double));
     return @U@_OK;
 }}
