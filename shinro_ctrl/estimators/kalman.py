@@ -21,6 +21,10 @@ added to the state after the step (``G = I``). ``Qn`` and ``Rn`` are
 per-step covariances (variances on the diagonal, not standard deviations):
 a scenario's ``[sim] process_noise`` and ``sensor_noise`` standard deviations
 ``σ`` correspond to ``Qn = σ_u²`` and ``Rn = σ_y²``.
+
+The extended filter computes the same correction, when ``C`` selects states
+and ``Rn`` is diagonal, one scalar measurement at a time (equal in exact
+arithmetic; see :class:`ExtendedKalmanFilter`).
 """
 
 from __future__ import annotations
@@ -356,9 +360,23 @@ class ExtendedKalmanFilter(Estimator):
     ``dt`` with the input held, ``F(x, u)``; the covariance uses the exact
     Jacobians ``F_x = ∂F/∂x`` and ``F_u = ∂F/∂u`` of that same step (CasADi
     automatic differentiation of the symbolic step, not of the continuous
-    dynamics). The whole update (prediction, Jacobians, gain, Joseph-form
-    covariance) is one CasADi ``Function`` built once per filter and
-    evaluated through its buffer interface into arrays the filter owns.
+    dynamics). The whole update (prediction, Jacobians, gain, covariance) is
+    one CasADi ``Function`` built once per filter and evaluated through its
+    buffer interface into arrays the filter owns; the C export generates code
+    from the same function.
+
+    The function is built for structure: it reads ``P`` from its upper
+    triangle, builds ``F_x P F_xᵀ + G Qn Gᵀ`` entry by entry on the upper
+    triangle from the sparse Jacobians (only structurally nonzero products),
+    and, when ``C`` selects states and ``Rn`` is diagonal
+    (:attr:`sequential`), corrects with the measurements one at a time: for
+    measurement ``i`` of state ``j``, ``s = P_jj + r_i``,
+    ``x̂ += P e_j (y_i − x̂_j) / s``, ``P −= P e_j e_jᵀ P / s``. With
+    uncorrelated sensor noise this equals the batch update
+    ``K = P⁻Cᵀ(CP⁻Cᵀ + Rn)⁻¹``, ``P = (I − KC)P⁻`` in exact arithmetic
+    (numerically to about ``eps · P / r``: the quadrotor's update is 5,700
+    operations instead of 13,300). Otherwise the correction is the batch
+    gain and the Joseph form ``(I − KC)P⁻(I − KC)ᵀ + K Rn Kᵀ``.
 
     Args:
         plant: The plant (its :meth:`symbolic` dynamics and ``dt``).
@@ -370,7 +388,8 @@ class ExtendedKalmanFilter(Estimator):
 
     Attributes:
         P: Covariance of the current estimate ``(n, n)``.
-        M: Last filter gain ``(n, p)``.
+        M: Last filter gain ``(n, p)`` (sequential: ``P Cᵀ Rn⁻¹``, the batch gain).
+        sequential: Whether the correction processes the measurements one at a time.
         step_function: ``casadi.Function`` ``(x, u) -> (x_next, F_x, F_u)``.
     """
 
