@@ -45,7 +45,7 @@ from shinro_ctrl.validation import as_vector, measurement_matrix, state_space, w
 if TYPE_CHECKING:
     from shinro_ctrl.plants.base import Plant
 
-__all__ = ["DISTURBANCE_MODELS", "ExtendedKalmanFilter", "KalmanFilter", "rk4_step"]
+__all__ = ["DISTURBANCE_MODELS", "ExtendedKalmanFilter", "KalmanFilter", "rk4_step", "rk4_step_jacobians"]
 
 #: Disturbance models a linear filter can add to its state: None, or a constant input disturbance.
 DISTURBANCE_MODELS = (None, "input")
@@ -353,6 +353,40 @@ def rk4_step(f: cs.Function, x: cs.SX | cs.MX | cs.DM, u: cs.SX | cs.MX | cs.DM,
     return x + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def rk4_step_jacobians(f: cs.Function, x: cs.SX, u: cs.SX, dt: float) -> tuple[cs.SX, cs.SX, cs.SX]:
+    r"""One RK4 step (:func:`rk4_step`) and its exact Jacobians ``(x⁺, ∂x⁺/∂x, ∂x⁺/∂u)``, sparse.
+
+    The chain rule through the stages ``k_s = f(x_s, u)``, ``x_s = x + c_s dt k_{s-1}`` (``c = 0, 1/2, 1/2, 1``),
+    with the continuous Jacobian ``[A_s B_s] = ∂f/∂(x, u)`` at each stage point and ``G_s = ∂k_s/∂(x, u)``:
+
+    .. math::
+
+        G_1 = [A_1\ B_1], \quad G_s = [A_s\ B_s] \begin{bmatrix} [I\ 0] + c_s\, dt\, G_{s-1} \\ [0\ I]
+        \end{bmatrix}, \qquad
+        \frac{\partial x^+}{\partial (x, u)} = [I\ 0] + \frac{dt}{6}(G_1 + 2 G_2 + 2 G_3 + G_4)
+
+    The products of the sparse continuous Jacobians hold only structurally nonzero
+    terms, fewer operations than differentiating the unrolled step (the quadrotor's: 1,760 against 2,160).
+    """
+    n, m = x.shape[0], u.shape[0]
+    xs, us = cs.SX.sym("xs", n), cs.SX.sym("us", m)
+    fx = f(xs, us)
+    fj = cs.Function("rk4_stage", [xs, us], [fx, cs.jacobian(fx, cs.vertcat(xs, us))])
+    top = cs.SX(cs.horzcat(cs.DM.eye(n), cs.DM(n, m)))
+    bottom = cs.SX(cs.horzcat(cs.DM(m, n), cs.DM.eye(m)))
+    k1, J1 = fj(x, u)
+    d1 = J1 @ cs.vertcat(top, bottom)
+    k2, J2 = fj(x + 0.5 * dt * k1, u)
+    d2 = J2 @ cs.vertcat(top + 0.5 * dt * d1, bottom)
+    k3, J3 = fj(x + 0.5 * dt * k2, u)
+    d3 = J3 @ cs.vertcat(top + 0.5 * dt * d2, bottom)
+    k4, J4 = fj(x + dt * k3, u)
+    d4 = J4 @ cs.vertcat(top + dt * d3, bottom)
+    xn = x + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    J = top + (dt / 6.0) * (d1 + 2 * d2 + 2 * d3 + d4)
+    return xn, J[:, :n], J[:, n:]
+
+
 class ExtendedKalmanFilter(Estimator):
     r"""Extended Kalman filter on the plant's nonlinear dynamics.
 
@@ -375,7 +409,7 @@ class ExtendedKalmanFilter(Estimator):
     uncorrelated sensor noise this equals the batch update
     ``K = P⁻Cᵀ(CP⁻Cᵀ + Rn)⁻¹``, ``P = (I − KC)P⁻`` in exact arithmetic
     (numerically to about ``eps · P / r``) at a fraction of its cost (the
-    quadrotor's update: 5,600 operations instead of 13,300). Otherwise the
+    quadrotor's update: 5,200 operations instead of 13,300). Otherwise the
     correction is the batch gain and the Joseph form
     ``(I − KC)P⁻(I − KC)ᵀ + K Rn Kᵀ``.
 
@@ -417,10 +451,10 @@ class ExtendedKalmanFilter(Estimator):
         n, m, p = self.n, self.m, self.p
         x = cs.SX.sym("x", n)
         u = cs.SX.sym("u", m)
-        xn = rk4_step(f, x, u, self.dt)
-        Fx = cs.densify(cs.jacobian(xn, x))
-        Fu = cs.densify(cs.jacobian(xn, u))
-        self.step_function = cs.Function("ekf_step", [x, u], [xn, Fx, Fu], ["x", "u"], ["x_next", "F_x", "F_u"])
+        xn, Fxs, Fus = rk4_step_jacobians(f, x, u, self.dt)
+        self.step_function = cs.Function(
+            "ekf_step", [x, u], [xn, cs.densify(Fxs), cs.densify(Fus)], ["x", "u"], ["x_next", "F_x", "F_u"]
+        )
 
         # The update: predict (optionally) and correct, symbolic in x, P, u, y. P is read from its upper
         # triangle only and every covariance is built entry by entry on its upper triangle (mirrored), from
@@ -428,7 +462,6 @@ class ExtendedKalmanFilter(Estimator):
         P = cs.SX.sym("P", n, n)
         y = cs.SX.sym("y", p)
         Ps = _symmetric(lambda i, j: P[i, j], n)
-        Fxs, Fus = cs.jacobian(xn, x), cs.jacobian(xn, u)
         FP = Fxs @ Ps
         if self.Qn_on == "input":  # G Qn Gᵀ with G = F_u
             Fq = Fus @ cs.DM(self.Qn)
