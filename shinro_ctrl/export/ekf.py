@@ -33,7 +33,7 @@ def _packed(f: cs.Function, name: str, n: int) -> cs.Function:
     The same expression graph (``f`` called on the symmetric matrix the ``n (n + 1) / 2`` entries make), less
     what only the gain (which the C does not return) needs: the update reads one triangle and writes one.
     CasADi's common-subexpression elimination (``cse``) merges the repeated ``sin``/``cos`` of the
-    derivative terms (the quadrotor's: 70 libm calls to 28); merged values are the same values.
+    derivative terms (the quadrotor's: 56 libm calls to 28); merged values are the same values.
     """
     x, _, u, y = f.sx_in()
     rows, cols = _upper(n)
