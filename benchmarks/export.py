@@ -7,6 +7,8 @@ the median of the estimator update plus the controller call replaying the same r
 
 Goals (issue 27): LQR step <= 0.2 µs; EKF step on the quadrotor <= 2 µs; LinearMPC cart-pole N = 50 with
 bounds <= 10 µs (:func:`mpc_rows`); NonlinearMPC RTI cart-pole swing-up N = 40 <= 40 µs (:func:`nmpc_rows`).
+The quadrotor EKF row's C step is the EKF update and the LQR together (the goal is the EKF's; the LQR adds
+about 0.01 µs).
 
 Run: ``python benchmarks/export.py [--repeats R]`` (the machine is shared: take the median of repeats).
 """
