@@ -170,13 +170,13 @@ def test_unnamed_elements_are_named_by_what_they_sit_on(tmp_path):
     path = tmp_path / "unnamed.xml"
     path.write_text(
         """<mujoco><worldbody><body name="arm"><joint name="h" type="hinge" frictionloss="1"/><geom size="0.1"/>
-        <body><joint type="ball"/><geom size="0.1"/></body></body></worldbody>
+        <body><joint type="ball" stiffness="1"/><geom size="0.1"/></body></body></worldbody>
         <actuator><general joint="h" dyntype="integrator"/><motor joint="h" armature="0.1"/></actuator></mujoco>"""
     )
     with pytest.raises(InvalidArgument) as info:
         MjcfPlant(path)
     msg = str(info.value)
-    assert "ball joint #1 (of body #2 (child of 'arm'))" in msg
+    assert "stiffness on ball joint #1 (of body #2 (child of 'arm'))" in msg
     assert "armature on actuator #1 (on joint 'h')" in msg
 
 

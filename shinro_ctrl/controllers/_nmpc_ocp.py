@@ -41,6 +41,7 @@ __all__ = [
     "build_ocp",
     "failed_solution",
     "riccati_functions",
+    "stage_function",
 ]
 
 #: Solvers of ``NonlinearMPC``: ``"auto"`` is ``"daqp"``.
@@ -401,17 +402,26 @@ def _discrete_step(f: cs.Function, n: int, m: int, h: float, o: NMPCOptions) -> 
     return cs.Function("F", [xs, us], [x_next], ["x", "u"], ["x_next"])
 
 
+def stage_function(F: cs.Function, n: int, m: int) -> cs.Function:
+    """The SX function of one stage, ``(x_k, u_k, x̄_{k+1}) -> G_kᵀ`` with ``G_k = [A_k, B_k, d_k]``.
+
+    ``A_k = ∂F/∂x``, ``B_k = ∂F/∂u``, ``d_k = F(x_k, u_k) − x̄_{k+1}``; the output ``(n + m + 1, n)`` is
+    transposed so that its column-major storage is ``G_k`` row-major. The real-time iteration maps it over
+    the horizon; the C export (``export/nmpc.py``) generates C from this same function.
+    """
+    xs, us, xn = cs.SX.sym("x", n), cs.SX.sym("u", m), cs.SX.sym("x_next", n)
+    x_next = F(xs, us)
+    G = cs.horzcat(cs.jacobian(x_next, xs), cs.jacobian(x_next, us), x_next - xn)
+    return cs.Function("nmpc_stage", [xs, us, xn], [cs.densify(G).T])
+
+
 def _stage_linearization(F: cs.Function, n: int, m: int, N: int, codegen: bool | None) -> tuple[cs.Function, bool]:
     """``G_kᵀ`` of all stages side by side, ``(n + m + 1, N n)`` (stored as ``(N, n, n + m + 1)``); compiled or not.
 
     One SX stage function (``[A_k, B_k, d_k]`` of one stage), compiled to C when ``codegen`` says so,
     mapped over the horizon in an MX function (an SX ``map`` would unroll it).
     """
-    xs, us, xn = cs.SX.sym("x", n), cs.SX.sym("u", m), cs.SX.sym("x_next", n)
-    x_next = F(xs, us)
-    # G_k = [A_k, B_k, d_k] (n, n + m + 1), output transposed so that its column-major storage is G_k row-major
-    G = cs.horzcat(cs.jacobian(x_next, xs), cs.jacobian(x_next, us), x_next - xn)
-    stage = cs.Function("nmpc_stage", [xs, us, xn], [cs.densify(G).T])
+    stage = stage_function(F, n, m)
     compile_ = bool(codegen or (codegen is None and stage.n_instructions() > CODEGEN_MIN_INSTRUCTIONS))
     if compile_:
         stage = compiled(stage)

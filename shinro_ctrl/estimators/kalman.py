@@ -21,6 +21,10 @@ added to the state after the step (``G = I``). ``Qn`` and ``Rn`` are
 per-step covariances (variances on the diagonal, not standard deviations):
 a scenario's ``[sim] process_noise`` and ``sensor_noise`` standard deviations
 ``σ`` correspond to ``Qn = σ_u²`` and ``Rn = σ_y²``.
+
+The extended filter computes the same correction, when ``C`` selects states
+and ``Rn`` is diagonal, one scalar measurement at a time (equal in exact
+arithmetic; see :class:`ExtendedKalmanFilter`).
 """
 
 from __future__ import annotations
@@ -42,7 +46,7 @@ from shinro_ctrl.validation import as_vector, measurement_matrix, state_space, w
 if TYPE_CHECKING:
     from shinro_ctrl.plants.base import Plant
 
-__all__ = ["DISTURBANCE_MODELS", "ExtendedKalmanFilter", "KalmanFilter", "rk4_step"]
+__all__ = ["DISTURBANCE_MODELS", "ExtendedKalmanFilter", "KalmanFilter", "rk4_step", "rk4_step_jacobians"]
 
 #: Disturbance models a linear filter can add to its state: None, or a constant input disturbance.
 DISTURBANCE_MODELS = (None, "input")
@@ -340,6 +344,53 @@ class KalmanFilter(Estimator):
         return f"KalmanFilter(n={self.n}, measured={self.measured}, {kind}, disturbance_model={self.disturbance_model})"
 
 
+def _symmetric(entry: Callable[[int, int], cs.SX], n: int) -> cs.SX:
+    """The symmetric ``(n, n)`` SX matrix whose upper-triangle entry ``(i, j)``, ``i ≤ j``, is ``entry(i, j)``.
+
+    Each expression is built once and mirrored: the graph holds the ``n (n + 1) / 2`` distinct entries only.
+    """
+    out = cs.SX(n, n)
+    for i in range(n):
+        for j in range(i, n):
+            e = entry(i, j)
+            out[i, j] = e
+            if j != i:
+                out[j, i] = e
+    return out
+
+
+def _sequential_correction(
+    xb: cs.SX, Pb: cs.SX, y: cs.SX, measured: Sequence[int], r: np.ndarray
+) -> tuple[cs.SX, cs.SX, cs.SX]:
+    r"""The Kalman correction by scalar measurements one at a time (``C`` a selection, ``Rn = diag(r)``).
+
+    For measurement ``i`` of state ``j``: with ``p = P e_j`` and ``s = P_{jj} + r_i``,
+
+    .. math::
+
+        \hat x \leftarrow \hat x + p\, (y_i - \hat x_j) / s, \qquad P \leftarrow P - p\, p^\top / s,
+
+    each on the upper triangle of ``P`` (mirrored). With uncorrelated sensor noise this is, in exact
+    arithmetic, the batch update ``K = P^- C^\top (C P^- C^\top + R_n)^{-1}``, ``P = (I − K C) P^-`` (and its
+    Joseph form): measurement ``i`` conditions on ``y_i`` what the earlier ones left. It costs
+    ``O(p n²)`` with one division per measurement instead of a ``p × p`` solve and two ``n × n`` products.
+    Returned gain: the batch one, ``K = P^+ C^\top R_n^{-1}`` (the same identity).
+
+    Returns:
+        ``(x̂ (n,), P (n, n), K (n, p))``.
+    """
+    n = Pb.shape[0]
+    for i, j in enumerate(measured):
+        inv_s = 1.0 / (Pb[j, j] + float(r[i]))
+        pj = [Pb[a, j] for a in range(n)]
+        xb = xb + cs.vertcat(*pj) * (inv_s * (y[i] - xb[j]))
+        ks = [pj[a] * inv_s for a in range(n)]
+        Pold = Pb
+        Pb = _symmetric(lambda a, b, Pold=Pold, ks=ks, pj=pj: Pold[a, b] - ks[a] * pj[b], n)
+    K = cs.horzcat(*[Pb[:, j] / float(r[i]) for i, j in enumerate(measured)])
+    return xb, Pb, K
+
+
 def rk4_step(f: cs.Function, x: cs.SX | cs.MX | cs.DM, u: cs.SX | cs.MX | cs.DM, dt: float) -> cs.SX | cs.MX | cs.DM:
     """One classical RK4 step ``x + dt/6 (k1 + 2 k2 + 2 k3 + k4)`` of ``ẋ = f(x, u)`` with ``u`` held."""
     k1 = f(x, u)
@@ -349,6 +400,40 @@ def rk4_step(f: cs.Function, x: cs.SX | cs.MX | cs.DM, u: cs.SX | cs.MX | cs.DM,
     return x + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def rk4_step_jacobians(f: cs.Function, x: cs.SX, u: cs.SX, dt: float) -> tuple[cs.SX, cs.SX, cs.SX]:
+    r"""One RK4 step (:func:`rk4_step`) and its exact Jacobians ``(x⁺, ∂x⁺/∂x, ∂x⁺/∂u)``, sparse.
+
+    The chain rule through the stages ``k_s = f(x_s, u)``, ``x_s = x + c_s dt k_{s-1}`` (``c = 0, 1/2, 1/2, 1``),
+    with the continuous Jacobian ``[A_s B_s] = ∂f/∂(x, u)`` at each stage point and ``G_s = ∂k_s/∂(x, u)``:
+
+    .. math::
+
+        G_1 = [A_1\ B_1], \quad G_s = [A_s\ B_s] \begin{bmatrix} [I\ 0] + c_s\, dt\, G_{s-1} \\ [0\ I]
+        \end{bmatrix}, \qquad
+        \frac{\partial x^+}{\partial (x, u)} = [I\ 0] + \frac{dt}{6}(G_1 + 2 G_2 + 2 G_3 + G_4)
+
+    The products of the sparse continuous Jacobians hold only structurally nonzero
+    terms, fewer operations than differentiating the unrolled step (the quadrotor's: 1,760 against 2,160).
+    """
+    n, m = x.shape[0], u.shape[0]
+    xs, us = cs.SX.sym("xs", n), cs.SX.sym("us", m)
+    fx = f(xs, us)
+    fj = cs.Function("rk4_stage", [xs, us], [fx, cs.jacobian(fx, cs.vertcat(xs, us))])
+    top = cs.SX(cs.horzcat(cs.DM.eye(n), cs.DM(n, m)))
+    bottom = cs.SX(cs.horzcat(cs.DM(m, n), cs.DM.eye(m)))
+    k1, J1 = fj(x, u)
+    d1 = J1 @ cs.vertcat(top, bottom)
+    k2, J2 = fj(x + 0.5 * dt * k1, u)
+    d2 = J2 @ cs.vertcat(top + 0.5 * dt * d1, bottom)
+    k3, J3 = fj(x + 0.5 * dt * k2, u)
+    d3 = J3 @ cs.vertcat(top + 0.5 * dt * d2, bottom)
+    k4, J4 = fj(x + dt * k3, u)
+    d4 = J4 @ cs.vertcat(top + dt * d3, bottom)
+    xn = x + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    J = top + (dt / 6.0) * (d1 + 2 * d2 + 2 * d3 + d4)
+    return xn, J[:, :n], J[:, n:]
+
+
 class ExtendedKalmanFilter(Estimator):
     r"""Extended Kalman filter on the plant's nonlinear dynamics.
 
@@ -356,9 +441,24 @@ class ExtendedKalmanFilter(Estimator):
     ``dt`` with the input held, ``F(x, u)``; the covariance uses the exact
     Jacobians ``F_x = ∂F/∂x`` and ``F_u = ∂F/∂u`` of that same step (CasADi
     automatic differentiation of the symbolic step, not of the continuous
-    dynamics). The whole update (prediction, Jacobians, gain, Joseph-form
-    covariance) is one CasADi ``Function`` built once per filter and
-    evaluated through its buffer interface into arrays the filter owns.
+    dynamics). The whole update (prediction, Jacobians, gain, covariance) is
+    one CasADi ``Function`` built once per filter and evaluated through its
+    buffer interface into arrays the filter owns; the C export generates code
+    from the same function.
+
+    The function is built for structure: it reads ``P`` from its upper
+    triangle, builds ``F_x P F_xᵀ + G Qn Gᵀ`` entry by entry on the upper
+    triangle from the sparse Jacobians (only structurally nonzero products),
+    and, when ``C`` selects states and ``Rn`` is diagonal
+    (:attr:`sequential`), corrects with the measurements one at a time: for
+    measurement ``i`` of state ``j``, ``s = P_jj + r_i``,
+    ``x̂ += P e_j (y_i − x̂_j) / s``, ``P −= P e_j e_jᵀ P / s``. With
+    uncorrelated sensor noise this equals the batch update
+    ``K = P⁻Cᵀ(CP⁻Cᵀ + Rn)⁻¹``, ``P = (I − KC)P⁻`` in exact arithmetic
+    (numerically to about ``eps · P / r``) at a fraction of its cost (the
+    quadrotor's update: 5,200 operations instead of 13,300). Otherwise the
+    correction is the batch gain and the Joseph form
+    ``(I − KC)P⁻(I − KC)ᵀ + K Rn Kᵀ``.
 
     On a floating base (``plant.tangent_dim < plant.state_dim``: unit quaternions in the state) it is
     an error-state filter: the prediction is the plant's own manifold step (:meth:`Plant.symbolic_step`),
@@ -377,7 +477,8 @@ class ExtendedKalmanFilter(Estimator):
 
     Attributes:
         P: Covariance of the current estimate ``(n, n)``.
-        M: Last filter gain ``(n, p)``.
+        M: Last filter gain ``(n, p)`` (sequential: ``P Cᵀ Rn⁻¹``, the batch gain).
+        sequential: Whether the correction processes the measurements one at a time.
         step_function: ``casadi.Function`` ``(x, u) -> (x_next, F_x, F_u)``.
     """
 
@@ -417,29 +518,50 @@ class ExtendedKalmanFilter(Estimator):
         n, m, p = self.n, self.m, self.p
         x = cs.SX.sym("x", n)
         u = cs.SX.sym("u", m)
-        xn = rk4_step(f, x, u, self.dt)
-        Fx = cs.densify(cs.jacobian(xn, x))
-        Fu = cs.densify(cs.jacobian(xn, u))
-        self.step_function = cs.Function("ekf_step", [x, u], [xn, Fx, Fu], ["x", "u"], ["x_next", "F_x", "F_u"])
+        xn, Fxs, Fus = rk4_step_jacobians(f, x, u, self.dt)
+        self.step_function = cs.Function(
+            "ekf_step", [x, u], [xn, cs.densify(Fxs), cs.densify(Fus)], ["x", "u"], ["x_next", "F_x", "F_u"]
+        )
 
-        # The update: predict (optionally) and correct, symbolic in x, P, u, y.
+        # The update: predict (optionally) and correct, symbolic in x, P, u, y. P is read from its upper
+        # triangle only and every covariance is built entry by entry on its upper triangle (mirrored), from
+        # the sparse Jacobians: the expression graph holds only the structurally nonzero products.
         P = cs.SX.sym("P", n, n)
         y = cs.SX.sym("y", p)
-        C = cs.DM(self.C)
-        R = cs.DM(self.Rn)
-        Q = cs.DM(self.Qn)
-        Qw = Fu @ Q @ Fu.T if self.Qn_on == "input" else Q
-        Pm = Fx @ P @ Fx.T + Qw
+        Ps = _symmetric(lambda i, j: P[i, j], n)
+        FP = Fxs @ Ps
+        if self.Qn_on == "input":  # G Qn Gᵀ with G = F_u
+            Fq = Fus @ cs.DM(self.Qn)
 
-        def correct(xb: cs.SX, Pb: cs.SX) -> tuple[cs.SX, cs.SX, cs.SX]:
-            S = C @ Pb @ C.T + R
-            K = cs.solve(S, C @ Pb).T
-            ImC = cs.DM.eye(n) - K @ C
-            Pn = ImC @ Pb @ ImC.T + K @ R @ K.T
-            return xb + K @ (y - C @ xb), 0.5 * (Pn + Pn.T), K
+            def qw(i: int, j: int) -> cs.SX:
+                return cs.dot(Fq[i, :].T, Fus[j, :].T)
+        else:
+
+            def qw(i: int, j: int) -> cs.SX:
+                return cs.SX(self.Qn[i, j])
+
+        Pm = _symmetric(lambda i, j: cs.dot(FP[i, :].T, Fxs[j, :].T) + qw(i, j), n)
+        r = np.diagonal(self.Rn)
+        #: True when the correction processes the measurements one at a time (a selection ``C`` and a diagonal
+        #: ``Rn``); else the batch gain and Joseph form.
+        self.sequential = bool(self.measured) and np.array_equal(self.Rn, np.diag(r))
+        if self.sequential:
+
+            def correct(xb: cs.SX, Pb: cs.SX) -> tuple[cs.SX, cs.SX, cs.SX]:
+                return _sequential_correction(xb, Pb, y, self.measured, r)
+        else:
+            C = cs.DM(self.C)
+            R = cs.DM(self.Rn)
+
+            def correct(xb: cs.SX, Pb: cs.SX) -> tuple[cs.SX, cs.SX, cs.SX]:
+                S = C @ Pb @ C.T + R
+                K = cs.solve(S, C @ Pb).T
+                ImC = cs.DM.eye(n) - K @ C
+                Pn = ImC @ Pb @ ImC.T + K @ R @ K.T
+                return xb + K @ (y - C @ xb), _symmetric(lambda i, j: 0.5 * (Pn[i, j] + Pn[j, i]), n), K
 
         out_pred = correct(xn, Pm)
-        out_first = correct(x, P)
+        out_first = correct(x, Ps)
         outs = ["x_hat", "P_hat", "K"]
         # Transposed results: CasADi's column-major nonzeros are then the row-major numpy layout.
         f_pred = cs.Function(

@@ -1,10 +1,12 @@
 r"""C of the :class:`~shinro_ctrl.estimators.kalman.ExtendedKalmanFilter`: CasADi's code of the filter's own update.
 
-The filter's whole update (one RK4 step of the plant's exact dynamics, its Jacobians by automatic
-differentiation, the gain and the Joseph-form covariance) is the CasADi ``Function`` pair
-``ExtendedKalmanFilter.update_functions`` (with and without the prediction); the export generates C from
-exactly those (``casadi.CodeGenerator``: dependency-free C that works in arrays it is given; here
-workspace fields, so no heap) and calls it the way the Python filter calls its buffers.
+The filter's whole update (one RK4 step of the plant's exact dynamics, its sparse Jacobians by automatic
+differentiation, the covariance built on its upper triangle, the correction: sequential scalar updates when
+the filter measures states with uncorrelated noise, else the batch gain and the Joseph form) is the CasADi
+``Function`` pair ``ExtendedKalmanFilter.update_functions`` (with and without the prediction); the export
+generates C from exactly those graphs (``casadi.CodeGenerator``: dependency-free C that works in arrays it
+is given; here workspace fields, so no heap), on the covariance packed as its upper triangle, and calls it
+the way the Python filter calls its buffers.
 """
 
 from __future__ import annotations
@@ -21,10 +23,29 @@ from shinro_ctrl.validation import weight_matrix
 __all__ = ["EKFExporter"]
 
 
-def _renamed(f: cs.Function, name: str) -> cs.Function:
-    """``f`` under another name (the same expression graph)."""
-    args = f.sx_in()
-    return cs.Function(name, args, f.call(args), f.name_in(), f.name_out())
+def _upper(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the upper triangle of an ``(n, n)`` matrix, row by row (the packed order)."""
+    return np.triu_indices(n)
+
+
+def _packed(f: cs.Function, name: str, n: int) -> cs.Function:
+    """``f`` on packed covariances: ``(x, P_u, u, y) -> (x̂, P̂_u)`` with ``P_u`` the upper triangle, row by row.
+
+    The same expression graph (``f`` called on the symmetric matrix the ``n (n + 1) / 2`` entries make), less
+    what only the gain (which the C does not return) needs: the update reads one triangle and writes one.
+    CasADi's common-subexpression elimination (``cse``) merges the repeated ``sin``/``cos`` of the
+    derivative terms (the quadrotor's: 56 libm calls to 28); merged values are the same values.
+    """
+    x, _, u, y = f.sx_in()
+    rows, cols = _upper(n)
+    Pu = cs.SX.sym("P_u", len(rows))
+    P = cs.SX(n, n)
+    for k, (i, j) in enumerate(zip(rows, cols, strict=True)):
+        P[i, j] = Pu[k]
+        P[j, i] = Pu[k]
+    xo, Po = f.call([x, P, u, y])[:2]
+    Pou = cs.vertcat(*[Po[i, j] for i, j in zip(rows, cols, strict=True)])
+    return cs.Function(name, [x, Pu, u, y], [xo, Pou], ["x", "P_u", "u", "y"], ["x_hat", "P_hat_u"], {"cse": True})
 
 
 @register_exporter(ExtendedKalmanFilter)
@@ -41,21 +62,21 @@ class EKFExporter:
         if obj.update_functions is None:
             raise ExportError("cannot export the ExtendedKalmanFilter of a floating base (its error-state update)")
         f_pred, f_first = obj.update_functions
-        fp = _renamed(f_pred, f"{name}_ekf_update")
-        ff = _renamed(f_first, f"{name}_ekf_correct")
+        fp = _packed(f_pred, f"{name}_ekf_update", n)
+        ff = _packed(f_first, f"{name}_ekf_correct", n)
+        nt = n * (n + 1) // 2
         sz_w = max(fp.sz_w(), ff.sz_w(), 1)
         sz_iw = max(fp.sz_iw(), ff.sz_iw(), 1)
         sz_arg = max(fp.sz_arg(), ff.sz_arg())
         sz_res = max(fp.sz_res(), ff.sz_res())
         c_src, h_src = casadi_source([fp, ff], name, "@N@_ekf")
         P0 = ctx_P0(ctx, n)
-        tables = (CArray("P0", P0, "initial covariance P0 (row-major)"),)
+        tables = (CArray("P0", P0[_upper(n)], "initial covariance P0 (upper triangle, row by row)"),)
         fields = (
             CField("x", n, "the estimate"),
-            CField("P", n * n, "its covariance (row-major)"),
+            CField("P", nt, "its covariance (upper triangle, row by row)"),
             CField("xo", n, "the update's estimate"),
-            CField("Po", n * n, "the update's covariance"),
-            CField("K", n * p, "the update's gain (transposed)"),
+            CField("Po", nt, "the update's covariance (upper triangle)"),
             CField("u", m, "the input of the prediction"),
             CField("y", p, "the measurement"),
             CField("w", sz_w, "CasADi work array"),
@@ -64,7 +85,7 @@ class EKFExporter:
         )
         code = f"""void @N@_est_reset(@N@_workspace *ws, const double *x_hat0) {{
     memcpy(ws->est_x, x_hat0, {n} * sizeof(double));
-    memcpy(ws->est_P, @N@_est_P0, {n * n} * sizeof(double));
+    memcpy(ws->est_P, @N@_est_P0, {nt} * sizeof(double));
     ws->est_first = 1;
 }}
 
@@ -79,7 +100,6 @@ int @N@_est_update(@N@_workspace *ws, const double *y, const double *u_prev, dou
     arg[3] = ws->est_y;
     res[0] = ws->est_xo;
     res[1] = ws->est_Po;
-    res[2] = ws->est_K;
     if (ws->est_first) {{
         ws->est_first = 0;
         if (@N@_ekf_correct(arg, res, ws->est_iw, ws->est_w, 0) != 0) {{
@@ -97,16 +117,22 @@ int @N@_est_update(@N@_workspace *ws, const double *y, const double *u_prev, dou
         }}
     }}
     memcpy(ws->est_x, ws->est_xo, {n} * sizeof(double));
-    memcpy(ws->est_P, ws->est_Po, {n * n} * sizeof(double));
+    memcpy(ws->est_P, ws->est_Po, {nt} * sizeof(double));
     memcpy(x_hat, ws->est_xo, {n} * sizeof(double));
     return @U@_OK;
 }}
 """
+        correction = (
+            "one measurement at a time: the sensor noise is uncorrelated"
+            if obj.sequential
+            else "batch gain, Joseph form"
+        )
         details = (
             "**Estimator (extended Kalman filter)**: predict with one RK4 step of the plant's exact dynamics over "
             "the sample time with the previous input held, propagate the covariance with that step's exact "
-            "Jacobians, correct with the measurement (Joseph form). The update is C generated by CasADi from "
-            f"the Python filter's own update function (`{name}_ekf.c`)."
+            f"Jacobians, correct with the measurement ({correction}). The update is C generated by CasADi from "
+            f"the Python filter's own update function (`{name}_ekf.c`); the covariance is kept as its upper "
+            "triangle, row by row."
         )
         return Part(
             "est",

@@ -223,7 +223,12 @@ def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Rec
             "takes one set-point reference per step"
         )
     x_hat_dim = sim.estimator.n if not hasattr(est, "n_aug") else int(est.n_aug)
-    ctx = ExportContext(name, plant, ctrl, est, x_hat_dim, sim.initial_covariance)
+    ref0 = np.asarray(sim.reference(0.0), dtype=float)
+    if sim.initial_estimate is not None:
+        x_hat0 = np.asarray(sim.initial_estimate, dtype=float)[: plant.state_dim]
+    else:
+        x_hat0 = np.asarray(sim.initial_state, dtype=float)
+    ctx = ExportContext(name, plant, ctrl, est, x_hat_dim, sim.initial_covariance, x_hat0.copy(), ref0.copy())
     est_part = exporter_for(est, "estimator").part(est, ctx)
     ctl_part = exporter_for(ctrl, "controller").part(ctrl, ctx)
     per_loop = -(-MIN_STEPS // len(sims))
@@ -241,11 +246,6 @@ def prepare(config: str | Path, name: str | None = None) -> tuple[Unit, list[Rec
     path = scenario.path
     text = Path(path).read_text(encoding="utf-8") if path is not None else repr(scenario)
     measured = tuple(plant.state_names[i] for i in est.measured)
-    ref0 = np.asarray(sim.reference(0.0), dtype=float)
-    if sim.initial_estimate is not None:
-        x_hat0 = np.asarray(sim.initial_estimate, dtype=float)[: plant.state_dim]
-    else:
-        x_hat0 = np.asarray(sim.initial_state, dtype=float)
     unit = Unit(
         name=name,
         estimator=est_part,

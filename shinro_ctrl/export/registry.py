@@ -36,6 +36,9 @@ class ExportContext:
         estimator: The scenario's estimator.
         x_hat_dim: Length of the estimate the estimator hands the controller (``n``, or ``n + m``).
         initial_covariance: The covariance the loop resets a filter with (the scenario's ``P0``), or None.
+        x_start: The state the scenario's loop starts from ``(n,)`` (its initial estimate, else its initial
+            state), or None; the NonlinearMPC exporter solves its cold start there.
+        ref0: The reference at time 0 ``(n,)``, or None.
     """
 
     name: str
@@ -44,6 +47,8 @@ class ExportContext:
     estimator: Estimator
     x_hat_dim: int
     initial_covariance: object = None
+    x_start: object = None
+    ref0: object = None
 
 
 class Exporter(Protocol):
