@@ -135,3 +135,12 @@ def test_nmpc_refuses_state_bounds_and_ipopt_on_a_floating_base_in_one_line(dron
         NonlinearMPC.from_plant(drone, Q12, R4, horizon=3, solver="ipopt")
     with pytest.raises(InvalidArgument, match=r"Q"):
         NonlinearMPC.from_plant(drone, [1.0] * 13, R4, horizon=3)  # Q has tangent_dim = 12 entries
+
+    from shinro_ctrl.errors import ExportError
+    from shinro_ctrl.export.registry import ExportContext, exporter_for
+
+    nmpc = NonlinearMPC.from_plant(drone, Q12, R4, horizon=3)
+    x0 = drone.equilibrium()[0]
+    ctx = ExportContext(name="d", plant=drone, controller=nmpc, estimator=None, x_hat_dim=13, x_start=x0)
+    with pytest.raises(ExportError, match="cannot export this NonlinearMPC: a floating base"):
+        exporter_for(nmpc, "controller").part(nmpc, ctx)

@@ -494,6 +494,7 @@ class ExtendedKalmanFilter(Estimator):
             self.state_names = tuple(plant.state_names)
             self.step_function = es.step_function
             self.update_functions = None  # no C export of the error-state filter (the export refuses it)
+            self.sequential = False
             self._first = True
             return
         n, m = plant.state_dim, plant.input_dim

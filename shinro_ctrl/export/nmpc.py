@@ -65,7 +65,9 @@ PRIMAL_TOL = 1e-6
 def _check(ctrl: NonlinearMPC, ctx: ExportContext) -> None:
     o = ctrl.options
     why = ""
-    if o.solver != "daqp":
+    if ctrl.ocp.manifold is not None:
+        why = "a floating base (its QP works in tangent deviations; the export is the plain-coordinate RTI)"
+    elif o.solver != "daqp":
         why = f"solver = '{o.solver}' (the exported C is the real-time iteration on the condensed QP: solver = 'daqp')"
     elif o.iterations != 1:
         why = f"iterations = {o.iterations} (SQP with a line search; the export is the real-time iteration: 1)"
