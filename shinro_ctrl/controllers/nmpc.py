@@ -38,6 +38,13 @@ when that unconstrained minimizer meets every input bound it is the QP's
 solution; only otherwise are the condensed QP and DAQP built and solved
 (:func:`~._nmpc_ocp.riccati_functions`, ``RealTimeIteration._riccati_step``).
 
+On a floating base (``plant.tangent_dim < plant.state_dim``: unit quaternions in the state) the
+prediction is the plant's own manifold step and the QP works in tangent deviations
+(:class:`~._nmpc_ocp.StateManifold`): ``A_k = D(F̄_k) F_x E(x̄_k)``, ``B_k = D(F̄_k) F_u``, the gaps
+``d_k = difference(F̄_k, x̄_{k+1})``, the cost on ``difference(x_k, r)`` (``Q`` of ``tangent_dim``) and
+the step ``x̄_k ← retract(x̄_k, Δx_k)``; the IPOPT cold start keeps the quaternions as variables (the
+shooting constraints keep them unit) with the chordal attitude error ``D(r)(x − r)`` as its cost.
+
 ``iterations > 1`` continues with SQP iterations (an ℓ1-merit Armijo line
 search, ``x_0 = x`` held) until the KKT residual is below ``tol``. The
 Hessian is the Gauss-Newton one, which is the exact Hessian of the cost; the
