@@ -144,3 +144,33 @@ def test_nmpc_refuses_state_bounds_and_ipopt_on_a_floating_base_in_one_line(dron
     ctx = ExportContext(name="d", plant=drone, controller=nmpc, estimator=None, x_hat_dim=13, x_start=x0)
     with pytest.raises(ExportError, match="cannot export this NonlinearMPC: a floating base"):
         exporter_for(nmpc, "controller").part(nmpc, ctx)
+
+
+def test_nmpc_sqp_converges_to_a_local_minimum_on_the_manifold(drone):
+    from shinro_ctrl.controllers.nmpc import NonlinearMPC
+
+    # a rotation-isotropic Q (the Gauss-Newton gradient is then exact in the tangent charts; see the docs)
+    opts = {**NMPC, "terminal_cost": "Q", "u_min": None, "u_max": None}
+    nmpc = NonlinearMPC.from_plant(drone, **opts, iterations=15)
+    x0, _ = drone.equilibrium()
+    x = drone.retract(x0, np.r_[0.2, -0.1, 0.1, 0.3, -0.2, 2.9, 0.1, 0, 0, 0, 0.2, 0])
+    nmpc(x)
+    sol = nmpc.last
+    assert sol.status == "solved" and sol.kkt_residual < 1e-6
+
+    def rollout(U):  # the plant's own step, 3 per shooting interval of 0.03 s
+        X = [x]
+        for u in U:
+            z = X[-1]
+            for _ in range(3):
+                z = drone.integrate(z, u)
+            X.append(z)
+        return np.array(X)
+
+    X = rollout(sol.inputs)
+    assert np.abs(drone.difference(X, sol.states)).max() < 1e-8  # the plan is feasible: no gaps left
+    J = nmpc.objective(X, sol.inputs)
+    rng = np.random.default_rng(3)
+    for _ in range(10):  # any nearby feasible plan costs more
+        dU = 1e-3 * rng.normal(size=sol.inputs.shape) * np.array([1.0, 0.01, 0.01, 0.01])
+        assert nmpc.objective(rollout(sol.inputs + dU), sol.inputs + dU) > J
