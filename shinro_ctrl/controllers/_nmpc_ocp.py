@@ -208,6 +208,12 @@ class StateManifold:
     (``F̄_k = F(x̄_k, ū_k)``), the gaps ``d_k = difference(F̄_k, x̄_{k+1})`` and the update
     ``x̄_k ← retract(x̄_k, Δx_k)``.
 
+    The cost ``½ ‖difference(retract(x̄_k, δ), r)‖²_W`` has the chart Jacobian
+    ``J_k = ∂ difference(retract(x̄_k, δ), r)/∂δ`` at 0 (:meth:`chart_jacobian`: the identity but
+    ``J_r⁻¹(φ)`` on each rotation vector ``φ``); the QP's variables are ``J_k δ_k``, so its Gauss-Newton
+    cost ``½ ‖e_k + J_k δ_k‖²_W`` is exact to first order for any weights: ``A_k ← J_{k+1} A_k J_k⁻¹``,
+    ``B_k ← J_{k+1} B_k``, ``d_k ← J_{k+1} d_k``, and the step retracts ``J_k⁻¹`` of the QP's.
+
     Attributes:
         nt: Tangent dimension (``plant.tangent_dim``).
         step: The discrete step ``F(x, u) -> x_next`` over the shooting interval (CasADi).
@@ -221,6 +227,24 @@ class StateManifold:
     difference: Callable[[np.ndarray, np.ndarray], np.ndarray]
     retract: Callable[[np.ndarray, np.ndarray], np.ndarray]
     tangent_maps: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+    rotations: tuple[int, ...] = ()
+
+    def chart_jacobian(self, e: np.ndarray) -> np.ndarray:
+        r"""``J (nt, nt)`` at the deviation ``e = difference(x̄, r)``: ``J_r⁻¹(φ)`` on each rotation vector.
+
+        ``J_r⁻¹(φ) = I + ½ [φ]× + (1/θ² − (1 + cos θ) / (2 θ sin θ)) [φ]×²`` (``θ = |φ| ≤ π``, invertible
+        there), the derivative of ``log(exp(φ) exp(δ))`` at ``δ = 0``; ``rotations`` holds each rotation
+        vector's first tangent index.
+        """
+        J = np.eye(self.nt)
+        for d in self.rotations:
+            phi = e[d : d + 3]
+            th = float(np.linalg.norm(phi))
+            K = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+            small = th < 1e-4  # the series 1/12 + θ²/720 there
+            c = 1.0 / 12.0 + th * th / 720.0 if small else 1.0 / th**2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
+            J[d : d + 3, d : d + 3] += 0.5 * K + c * (K @ K)
+        return J
 
 
 @dataclass(frozen=True, eq=False)

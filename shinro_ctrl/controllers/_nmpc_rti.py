@@ -69,6 +69,8 @@ class RealTimeIteration:
             self._eval_full = eval_full
             self._eval = self._tangent_stages
             self._xb = np.zeros((N, nt))
+            self._J = np.tile(np.eye(nt), (N + 1, 1, 1))  # the chart Jacobians J_k (StateManifold)
+            self._Jinv = self._J.copy()
             x_min, x_max = np.full(nt, -np.inf), np.full(nt, np.inf)
         self._e = np.zeros(N * nt)
         self._du = np.zeros(N * m)
@@ -141,7 +143,8 @@ class RealTimeIteration:
         """A floating base's stages in the tangent space (see :class:`~._nmpc_ocp.StateManifold`).
 
         From the full-state ``[F_x, F_u, F̄_k − x̄_{k+1}]`` of the compiled linearization:
-        ``A_k = D(F̄_k) F_x E(x̄_k)``, ``B_k = D(F̄_k) F_u``, ``d_k = difference(F̄_k, x̄_{k+1})``.
+        ``A_k = D(F̄_k) F_x E(x̄_k)``, ``B_k = D(F̄_k) F_u``, ``d_k = difference(F̄_k, x̄_{k+1})``, then in the
+        QP's variables ``J_k δ_k`` (the chart Jacobians at the reference: exact Gauss-Newton cost).
         """
         self._eval_full()
         man = self.ocp.manifold
@@ -155,6 +158,21 @@ class RealTimeIteration:
             self.A[k] = D @ Gf[k, :, :n] @ E
             self.B[k] = D @ Gf[k, :, n : n + m]
         self.D[:] = man.difference(Fbar, X[1:])
+        E = man.difference(X, self._ref)
+        for k in range(self.ocp.N + 1):
+            self._J[k] = man.chart_jacobian(E[k])
+            self._Jinv[k] = np.linalg.inv(self._J[k])
+        for k in range(self.ocp.N):
+            self.A[k] = self._J[k + 1] @ self.A[k] @ self._Jinv[k]
+            self.B[k] = self._J[k + 1] @ self.B[k]
+            self.D[k] = self._J[k + 1] @ self.D[k]
+
+    def _advance(self, Xbase: np.ndarray, dX: np.ndarray, alpha: float) -> np.ndarray:
+        """``x̄_{1..N}`` moved by ``α ΔX`` (the QP's variables: on a floating base ``retract(x̄_k, α J_k⁻¹ ΔX_k)``)."""
+        man = self.ocp.manifold
+        if man is None:
+            return Xbase + alpha * dX
+        return man.retract(Xbase, alpha * np.einsum("kij,kj->ki", self._Jinv[1:], dX))
 
     def _condense(self) -> None:
         N, n = self.ocp.N, self.ocp.nt
@@ -239,6 +257,8 @@ class RealTimeIteration:
         if not np.array_equal(ref, self._ref):
             self._ref[:] = ref
             if self._prepared:  # re-condense for the new reference
+                if ocp.manifold is not None:  # the chart Jacobians are the reference's
+                    self._eval()
                 self._condense()
         t_lin = t_cond = 0.0
         fresh = not self._started
@@ -256,7 +276,7 @@ class RealTimeIteration:
             self._condense()
             t_lin, t_cond = t1 - t0, time.perf_counter() - t1
         self._prepared = False
-        dx0 = x - self.X[0] if ocp.manifold is None else ocp.manifold.difference(x, self.X[0])
+        dx0 = x - self.X[0] if ocp.manifold is None else self._J[0] @ ocp.manifold.difference(x, self.X[0])
         status = "rti"
         kkt = math.inf
         it = 0
@@ -349,7 +369,7 @@ class RealTimeIteration:
         if self.ocp.manifold is None:
             self.X[1:] += alpha * dX
         else:
-            self.X[1:] = self.ocp.manifold.retract(self.X[1:], alpha * dX)
+            self.X[1:] = self._advance(self.X[1:], dX, alpha)
         self.U += alpha * dU.reshape(N, m)
 
     # ============================================================= SQP merit
@@ -385,7 +405,7 @@ class RealTimeIteration:
         slope = grad - mu * defect0
         alpha = 1.0
         for _ in range(30):
-            self.X[1:] = X0[1:] + alpha * dX if ocp.manifold is None else ocp.manifold.retract(X0[1:], alpha * dX)
+            self.X[1:] = X0[1:] + alpha * dX if ocp.manifold is None else self._advance(X0[1:], dX, alpha)
             self.U[:] = U0 + alpha * dU
             self._eval()
             phi = ocp.objective(self.X, self.U, self._ref) + mu * float(np.abs(self.D).sum())

@@ -76,6 +76,7 @@ from shinro_ctrl.controllers._nmpc_rti import RealTimeIteration
 from shinro_ctrl.controllers.base import Controller, default_input_bounds, default_state_bounds
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import InvalidArgument, MPCInfeasible, NonFiniteError
+from shinro_ctrl.multibody import configuration
 from shinro_ctrl.types import Weight
 from shinro_ctrl.validation import check_positive
 
@@ -217,6 +218,7 @@ class NonlinearMPC(Controller):
                 difference=plant.difference,
                 retract=plant.retract,
                 tangent_maps=plant.tangent_maps,
+                rotations=tuple(d for _, d in configuration.quaternion_slices(plant.tree)),  # type: ignore[attr-defined]
             )
         return cls(
             plant.symbolic(),
