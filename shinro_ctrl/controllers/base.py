@@ -205,16 +205,7 @@ def default_input_bounds(plant: Plant, u_min: Any, u_max: Any) -> tuple[Any, Any
     Returns:
         ``(u_min, u_max)``: arrays ``(m,)`` with ±inf where unbounded, or None per side.
     """
-    hook = getattr(plant, "input_bounds", None)
-    if (u_min is not None and u_max is not None) or not callable(hook):
-        return u_min, u_max
-    lo, hi = hook()
-    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
-    if u_min is None and np.isfinite(lo).any():
-        u_min = lo
-    if u_max is None and np.isfinite(hi).any():
-        u_max = hi
-    return u_min, u_max
+    return _plant_bounds(getattr(plant, "input_bounds", None), u_min, u_max)
 
 
 def default_state_bounds(plant: Plant, x_min: Any, x_max: Any) -> tuple[Any, Any]:
@@ -230,16 +221,22 @@ def default_state_bounds(plant: Plant, x_min: Any, x_max: Any) -> tuple[Any, Any
     Returns:
         ``(x_min, x_max)``: arrays ``(n,)`` with ±inf where unbounded, or None per side.
     """
-    hook = getattr(plant, "state_ranges", None)
-    if (x_min is not None and x_max is not None) or not callable(hook):
-        return x_min, x_max
+    return _plant_bounds(getattr(plant, "state_ranges", None), x_min, x_max)
+
+
+def _plant_bounds(
+    hook: Callable[[], tuple[np.ndarray, np.ndarray]] | None, lo_user: Any, hi_user: Any
+) -> tuple[Any, Any]:
+    """Each side the user left None from ``hook()`` (the plant's physical range) where it has a finite entry."""
+    if (lo_user is not None and hi_user is not None) or not callable(hook):
+        return lo_user, hi_user
     lo, hi = hook()
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
-    if x_min is None and np.isfinite(lo).any():
-        x_min = lo
-    if x_max is None and np.isfinite(hi).any():
-        x_max = hi
-    return x_min, x_max
+    if lo_user is None and np.isfinite(lo).any():
+        lo_user = lo
+    if hi_user is None and np.isfinite(hi).any():
+        hi_user = hi
+    return lo_user, hi_user
 
 
 def check_operating_point(plant: Plant, x0: np.ndarray, u0: np.ndarray, who: str) -> None:

@@ -12,23 +12,10 @@ import numpy as np
 
 from shinro_ctrl.estimators.full_state import FullState
 from shinro_ctrl.estimators.kalman import KalmanFilter
-from shinro_ctrl.export.parts import CArray, CField, Part
+from shinro_ctrl.export.parts import CArray, CField, Part, matvec
 from shinro_ctrl.export.registry import ExportContext, register_exporter
 
 __all__ = ["FullStateExporter", "KalmanFilterExporter", "matvec"]
-
-
-def matvec(out: str, table: str, vec: str, rows: int, cols: int, *, op: str = "=") -> str:
-    """C loop ``out[i] op Σ_j table[i, j] vec[j]`` (the sum accumulated from 0 in index order)."""
-    return (
-        f"    for (i = 0; i < {rows}; ++i) {{\n"
-        "        double s = 0.0;\n"
-        f"        for (j = 0; j < {cols}; ++j) {{\n"
-        f"            s += {table}[i * {cols} + j] * {vec}[j];\n"
-        "        }\n"
-        f"        {out}[i] {op} s;\n"
-        "    }\n"
-    )
 
 
 @register_exporter(FullState)

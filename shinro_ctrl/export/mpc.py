@@ -28,7 +28,7 @@ import scipy.linalg as sla
 
 from shinro_ctrl.controllers.mpc import LinearMPC
 from shinro_ctrl.errors import ExportError
-from shinro_ctrl.export.parts import CArray, CField, Part
+from shinro_ctrl.export.parts import CArray, CField, Part, matvec
 from shinro_ctrl.export.qp_c import ldp_fields, ldp_solver_code
 from shinro_ctrl.export.registry import ExportContext, register_exporter
 
@@ -123,19 +123,6 @@ def _check(ctrl: LinearMPC, ctx: ExportContext) -> None:
             "cannot export a LinearMPC with fallback = 'shift': the exported step reports an infeasible QP "
             "(status QP_INFEASIBLE, previous input held) instead; remove the fallback"
         )
-
-
-def _mv_code(table: str, rows: int, cols: int, vec: str, out: str, op: str = "+=") -> str:
-    """C loop ``out[i] op Σ_j table[i, j] vec[j]``."""
-    return (
-        f"    for (i = 0; i < {rows}; ++i) {{\n"
-        "        double s = 0.0;\n"
-        f"        for (j = 0; j < {cols}; ++j) {{\n"
-        f"            s += {table}[i * {cols} + j] * {vec}[j];\n"
-        "        }\n"
-        f"        {out}[i] {op} s;\n"
-        "    }\n"
-    )
 
 
 @register_exporter(LinearMPC)
@@ -275,8 +262,8 @@ class LinearMPCExporter:
             + "        ws->ctl_rho[i] = ref[i] - @N@_ctl_x0[i];\n"
             + "    }\n"
             + f"    for (i = 0; i < {m}; ++i) {{\n        u[i] = @N@_ctl_tc[i];\n    }}\n"
-            + _mv_code("@N@_ctl_Te", m, n, "ws->ctl_e0", "u")
-            + _mv_code("@N@_ctl_Tr", m, n, "ws->ctl_rho", "u")
+            + matvec("u", "@N@_ctl_Te", "ws->ctl_e0", m, n, op="+=")
+            + matvec("u", "@N@_ctl_Tr", "ws->ctl_rho", m, n, op="+=")
             + solve
             + "\n".join(clip)
             + f"\n    memcpy(ws->ctl_uprev, u, {m} * sizeof(double));\n"

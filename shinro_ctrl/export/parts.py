@@ -54,7 +54,7 @@ import numpy as np
 
 from shinro_ctrl.errors import ExportError
 
-__all__ = ["CArray", "CField", "Part", "c_number", "casadi_source", "fill", "format_array"]
+__all__ = ["CArray", "CField", "Part", "c_number", "casadi_source", "fill", "format_array", "matvec"]
 
 PLACEHOLDER = "@N@"
 UPPER = "@U@"
@@ -230,3 +230,16 @@ def casadi_source(functions: Sequence[object], name: str, stem: str) -> tuple[tu
         '#if defined(__GNUC__)\n#pragma GCC diagnostic ignored "-Wunused-parameter"\n#endif\n'
     )
     return (f"{stem}.c", pragma + c_text), (f"{stem}.h", h_text)
+
+
+def matvec(out: str, table: str, vec: str, rows: int, cols: int, *, op: str = "=") -> str:
+    """C loop ``out[i] op Σ_j table[i, j] vec[j]`` (the sum accumulated from 0 in index order)."""
+    return (
+        f"    for (i = 0; i < {rows}; ++i) {{\n"
+        "        double s = 0.0;\n"
+        f"        for (j = 0; j < {cols}; ++j) {{\n"
+        f"            s += {table}[i * {cols} + j] * {vec}[j];\n"
+        "        }\n"
+        f"        {out}[i] {op} s;\n"
+        "    }\n"
+    )
