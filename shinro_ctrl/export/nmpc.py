@@ -46,7 +46,8 @@ import casadi as cs
 import numpy as np
 
 from shinro_ctrl.controllers._nmpc_ipopt import IpoptSolver
-from shinro_ctrl.controllers._nmpc_ocp import stage_function
+from shinro_ctrl.controllers._nmpc_ocp import riccati_functions, stage_function
+from shinro_ctrl.controllers._nmpc_rti import RealTimeIteration
 from shinro_ctrl.controllers.nmpc import NonlinearMPC
 from shinro_ctrl.errors import ExportError, ShinroError
 from shinro_ctrl.export.parts import CArray, CField, Part, casadi_source
@@ -97,7 +98,7 @@ def _cold_start(ctrl: NonlinearMPC, ctx: ExportContext) -> tuple[np.ndarray, np.
 
 def _renamed(f: cs.Function, name: str) -> cs.Function:
     """``f`` under another name (the same expression graph)."""
-    args = f.sx_in()
+    args = f.mx_in() if f.is_a("MXFunction") else f.sx_in()
     return cs.Function(name, args, f.call(args), f.name_in(), f.name_out())
 
 
@@ -115,7 +116,19 @@ class NonlinearMPCExporter:
         n, m, N = ocp.n, ocp.m, ocp.N
         name = ctx.name
         stage = _renamed(stage_function(ocp.F, n, m), f"{name}_nmpc_stage")
-        c_src, h_src = casadi_source([stage], name, "@N@_nmpc")
+        # the Python RTI's Riccati step first (RealTimeIteration._riccati_step) when it takes it: the same
+        # CasADi functions, so the unconstrained step (where the condensed Hessian is ill-conditioned) agrees
+        strategy = obj.strategy
+        riccati = isinstance(strategy, RealTimeIteration) and strategy.riccati
+        funcs = [stage]
+        if riccati:
+            back, fwd = riccati_functions(n, m, N, codegen=False)
+            funcs += [_renamed(back, f"{name}_nmpc_riccati"), _renamed(fwd, f"{name}_nmpc_policy")]
+        c_src, h_src = casadi_source(funcs, name, "@N@_nmpc")
+        sz_arg = max(f.sz_arg() for f in funcs)
+        sz_res = max(f.sz_res() for f in funcs)
+        sz_w = max(f.sz_w() for f in funcs)
+        sz_iw = max(f.sz_iw() for f in funcs)
         Xc, Uc = _cold_start(obj, ctx)
         x_min, x_max = np.asarray(o.x_min, dtype=float), np.asarray(o.x_max, dtype=float)
         bidx = np.flatnonzero(np.isfinite(x_min) | np.isfinite(x_max))
@@ -192,12 +205,24 @@ class NonlinearMPCExporter:
             CField("qy", kmax, "solve buffer"),
             CField("qr", kmax, "solve buffer"),
             CField("iters", 0, "active-set iterations of the last step", ctype="int"),
-            CField("cw", max(stage.sz_w(), 1), "CasADi work array"),
-            CField("ciw", max(stage.sz_iw(), 1), "CasADi integer work array", ctype="long long int"),
+            CField("cw", max(sz_w, 1), "CasADi work array"),
+            CField("ciw", max(sz_iw, 1), "CasADi integer work array", ctype="long long int"),
         ]
+        if riccati:
+            tables += [
+                CArray("Wt", np.swapaxes(ocp.W, 1, 2), "the stage weights transposed (the Riccati functions' W)"),
+                CArray("Rt", ocp.R.T, "R transposed"),
+            ]
+            fields += [
+                CField("e", N * n, "Riccati: x_bar_(k+1) - ref"),
+                CField("du", nu, "Riccati: u_bar_k - u0"),
+                CField("KK", N * (n + 1) * m, "Riccati: the policy blocks [K_k, kappa_k]"),
+                CField("rdX", N * n, "Riccati: the state steps"),
+                CField("rg", nu, "Riccati: the gradient at dU = 0"),
+            ]
         if nr:
             fields.append(CField("Gr", nr * nu, "rows of Gamma of the bounded states (N w x N m)"))
-        code = _code(n, m, N, w, soft, w1, w2, stage.sz_arg(), stage.sz_res())
+        code = _code(n, m, N, w, soft, w1, w2, sz_arg, sz_res, riccati)
         summary = (
             f"nonlinear MPC by real-time iterations, horizon {N}: CasADi's C of the stage linearization, the "
             f"condensed QP ({nvar} variables, {mt} constraints) solved exactly by a dual active-set method"
@@ -228,7 +253,9 @@ class NonlinearMPCExporter:
         )
 
 
-def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_arg: int, sz_res: int) -> str:
+def _code(
+    n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_arg: int, sz_res: int, riccati: bool
+) -> str:
     """The C of the step (module docstring); sizes are literals."""
     nu = N * m
     nr = N * w
@@ -391,6 +418,22 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         )
     else:
         ensure_rows = "(void)0;"
+    ric_call = ric_label = ric_end = ""
+    if riccati:
+        ric_call = f"""    rc = @N@_ctl_riccati(ws, ref);
+    if (rc == 3) {{
+        ws->ctl_started = 0;
+        return @U@_NONFINITE_RESULT;
+    }}
+    if (rc == 0) {{ /* the unconstrained minimizer meets every bound: the QP's solution (Python's _riccati_step) */
+        memcpy(ws->ctl_X, x_hat, {n} * sizeof(double));
+        for (i = 0; i < {N * n}; ++i) {{
+            ws->ctl_X[{n} + i] += ws->ctl_rdX[i];
+        }}
+        goto applied;
+    }}
+"""
+        ric_end = "applied:\n"
     init_ws = (
         f"""    /* DAQP starts with every slack at its bound s = 0 (the Python RTI's sense ACTIVE | LOWER) */
     for (p = 0; p < {ns}; ++p) {{
@@ -402,6 +445,67 @@ def _code(n: int, m: int, N: int, w: int, soft: bool, w1: float, w2: float, sz_a
         if soft
         else "    ws->ctl_nW = 0;\n"
     )
+    ric_fn = ""
+    if riccati:
+        xcheck = (
+            f"""    for (k = 0; k < {N}; ++k) {{
+        for (i = 0; i < {w}; ++i) {{
+            int b = @N@_ctl_bidx[i];
+            double xp = ws->ctl_X[(k + 1) * {n} + b] + ws->ctl_rdX[k * {n} + b];
+            if (!(xp >= @N@_ctl_x_lo[i] && xp <= @N@_ctl_x_hi[i])) {{
+                return 1;
+            }}
+        }}
+    }}
+"""
+            if w
+            else ""
+        )
+        ric_fn = f"""
+/* ---- the Riccati step (the Python RTI's _riccati_step): the unconstrained minimizer by the CasADi C of
+   riccati_functions; 0 when it meets every bound (then it is the QP's solution), 1 when not, 3 on failure ---- */
+static int @N@_ctl_riccati(@N@_workspace *ws, const double *ref) {{
+    const double *arg[{max(sz_arg, 7)}];
+    double *res[{max(sz_res, 3)}];
+    int i, k;
+    for (k = 0; k < {N}; ++k) {{
+        for (i = 0; i < {n}; ++i) {{
+            ws->ctl_e[k * {n} + i] = ws->ctl_X[(k + 1) * {n} + i] - ref[i];
+        }}
+    }}
+    for (i = 0; i < {N * m}; ++i) {{
+        ws->ctl_du[i] = ws->ctl_U[i] - @N@_ctl_u0[i % {m}];
+    }}
+    arg[0] = ws->ctl_G;
+    arg[1] = @N@_ctl_Wt;
+    arg[2] = @N@_ctl_Rt;
+    arg[3] = ws->ctl_e;
+    arg[4] = ws->ctl_du;
+    res[0] = ws->ctl_KK;
+    if (@N@_nmpc_riccati(arg, res, ws->ctl_ciw, ws->ctl_cw, 0) != 0) {{
+        return 3;
+    }}
+    arg[1] = ws->ctl_KK;
+    arg[2] = @N@_ctl_Wt;
+    arg[3] = @N@_ctl_Rt;
+    arg[4] = ws->ctl_e;
+    arg[5] = ws->ctl_du;
+    arg[6] = ws->ctl_dx0;
+    res[0] = ws->ctl_dU;
+    res[1] = ws->ctl_rdX;
+    res[2] = ws->ctl_rg;
+    if (@N@_nmpc_policy(arg, res, ws->ctl_ciw, ws->ctl_cw, 0) != 0) {{
+        return 3;
+    }}
+    for (i = 0; i < {N * m}; ++i) {{
+        double lo = @N@_ctl_u_lo[i % {m}] - ws->ctl_U[i], hi = @N@_ctl_u_hi[i % {m}] - ws->ctl_U[i];
+        if (!(ws->ctl_dU[i] >= lo && ws->ctl_dU[i] <= hi)) {{
+            return 1;
+        }}
+    }}
+{xcheck}    return 0;
+}}
+"""
     return f"""/* a . b over len entries, in four partial sums (independent chains: the compiler may overlap them) */
 static inline double @N@_ctl_dot(const double *a, const double *b, int len) {{
     double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
@@ -1061,7 +1165,7 @@ static int @N@_ctl_qp(@N@_workspace *ws) {{
     memcpy(ws->ctl_dU, ws->ctl_z, {nu} * sizeof(double));
     return rc;
 }}
-
+{ric_fn}
 void @N@_ctl_reset(@N@_workspace *ws) {{
     ws->ctl_started = 0;
     ws->ctl_nW = 0;
@@ -1081,10 +1185,10 @@ int @N@_ctl_step(@N@_workspace *ws, const double *x_hat, const double *ref, doub
         ws->ctl_started = 0;
         return @U@_NONFINITE_RESULT;
     }}
-    @N@_ctl_condense(ws, ref);
     for (i = 0; i < {n}; ++i) {{
         ws->ctl_dx0[i] = x_hat[i] - ws->ctl_X[i];
     }}
+{ric_call}    @N@_ctl_condense(ws, ref);
     rc = @N@_ctl_qp(ws);
     if (rc == 1 || rc == 3) {{
         ws->ctl_started = 0; /* Python starts cold after a failed QP */
@@ -1093,7 +1197,7 @@ int @N@_ctl_step(@N@_workspace *ws, const double *x_hat, const double *ref, doub
     if (rc == 2) {{
         status |= @U@_SOLVER_MAX_ITER;
     }}
-    /* the full step: dx_(k+1) = A_k dx_k + B_k du_k + d_k from dx_0 */
+{ric_label}    /* the full step: dx_(k+1) = A_k dx_k + B_k du_k + d_k from dx_0 */
     memcpy(ws->ctl_dx, ws->ctl_dx0, {n} * sizeof(double));
     memcpy(ws->ctl_X, x_hat, {n} * sizeof(double));
     for (k = 0; k < {N}; ++k) {{
@@ -1112,7 +1216,7 @@ int @N@_ctl_step(@N@_workspace *ws, const double *x_hat, const double *ref, doub
             ws->ctl_X[(k + 1) * {n} + i] += ws->ctl_dx[i];
         }}
     }}
-    for (i = 0; i < {nu}; ++i) {{
+{ric_end}    for (i = 0; i < {nu}; ++i) {{
         ws->ctl_U[i] += ws->ctl_dU[i];
     }}
     for (i = 0; i < {m}; ++i) {{
