@@ -46,7 +46,8 @@ def test_forced_riccati_step_equals_condensed_qp(u_max):
         assert clamped > 0  # the fallback to the condensed QP was exercised
 
 
-def test_riccati_option_is_validated_in_one_line():
+@pytest.mark.parametrize("kw", [{"riccati": "yes"}, {"riccati": True, "solver": "osqp"}])
+def test_riccati_option_is_validated_in_one_line(kw):
     with pytest.raises(InvalidArgument, match="riccati") as err:
-        NonlinearMPC.from_plant(CartPole(), Q_CP, R_CP, horizon=4, riccati="yes")
+        NonlinearMPC.from_plant(CartPole(), Q_CP, R_CP, horizon=4, **kw)
     assert "\n" not in str(err.value)

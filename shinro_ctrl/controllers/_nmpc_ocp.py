@@ -175,6 +175,8 @@ class NMPCOptions:
             raise InvalidArgument(f"codegen must be true, false or omitted (automatic), got {self.codegen!r}")
         if self.riccati is not None and not isinstance(self.riccati, (bool, np.bool_)):
             raise InvalidArgument(f"riccati must be true, false or omitted (automatic), got {self.riccati!r}")
+        if self.riccati and self.solver in ("osqp", "ipopt"):
+            raise InvalidArgument(f"riccati = true needs the condensed QP (solver 'daqp'), got solver {self.solver!r}")
         if isinstance(self.terminal_cost, str) and self.terminal_cost not in ("Q", "lqr"):
             raise InvalidArgument(f"terminal_cost must be 'Q', 'lqr' or an (n, n) matrix, got {self.terminal_cost!r}")
         u_min, u_max = bound_pair("u_min", "u_max", self.u_min, self.u_max, m)
