@@ -106,6 +106,14 @@ class NMPCOptions:
             hundred gain little and skip the compiler). With it compiled, a
             large condensed QP without state bounds takes the compiled
             Riccati step first (:func:`riccati_functions`; docs/nmpc.md).
+        riccati: Take that Riccati step first (``solver = "daqp"``; the
+            Riccati functions compiled, or in the virtual machine when no
+            compiler works): ``True``, ``False``, or ``None`` (default) = as
+            ``codegen`` says above. Its unconstrained step does not form the
+            condensed Hessian, whose condition number reaches 10⁸–10⁹ on a
+            swing-up (one rounding of ``H`` moves ``u₀`` by ~1e-8): ``True``
+            makes that step well conditioned, and the exported C takes the
+            same step (docs/deploying.md).
         state_names: Names of the states, for messages (default ``x[i]``).
         input_names: Names of the inputs, for messages (default ``u[i]``).
     """
@@ -131,6 +139,7 @@ class NMPCOptions:
     cold_start: str = "ipopt"
     hold: int = 1
     codegen: bool | None = None
+    riccati: bool | None = None
     state_names: Sequence[str] | None = None
     input_names: Sequence[str] | None = None
 
@@ -164,6 +173,10 @@ class NMPCOptions:
             raise InvalidArgument(f"soft_weight_quad must be > 0 and finite, got {self.soft_weight_quad!r}")
         if self.codegen is not None and not isinstance(self.codegen, (bool, np.bool_)):
             raise InvalidArgument(f"codegen must be true, false or omitted (automatic), got {self.codegen!r}")
+        if self.riccati is not None and not isinstance(self.riccati, (bool, np.bool_)):
+            raise InvalidArgument(f"riccati must be true, false or omitted (automatic), got {self.riccati!r}")
+        if self.riccati and self.solver in ("osqp", "ipopt"):
+            raise InvalidArgument(f"riccati = true needs the condensed QP (solver 'daqp'), got solver {self.solver!r}")
         if isinstance(self.terminal_cost, str) and self.terminal_cost not in ("Q", "lqr"):
             raise InvalidArgument(f"terminal_cost must be 'Q', 'lqr' or an (n, n) matrix, got {self.terminal_cost!r}")
         u_min, u_max = bound_pair("u_min", "u_max", self.u_min, self.u_max, m)

@@ -87,7 +87,8 @@ class RealTimeIteration:
         self._ipopt: IpoptSolver | None = None  # the cold start's, built on first use
         # large condensed QPs with compiled stage functions: the Riccati step first (_riccati_step; in CasADi's
         # virtual machine the recursion costs more than the condensing it saves)
-        self.riccati = ocp.compiled and isinstance(self.qp, CondensedLTV) and not self.qp.direct
+        auto = ocp.compiled and not self.qp.direct if isinstance(self.qp, CondensedLTV) else False
+        self.riccati = isinstance(self.qp, CondensedLTV) and (auto if o.riccati is None else bool(o.riccati))
         self._built = False
         if self.riccati:
             self._init_riccati()
