@@ -1,0 +1,103 @@
+"""Contacts on a free-joint base: the quadruped on its four point feet (tangent-space constrained dynamics).
+
+References are independent of the code under test: the KKT system assembled from MuJoCo's own mass matrix,
+smooth forces, ``mj_jac`` and ``mj_jacDot``; and central differences on the manifold (``q ⊕ h eₖ``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from shinro_ctrl.engine.model_tree import read_contact_frames, read_model_tree
+from shinro_ctrl.multibody.configuration import integrate
+from shinro_ctrl.multibody.constraints import ConstrainedDynamics
+from shinro_ctrl.multibody.contacts import contact_constraints
+from shinro_ctrl.multibody.rigid_body import RigidBodyTree
+
+ASSET = Path(__file__).resolve().parent.parent / "assets" / "quadruped.xml"
+FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+
+
+@pytest.fixture(scope="module")
+def quadruped():
+    model = mujoco.MjModel.from_xml_path(str(ASSET))
+    tree = read_model_tree(str(ASSET))
+    rb = RigidBodyTree(tree)
+    frames = read_contact_frames(str(ASSET))
+    q0 = model.key_qpos[model.key("stand").id].copy()
+    cons = contact_constraints(rb, [frames[f] for f in FEET], q0)
+    cd = ConstrainedDynamics(rb, cons, active=tuple(range(model.nu)), q_ref=q0)
+    return model, tree, cd
+
+
+def _random_state(cd: ConstrainedDynamics, rng: np.random.Generator) -> np.ndarray:
+    x = np.concatenate(
+        [cd.q_ref[list(cd.independent_q)] + 0.05 * rng.standard_normal(cd.ni), rng.standard_normal(cd.ni)]
+    )
+    return cd.complete(x)
+
+
+def test_independent_directions_are_joints_and_the_base_follows(quadruped):
+    model, _, cd = quadruped
+    assert cd.nq == model.nq and cd.nv == model.nv and cd.ni == model.nv - 12
+    assert set(range(6)) <= set(cd.dependent)  # the free joint's six tangent directions are dependent
+
+
+def test_constrained_accelerations_match_a_kkt_of_mujocos_own_terms(quadruped):
+    model, _, cd = quadruped
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(7)
+    nv = model.nv
+    for _ in range(3):
+        full = _random_state(cd, rng)
+        q, v = full[: model.nq], full[model.nq :]
+        u = 5.0 * rng.standard_normal(model.nu)
+        data.qpos[:], data.qvel[:], data.ctrl[:] = q, v, u
+        mujoco.mj_forward(model, data)
+        M = np.zeros((nv, nv))
+        col = np.zeros(nv)
+        for k in range(nv):  # MuJoCo's own mass matrix (armature included), column by column
+            mujoco.mj_mulM(model, data, col, np.eye(nv)[k].copy())
+            M[:, k] = col
+        J, Jdot = np.zeros((12, nv)), np.zeros((12, nv))
+        for k, foot in enumerate(FEET):
+            g = model.geom(foot)
+            point = data.geom_xpos[g.id]
+            jr = np.zeros((3, nv))
+            mujoco.mj_jac(model, data, J[3 * k : 3 * k + 3], jr, point, g.bodyid[0])
+            mujoco.mj_jacDot(model, data, Jdot[3 * k : 3 * k + 3], jr, point, g.bodyid[0])
+        kkt = np.block([[M, J.T], [J, np.zeros((12, 12))]])
+        ref = np.linalg.lstsq(kkt, np.concatenate([data.qfrc_smooth, -Jdot @ v]), rcond=None)[0][:nv]
+        qdd, _ = cd.accelerations(full, u)
+        assert np.abs(J @ v).max() < 1e-9  # the state is on the constraint (velocity level)
+        np.testing.assert_allclose(qdd, ref, atol=1e-9 * max(1.0, np.abs(ref).max()))
+
+
+def test_tangent_jacobians_match_central_differences_on_the_manifold(quadruped):
+    _, tree, cd = quadruped
+    rng = np.random.default_rng(3)
+    full = _random_state(cd, rng)
+    q = full[: cd.nq]
+    phi0, J = cd.constraint_jacobian(q)
+    assert np.abs(phi0).max() < 1e-9
+    h = 1e-6
+    fd = np.zeros_like(J)
+    for k in range(cd.nv):
+        e = np.zeros(cd.nv)
+        e[k] = h
+        fd[:, k] = (
+            cd.constraint_jacobian(integrate(tree, q, e))[0] - cd.constraint_jacobian(integrate(tree, q, -e))[0]
+        ) / (2 * h)
+    np.testing.assert_allclose(J, fd, atol=1e-8)
+    # the reduced dynamics' A, B against central differences of xdot (completion on the manifold inside)
+    x, u = cd.reduce(full), rng.standard_normal(12)
+    A, B = cd.jacobians(x, u)
+    h = 1e-5
+    Afd = np.column_stack([(cd.xdot(x + h * e, u) - cd.xdot(x - h * e, u)) / (2 * h) for e in np.eye(x.size)])
+    Bfd = np.column_stack([(cd.xdot(x, u + h * e) - cd.xdot(x, u - h * e)) / (2 * h) for e in np.eye(u.size)])
+    np.testing.assert_allclose(A, Afd, atol=1e-5 * max(1.0, np.abs(A).max()))
+    np.testing.assert_allclose(B, Bfd, atol=1e-6 * max(1.0, np.abs(B).max()))
