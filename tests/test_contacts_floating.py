@@ -12,26 +12,21 @@ import mujoco
 import numpy as np
 import pytest
 
-from shinro_ctrl.engine.model_tree import read_contact_frames, read_model_tree
 from shinro_ctrl.multibody.configuration import integrate
 from shinro_ctrl.multibody.constraints import ConstrainedDynamics
-from shinro_ctrl.multibody.contacts import contact_constraints
-from shinro_ctrl.multibody.rigid_body import RigidBodyTree
+from shinro_ctrl.plants.mjcf import MjcfPlant
+from shinro_ctrl.sim import RobotSim
 
 ASSET = Path(__file__).resolve().parent.parent / "assets" / "quadruped.xml"
 FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+CONFIG = Path(__file__).resolve().parent.parent / "configs" / "quadruped_stand_lqr_mujoco.toml"
 
 
 @pytest.fixture(scope="module")
 def quadruped():
     model = mujoco.MjModel.from_xml_path(str(ASSET))
-    tree = read_model_tree(str(ASSET))
-    rb = RigidBodyTree(tree)
-    frames = read_contact_frames(str(ASSET))
-    q0 = model.key_qpos[model.key("stand").id].copy()
-    cons = contact_constraints(rb, [frames[f] for f in FEET], q0)
-    cd = ConstrainedDynamics(rb, cons, active=tuple(range(model.nu)), q_ref=q0)
-    return model, tree, cd
+    plant = MjcfPlant(str(ASSET), contacts=list(FEET))
+    return model, plant.tree, plant.constraints, plant
 
 
 def _random_state(cd: ConstrainedDynamics, rng: np.random.Generator) -> np.ndarray:
@@ -42,13 +37,13 @@ def _random_state(cd: ConstrainedDynamics, rng: np.random.Generator) -> np.ndarr
 
 
 def test_independent_directions_are_joints_and_the_base_follows(quadruped):
-    model, _, cd = quadruped
+    model, _, cd, _ = quadruped
     assert cd.nq == model.nq and cd.nv == model.nv and cd.ni == model.nv - 12
     assert set(range(6)) <= set(cd.dependent)  # the free joint's six tangent directions are dependent
 
 
 def test_constrained_accelerations_match_a_kkt_of_mujocos_own_terms(quadruped):
-    model, _, cd = quadruped
+    model, _, cd, _ = quadruped
     data = mujoco.MjData(model)
     rng = np.random.default_rng(7)
     nv = model.nv
@@ -78,7 +73,7 @@ def test_constrained_accelerations_match_a_kkt_of_mujocos_own_terms(quadruped):
 
 
 def test_tangent_jacobians_match_central_differences_on_the_manifold(quadruped):
-    _, tree, cd = quadruped
+    _, tree, cd, _ = quadruped
     rng = np.random.default_rng(3)
     full = _random_state(cd, rng)
     q = full[: cd.nq]
@@ -101,3 +96,44 @@ def test_tangent_jacobians_match_central_differences_on_the_manifold(quadruped):
     Bfd = np.column_stack([(cd.xdot(x, u + h * e) - cd.xdot(x, u - h * e)) / (2 * h) for e in np.eye(u.size)])
     np.testing.assert_allclose(A, Afd, atol=1e-5 * max(1.0, np.abs(A).max()))
     np.testing.assert_allclose(B, Bfd, atol=1e-6 * max(1.0, np.abs(B).max()))
+
+
+def _mujoco_feet(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """MuJoCo's point Jacobians ``(12, nv)`` of the four foot centres (``mj_jac``)."""
+    J = np.zeros((12, model.nv))
+    for k, foot in enumerate(FEET):
+        g = model.geom(foot)
+        mujoco.mj_jac(model, data, J[3 * k : 3 * k + 3], None, data.geom_xpos[g.id], g.bodyid[0])
+    return J
+
+
+def test_standing_equilibrium_balances_mujocos_forces_inside_the_cones_and_ranges(quadruped):
+    model, _, cd, plant = quadruped
+    eq = plant.standing_equilibrium()
+    data = mujoco.MjData(model)
+    data.qpos[:], data.ctrl[:] = eq.q, eq.u
+    mujoco.mj_forward(model, data)
+    lam = np.concatenate([eq.forces[f] for f in FEET])
+    # static balance with MuJoCo's own terms: qfrc_smooth + Jᵀλ = 0 (the free base's six rows included)
+    balance = data.qfrc_smooth + _mujoco_feet(model, data).T @ lam
+    assert np.abs(balance).max() < 1e-7 * 9.81 * model.body_mass.sum()
+    np.testing.assert_allclose(lam[2::3].sum(), 9.81 * model.body_mass.sum(), rtol=1e-9)  # the weight
+    for f in FEET:  # inside the friction cones (exact cone, with a margin)
+        w = eq.forces[f]
+        assert w[2] > 0.0 and np.hypot(w[0], w[1]) < 0.9 * w[2]
+        assert eq.friction_margin[f] > 0.0
+    lo, hi = plant.input_bounds()
+    assert np.all(eq.u >= lo) and np.all(eq.u <= hi)
+    np.testing.assert_allclose(plant.equilibrium()[1], eq.u)  # the plant's u0
+    assert np.abs(cd.xdot(plant.equilibrium()[0], eq.u)).max() < 1e-9  # and it is an equilibrium
+
+
+def test_quadruped_stand_lqr_holds_and_recovers_from_a_push_in_mujoco():
+    """The shipped scenario: LQR on the contact-constrained model, MuJoCo's own contacts, 30 N for 0.1 s sideways."""
+    result = RobotSim.from_config(str(CONFIG)).run(progress=False)
+    m = result.metrics
+    push = np.asarray(result.disturbance)
+    assert np.abs(push).max() >= 30.0  # the push was applied
+    assert m["stable"] and m["trunk_height_error"] < 0.02 and m["trunk_orientation_error"] < 0.1
+    assert m["foot_slip"] < 0.03 and m["friction_cone_fraction"] == 1.0
+    assert m["final_error"] < 0.05
