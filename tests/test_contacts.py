@@ -203,7 +203,7 @@ def test_bad_contacts():
 
 
 def test_a_free_base_on_one_point_foot_is_refused_in_one_line(tmp_path):
-    """One point foot cannot fix a free base's rotation (supported: enough contacts; tests/test_contacts_floating.py)."""
+    """One point foot cannot fix a free base's rotation (enough contacts: tests/test_contacts_floating.py)."""
     path = tmp_path / "free.xml"
     path.write_text(
         '<mujoco><worldbody><body name="b"><freejoint name="root"/><geom name="s" type="sphere" size="0.1"/>'
