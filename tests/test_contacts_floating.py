@@ -12,8 +12,11 @@ import mujoco
 import numpy as np
 import pytest
 
+from shinro_ctrl.engine.model_tree import read_contact_frames, read_model_tree
 from shinro_ctrl.multibody.configuration import integrate
-from shinro_ctrl.multibody.constraints import ConstrainedDynamics
+from shinro_ctrl.multibody.constraints import ConstrainedDynamics, Constraint
+from shinro_ctrl.multibody.contacts import contact_constraints
+from shinro_ctrl.multibody.rigid_body import RigidBodyTree
 from shinro_ctrl.plants.mjcf import MjcfPlant
 from shinro_ctrl.sim import RobotSim
 
@@ -137,3 +140,50 @@ def test_quadruped_stand_lqr_holds_and_recovers_from_a_push_in_mujoco():
     assert m["stable"] and m["trunk_height_error"] < 0.02 and m["trunk_orientation_error"] < 0.1
     assert m["foot_slip"] < 0.03 and m["friction_cone_fraction"] == 1.0
     assert m["final_error"] < 0.05
+
+
+TRIPOD_WITH_COUPLING = """
+<mujoco>
+  <worldbody>
+    <body name="base" pos="0 0 0.1">
+      <freejoint name="root"/>
+      <geom name="body" type="box" size="0.2 0.2 0.05" mass="2"/>
+      <geom name="f1" type="sphere" size="0.02" pos="0.2 0 -0.05" mass="0.1"/>
+      <geom name="f2" type="sphere" size="0.02" pos="-0.1 0.15 -0.05" mass="0.1"/>
+      <geom name="f3" type="sphere" size="0.02" pos="-0.1 -0.15 -0.05" mass="0.1"/>
+      <body name="arm" pos="0 0 0.05">
+        <joint name="h1" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.02" mass="0.3"/>
+        <body name="hand" pos="0.2 0 0">
+          <joint name="h2" axis="0 1 0"/>
+          <geom type="capsule" fromto="0 0 0 0.15 0 0" size="0.02" mass="0.2"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor joint="h1"/></actuator>
+</mujoco>
+"""
+
+
+def test_a_joint_coupling_behind_a_free_root_reads_its_joints_qpos_entries(tmp_path):
+    """``h2 = ½ h1`` on a base held by three point feet: the coupling reads ``qpos[jnt_qposadr]``, not ``qpos[j]``."""
+    path = tmp_path / "tripod.xml"
+    path.write_text(TRIPOD_WITH_COUPLING)
+    model = mujoco.MjModel.from_xml_path(str(path))
+    tree = read_model_tree(str(path))
+    rb = RigidBodyTree(tree)
+    frames = read_contact_frames(str(path))
+    j1, j2 = model.joint("h1").id, model.joint("h2").id
+    q0 = model.qpos0.copy()
+    coupling = Constraint("joint", label="h2 = h1 / 2", joint1=j2, joint2=j1, polycoef=(0.0, 0.5, 0.0, 0.0, 0.0))
+    cons = [coupling, *contact_constraints(rb, [frames[f] for f in ("f1", "f2", "f3")], q0)]
+    cd = ConstrainedDynamics(rb, cons, active=(0,), q_ref=q0)
+    a1, a2 = model.jnt_qposadr[j1], model.jnt_qposadr[j2]
+    d1, d2 = model.jnt_dofadr[j1], model.jnt_dofadr[j2]
+    assert cd.independent == (d1,)
+    full = cd.complete(np.array([0.3, -0.7]))
+    q, v = full[: model.nq], full[model.nq :]
+    assert q[a2] == pytest.approx(0.5 * q[a1], abs=1e-12) and v[d2] == pytest.approx(0.5 * v[d1], abs=1e-12)
+    np.testing.assert_allclose(q[:7], q0[:7], atol=1e-12)  # the base stays on its three feet
+    np.testing.assert_allclose(v[:6], 0.0, atol=1e-12)

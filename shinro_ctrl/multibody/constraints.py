@@ -154,11 +154,11 @@ class Constraint:
     def residual(self, rb: RigidBodyTree, q: Sequence[cs.SX]) -> list[cs.SX]:
         """``φ(q)`` as a list of ``rows`` scalars (CasADi ``SX``)."""
         if self.kind == "joint":
-            joints = rb.tree.joints
-            s1 = q[self.joint1] - joints[self.joint1].qpos0
+            joints, adr = rb.tree.joints, rb.tree.qposadr  # joint index -> its qpos entry (≠ with a free root)
+            s1 = q[adr[self.joint1]] - joints[self.joint1].qpos0
             if self.joint2 < 0:
                 return [s1 - self.polycoef[0]]
-            s2 = q[self.joint2] - joints[self.joint2].qpos0
+            s2 = q[adr[self.joint2]] - joints[self.joint2].qpos0
             return [s1 - sum(c * s2**k for k, c in enumerate(self.polycoef) if c != 0.0)]
         R1, p1 = rb.frame_pose(q, self.body1, self.pos1, self.quat1, CASADI_OPS)
         R2, p2 = rb.frame_pose(q, self.body2, self.pos2, self.quat2, CASADI_OPS)
@@ -190,6 +190,11 @@ class _Numeric:
     """A CasADi function evaluated on numpy arrays through one buffer (a lock serializes threads)."""
 
     def __init__(self, fun: cs.Function):
+        if not all(fun.sparsity_out(k).is_dense() for k in range(fun.n_out())):
+            # the buffers hold dense arrays: a structurally sparse output (e.g. a null-space basis with
+            # structural zeros) would be written as its nonzeros only, in the wrong places
+            sx_in = fun.sx_in()
+            fun = cs.Function(fun.name(), sx_in, [cs.densify(o) for o in fun.call(sx_in)])
         self.fun = fun
         self.args = [np.zeros(fun.size1_in(k) * fun.size2_in(k)) for k in range(fun.n_in())]
         self.outs = [np.zeros(fun.size1_out(k) * fun.size2_out(k)) for k in range(fun.n_out())]
