@@ -435,7 +435,12 @@ class MjcfPlant(Plant):
     :meth:`retract`, :meth:`tangent_maps`; MuJoCo's ``mj_differentiatePos``
     / ``mj_integratePos`` and ``mjd_transitionFD`` conventions). A user's
     quaternion within :data:`QUATERNION_TOLERANCE` of unit norm is
-    normalized with a warning, else refused.
+    normalized with a warning, else refused. With ``contacts`` on a floating
+    base (a legged robot standing on its feet) the constrained dynamics live in
+    the tangent space and the base's rotations are always dependent, so the
+    state is again a flat ``[q_I; v_I]`` of joint coordinates (the trunk's pose
+    is completed from the feet) and :attr:`floating` is False; a base that its
+    contacts leave free to rotate is refused in one line.
 
     Args:
         model: MJCF/URDF path, or the name of a shipped asset; default the
