@@ -202,14 +202,15 @@ def test_bad_contacts():
         MjcfPlant(BIPED, contacts="lfoot")
 
 
-def test_contacts_on_a_free_joint_are_refused_in_one_line(tmp_path):
+def test_a_free_base_on_one_point_foot_is_refused_in_one_line(tmp_path):
+    """One point foot cannot fix a free base's rotation (enough contacts: tests/test_contacts_floating.py)."""
     path = tmp_path / "free.xml"
     path.write_text(
         '<mujoco><worldbody><body name="b"><freejoint name="root"/><geom name="s" type="sphere" size="0.1"/>'
         '<body name="leg" pos="0 0 -0.2"><joint name="hip" axis="0 1 0"/><geom name="foot" type="sphere" '
         'size="0.05"/></body></body></worldbody><actuator><motor joint="hip"/></actuator></mujoco>'
     )
-    with pytest.raises(InvalidArgument, match=r"ball or free joints \('root' \(free\)\) are not supported yet") as info:
+    with pytest.raises(InvalidArgument, match=r"leave 1 rotation\(s\) of a ball or free joint free") as info:
         MjcfPlant(path, contacts=["foot"])
     assert "\n" not in str(info.value)
 

@@ -54,6 +54,16 @@ the others are the *independent* joints ``I``. The design state is
   calls) and stays on the reference's assembly branch;
 * ``q̇ = S(q) q̇_I`` with the null-space basis ``S = [I; −J_D⁻¹ J_I]`` (rows ordered by ``I``, ``D``).
 
+**Floating bases (ball and free joints).** With quaternions ``nq ≠ nv``: everything above lives in
+the tangent space. ``q̇`` is replaced by the tangent velocity ``v (nv,)`` (MuJoCo's ``qvel``), with
+``q̇ = E(q) v``; the Jacobian is ``J = ∂φ/∂q · E(q) (r, nv)`` and ``J̇v = ∂(J v)/∂q · E(q) v``, both
+exact; the KKT system is on ``(M, J)`` over ``nv``; the pivoted QR chooses among the ``nv`` tangent
+directions, a ball's or free joint's rotations always dependent (refused, in one line, when the
+constraints leave one free), so the independent directions are plain coordinates (``q̇_I = v_I``);
+Newton steps on the dependent directions are taken on the manifold, ``q ← q ⊕ δ_D``
+(:func:`~shinro_ctrl.multibody.configuration.integrate`), and ``∂q̈_I/∂q_I = (∂q̈_I/∂q) E S``.
+Without quaternions ``E = I`` and this is the formulation above.
+
 The reduced dynamics ``ẋ = [q̇_I; q̈_I(q, S q̇_I, u)]`` and their exact Jacobians
 come from the implicit function theorem: on the constraint manifold
 ``∂q/∂q_I = S``, so ``∂q̈_I/∂q_I = (∂q̈_I/∂q) S`` with every term an explicit
@@ -76,7 +86,9 @@ import scipy.linalg
 
 from shinro_ctrl._scalar_algebra import _ldl_solve
 from shinro_ctrl.errors import InvalidArgument
+from shinro_ctrl.multibody.configuration import _linear, integrate, integrate_sx, qpos_rate, quaternion_slices
 from shinro_ctrl.multibody.rigid_body import CASADI_OPS, RigidBodyTree
+from shinro_ctrl.multibody.tree import ModelTree
 
 __all__ = ["CONSTRAINT_KINDS", "SYMBOLIC_NEWTON_STEPS", "ConstrainedDynamics", "Constraint"]
 
@@ -142,11 +154,11 @@ class Constraint:
     def residual(self, rb: RigidBodyTree, q: Sequence[cs.SX]) -> list[cs.SX]:
         """``φ(q)`` as a list of ``rows`` scalars (CasADi ``SX``)."""
         if self.kind == "joint":
-            joints = rb.tree.joints
-            s1 = q[self.joint1] - joints[self.joint1].qpos0
+            joints, adr = rb.tree.joints, rb.tree.qposadr  # joint index -> its qpos entry (≠ with a free root)
+            s1 = q[adr[self.joint1]] - joints[self.joint1].qpos0
             if self.joint2 < 0:
                 return [s1 - self.polycoef[0]]
-            s2 = q[self.joint2] - joints[self.joint2].qpos0
+            s2 = q[adr[self.joint2]] - joints[self.joint2].qpos0
             return [s1 - sum(c * s2**k for k, c in enumerate(self.polycoef) if c != 0.0)]
         R1, p1 = rb.frame_pose(q, self.body1, self.pos1, self.quat1, CASADI_OPS)
         R2, p2 = rb.frame_pose(q, self.body2, self.pos2, self.quat2, CASADI_OPS)
@@ -178,6 +190,11 @@ class _Numeric:
     """A CasADi function evaluated on numpy arrays through one buffer (a lock serializes threads)."""
 
     def __init__(self, fun: cs.Function):
+        if not all(fun.sparsity_out(k).is_dense() for k in range(fun.n_out())):
+            # the buffers hold dense arrays: a structurally sparse output (e.g. a null-space basis with
+            # structural zeros) would be written as its nonzeros only, in the wrong places
+            sx_in = fun.sx_in()
+            fun = cs.Function(fun.name(), sx_in, [cs.densify(o) for o in fun.call(sx_in)])
         self.fun = fun
         self.args = [np.zeros(fun.size1_in(k) * fun.size2_in(k)) for k in range(fun.n_in())]
         self.outs = [np.zeros(fun.size1_out(k) * fun.size2_out(k)) for k in range(fun.n_out())]
@@ -195,6 +212,19 @@ class _Numeric:
                 a[:] = v
             self.run()
             return [o.reshape(s, order="F").copy() for o, s in zip(self.outs, self.shapes, strict=True)]
+
+
+def _dof_joint(tree: ModelTree) -> list[int]:
+    """The joint of each degree of freedom."""
+    out: list[int] = []
+    for j, joint in enumerate(tree.joints):
+        out += [j] * {"hinge": 1, "slide": 1, "ball": 3, "free": 6}[joint.type]
+    return out
+
+
+def _dof_armature(tree: ModelTree) -> list[float]:
+    """Each degree of freedom's armature (a ball's or free joint's dofs share their joint's)."""
+    return [tree.joints[j].armature for j in _dof_joint(tree)]
 
 
 class ConstrainedDynamics:
@@ -239,14 +269,25 @@ class ConstrainedDynamics:
             raise InvalidArgument("ConstrainedDynamics needs at least one constraint")
         self.rb = rb
         self.constraints = tuple(constraints)
-        n = self.nq = rb.nq
+        nq = self.nq = rb.nq
+        n = self.nv = rb.nv
+        tree = rb.tree
+        # flat tangent directions (hinge, slide, a free joint's translation): q̇ = v there; the rest are rotations
+        flat_q, flat_v = _linear(tree)
+        self._qof = dict(zip(flat_v, flat_q, strict=True))  # dof -> its qpos index (flat dofs only)
+        self._rotational = tuple(d + k for _, d in quaternion_slices(tree) for k in range(3))
         self._row_owner = [k for k, c in enumerate(self.constraints) for _ in range(c.rows)]
-        q = cs.SX.sym("q", n)
+        q = cs.SX.sym("q", nq)
         qd = cs.SX.sym("qd", n)
         u = cs.SX.sym("u", len(active))
-        ql = [q[i] for i in range(n)]
+        ql = [q[i] for i in range(nq)]
         phi = cs.vertcat(*[v for c in self.constraints for v in c.residual(rb, ql)])
-        J = cs.jacobian(phi, q)
+        # tangent-space Jacobian J = ∂φ/∂q · E(q), E the map q̇ = E(q) v (identity without quaternions)
+        rate = cs.vertcat(
+            *[cs.SX(r) if isinstance(r, float | int) else r for r in qpos_rate(tree, ql, [qd[i] for i in range(n)])]
+        )
+        E = cs.jacobian(rate, qd)
+        J = cs.mtimes(cs.jacobian(phi, q), E)
         self._phi = _Numeric(cs.Function("phi", [q], [phi, cs.densify(J)]))
         self.q_ref = self.project(np.asarray(q_ref, dtype=float), what=what)
 
@@ -255,20 +296,22 @@ class ConstrainedDynamics:
         self.rows = rows
         self.independent = tuple(i for i in range(n) if i not in self.dependent)
         self.ni = len(self.independent)
+        #: qpos indices of the independent tangent directions (all flat: q̇_I = v_I)
+        self.independent_q = tuple(self._qof[i] for i in self.independent)
         r = len(rows)
         Jr = J[list(rows), :]
         phir = phi[list(rows)]
         # KKT by the Schur complement (module docstring)
         X = rb.transforms(ql, CASADI_OPS)
         M = rb.mass_matrix(ql, CASADI_OPS, X)
-        for i in range(n):
-            M[i][i] = M[i][i] + rb.tree.joints[i].armature
+        for i, arm in enumerate(_dof_armature(tree)):
+            M[i][i] = M[i][i] + arm
         qdl = [qd[i] for i in range(n)]
         c = rb.bias(ql, qdl, CASADI_OPS, X)
         tau = rb.generalized_forces(ql, qdl, [u[k] for k in range(len(active))], active, (), CASADI_OPS, X)
         qdd_f = _col(_ldl_solve(M, [tau[i] - c[i] for i in range(n)]))
         MinvJT = cs.horzcat(*[_col(_ldl_solve(M, [Jr[k, j] for j in range(n)])) for k in range(r)])
-        jdqd = cs.jtimes(cs.mtimes(Jr, qd), q, qd)
+        jdqd = cs.jtimes(cs.mtimes(Jr, qd), q, rate)  # J̇v = ∂(J v)/∂q · q̇, exact
         schur = cs.mtimes(Jr, MinvJT)
         rhs = -jdqd - cs.mtimes(Jr, qdd_f)
         lam = _col(_ldl_solve(_lists(schur), [rhs[k] for k in range(r)]))
@@ -277,7 +320,7 @@ class ConstrainedDynamics:
         # reduced coordinates
         ind, dep = list(self.independent), list(self.dependent)
         vi = cs.SX.sym("vi", self.ni)
-        S = cs.SX.zeros(n, self.ni)
+        S = cs.SX.zeros(n, self.ni)  # tangent null-space basis
         for a, i in enumerate(ind):
             S[i, a] = 1.0
         SD = -cs.solve(Jr[:, dep], Jr[:, ind])
@@ -287,7 +330,7 @@ class ConstrainedDynamics:
         F = qdd_v[ind]
         A = cs.vertcat(
             cs.horzcat(cs.SX.zeros(self.ni, self.ni), cs.SX.eye(self.ni)),
-            cs.horzcat(cs.mtimes(cs.jacobian(F, q), S), cs.jacobian(F, vi)),
+            cs.horzcat(cs.mtimes(cs.mtimes(cs.jacobian(F, q), E), S), cs.jacobian(F, vi)),
         )
         B = cs.vertcat(cs.SX.zeros(self.ni, u.shape[0]), cs.jacobian(F, u))
         self.reduced_function = cs.Function("f_reduced", [q, vi, u], [cs.vertcat(vi, F)], ["q", "vi", "u"], ["xdot"])
@@ -304,22 +347,34 @@ class ConstrainedDynamics:
         phi_fun = cs.Function("phi_all", [q], [phi])
         S_fun = cs.Function("S", [q], [S])
         qn = q
-        for _ in range(NEWTON_UNROLL):
+        for _ in range(NEWTON_UNROLL):  # Newton in the dependent tangent directions, on the manifold
             phin, Jn = self._phir(qn)
-            qn = _with(qn, dep, qn[dep] - cs.solve(Jn[:, dep], phin))
+            qn = self._step_sx(qn, -cs.solve(Jn[:, dep], phin))
         Sn = S_fun(qn)
         self._newton = _Numeric(
             cs.Function("newton", [q, vi], [qn, cs.mtimes(Sn, vi), cs.mmax(cs.fabs(phi_fun(qn))), Sn[dep, :]])
         )
         J0r = J0[list(rows)]
-        self._predict = -np.linalg.solve(J0r[:, dep], J0r[:, ind])  # ∂q_D/∂q_I at the reference
+        self._predict = -np.linalg.solve(J0r[:, dep], J0r[:, ind])  # ∂δ_D/∂q_I at the reference
+
+    def _step_sx(self, q: cs.SX, dD: cs.SX) -> cs.SX:
+        """``q ⊕ v`` with ``v`` zero but on the dependent tangent directions (``dD``)."""
+        v = [cs.SX(0.0)] * self.nv
+        for b, d in enumerate(self.dependent):
+            v[d] = dD[b]
+        return integrate_sx(self.rb.tree, q, cs.vertcat(*v))
+
+    def _step(self, q: np.ndarray, dD: np.ndarray) -> np.ndarray:
+        v = np.zeros(self.nv)
+        v[list(self.dependent)] = dD
+        return integrate(self.rb.tree, q, v)
 
     # ------------------------------------------------------------ choices at the reference
     def _choose(
         self, J0: np.ndarray, constraints: Sequence[Constraint], rb: RigidBodyTree, active: Sequence[int]
     ) -> tuple[tuple[int, ...], tuple[int, ...]]:
         """Kept rows (pivoted QR of ``J0ᵀ``) and dependent joints (greedy pivoted QR of the kept rows)."""
-        n = self.nq
+        n = self.nv
         scale = max(float(np.abs(J0).max(initial=0.0)), 1e-300)
         _, R, piv = scipy.linalg.qr(J0.T, pivoting=True, mode="economic")
         diag = np.abs(np.diag(R)) if R.size else np.zeros(0)
@@ -327,7 +382,7 @@ class ConstrainedDynamics:
         if r >= n:
             raise InvalidArgument(
                 f"the constraints leave no free motion: {', '.join(c.label or c.kind for c in constraints)} fix "
-                f"all {n} joint coordinates (rank {r}); remove one or free a joint"
+                f"all {n} degrees of freedom (rank {r}); remove one or free a joint"
             )
         if r == 0:
             raise InvalidArgument(
@@ -336,11 +391,14 @@ class ConstrainedDynamics:
             )
         rows = tuple(sorted(int(k) for k in piv[:r]))
         # preference for dependent joints: followers of joint couplings (0), unactuated joints (1), others (2)
+        dof_joint = _dof_joint(rb.tree)
         actuated = {rb.tree.actuators[a].joint for a in active}
-        level = [1 if i not in actuated else 2 for i in range(n)]
+        level = [1 if dof_joint[i] not in actuated else 2 for i in range(n)]
         for c in constraints:
             if c.kind == "joint":
-                level[c.joint1] = 0
+                level[rb.tree.dofadr[c.joint1]] = 0
+        for i in self._rotational:  # a ball's or free joint's rotation: dependent (its chart is not a coordinate)
+            level[i] = -1
         res = J0[list(rows)].copy()
         dep: list[int] = []
         for _ in range(r):
@@ -353,6 +411,13 @@ class ConstrainedDynamics:
             e = res[:, j] / norms[j]
             res -= np.outer(e, e @ res)
         JD = J0[np.ix_(rows, dep)]
+        left = [i for i in self._rotational if i not in dep]
+        if left:
+            raise InvalidArgument(
+                f"the constraints leave {len(left)} rotation(s) of a ball or free joint free (dofs {left}): "
+                "a floating base held by too few contacts (at least three point contacts or one flat contact) "
+                "is not supported yet"
+            )
         if np.linalg.cond(JD) > 1e8:
             raise InvalidArgument(
                 "the constraints are singular at the reference configuration (the loop is at a dead point): "
@@ -391,7 +456,7 @@ class ConstrainedDynamics:
             if np.abs(phi).max(initial=0.0) < 1e-13 or not np.isfinite(phi).all():
                 break
             step = np.linalg.lstsq(J, phi, rcond=None)[0]
-            q -= step
+            q = integrate(self.rb.tree, q, -step)
             if np.abs(step).max() < 1e-15:
                 break
         if not np.isfinite(q).all() or self.residuals(q).max(initial=0.0) > TOLERANCE:
@@ -403,27 +468,28 @@ class ConstrainedDynamics:
         return q
 
     def complete(self, x: np.ndarray, *, what: str = "the state") -> np.ndarray:
-        """The full state ``[q; q̇] (2nq,)`` of a design state ``x = [q_I; q̇_I] (2nᵢ,)``.
+        """The full state ``[q; v] (nq + nv,)`` of a design state ``x = [q_I; v_I] (2nᵢ,)``.
 
-        ``q_D`` by Newton from the reference's first-order prediction, ``q̇ = S(q) q̇_I``.
+        The dependent tangent directions by Newton on the manifold (steps ``q ⊕ δ_D``) from the
+        reference's first-order prediction, ``v = S(q) v_I``.
 
         Raises:
             InvalidArgument: Newton does not converge: no configuration of the reference's branch
                 has these independent coordinates (naming the worst constraint).
         """
-        ind, dep = list(self.independent), list(self.dependent)
+        ind, indq = list(self.independent), list(self.independent_q)
         qi = np.asarray(x[: self.ni], dtype=float)
         vi = np.asarray(x[self.ni :], dtype=float)
         q = self.q_ref.copy()
         predict = self._predict
-        delta = qi - self.q_ref[ind]
+        delta = qi - self.q_ref[indq]
         res = np.inf
         # continuation from the reference in steps of at most CONTINUATION_STEP: stays on its assembly branch
         stages = max(1, int(np.ceil(np.abs(delta).max(initial=0.0) / CONTINUATION_STEP)))
         for s in range(1, stages + 1):
-            target = self.q_ref[ind] + delta * (s / stages)
-            q[dep] = q[dep] + predict @ (target - q[ind])
-            q[ind] = target
+            target = self.q_ref[indq] + delta * (s / stages)
+            q = self._step(q, predict @ (target - q[indq]))
+            q[indq] = target
             previous = np.inf
             for _ in range(25):
                 qn, qd, r, predict = self._newton(q, vi)
@@ -443,9 +509,8 @@ class ConstrainedDynamics:
         return np.concatenate([q, qd.ravel()])
 
     def reduce(self, x_full: np.ndarray) -> np.ndarray:
-        """The design state ``[q_I; q̇_I]`` of a full state ``[q; q̇] (2nq,)``."""
-        ind = list(self.independent)
-        return np.concatenate([x_full[ind], x_full[self.nq :][ind]])
+        """The design state ``[q_I; v_I]`` of a full state ``[q; v] (nq + nv,)``."""
+        return np.concatenate([x_full[list(self.independent_q)], x_full[self.nq :][list(self.independent)]])
 
     def check_full(self, x_full: np.ndarray, what: str) -> np.ndarray:
         """A full state ``[q; q̇]`` that satisfies the constraints (position and velocity), else one-line error."""
@@ -484,12 +549,15 @@ class ConstrainedDynamics:
         return A, B
 
     def accelerations(self, x_full: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(q̈ (nq,), λ (r,))`` of the KKT system at a full state ``[q; q̇]`` (on the constraints)."""
+        """``(v̇ (nv,), λ (r,))`` of the KKT system at a full state ``[q; v]`` (on the constraints)."""
         qdd, lam = self.kkt_function(x_full[: self.nq], x_full[self.nq :], u)
         return qdd.full().ravel(), lam.full().ravel()
 
     def constraint_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(φ (R,), J (R, nq))`` at ``q (nq,)``: every row of every constraint, in order (redundant ones too)."""
+        """``(φ (R,), J (R, nv))`` at ``q (nq,)``: every row of every constraint, in order (redundant ones too).
+
+        ``J = ∂φ/∂q · E(q)`` acts on tangent velocities ``v`` (``J = ∂φ/∂q`` without quaternions).
+        """
         phi, J = self._phi(np.asarray(q, dtype=float))
         return phi.ravel(), J
 
@@ -518,19 +586,11 @@ class ConstrainedDynamics:
 
     def symbolic_xdot(self, x: cs.SX, u: cs.SX) -> cs.SX:
         """``ẋ`` in ``SX``, with ``q_D`` from :data:`SYMBOLIC_NEWTON_STEPS` Newton steps unrolled (module docstring)."""
-        ind, dep = list(self.independent), list(self.dependent)
+        dep, indq = list(self.dependent), list(self.independent_q)
         qi = x[: self.ni]
-        qD = cs.DM(self.q_ref[dep]) + cs.mtimes(cs.DM(self._predict), qi - cs.DM(self.q_ref[ind]))
-
-        def assemble(qD: cs.SX) -> cs.SX:
-            parts: list[object] = [None] * self.nq
-            for a, i in enumerate(ind):
-                parts[i] = qi[a]
-            for b, d in enumerate(dep):
-                parts[d] = qD[b]
-            return cs.vertcat(*parts)
-
+        q = self._step_sx(cs.DM(self.q_ref), cs.mtimes(cs.DM(self._predict), qi - cs.DM(self.q_ref[indq])))
+        q = _with(q, indq, qi)
         for _ in range(SYMBOLIC_NEWTON_STEPS):
-            phir, Jr = self._phir(assemble(qD))
-            qD = qD - cs.solve(Jr[:, dep], phir)
-        return self.reduced_function(assemble(qD), x[self.ni :], u)
+            phir, Jr = self._phir(q)
+            q = self._step_sx(q, -cs.solve(Jr[:, dep], phir))
+        return self.reduced_function(q, x[self.ni :], u)

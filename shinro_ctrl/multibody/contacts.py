@@ -171,8 +171,11 @@ class StandingEquilibrium:
 
 
 def _static_terms(rb: RigidBodyTree, q: np.ndarray, active: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
-    """``(b, B_u)`` with ``τ_0 − g = b`` and ``τ = τ_0 + B_u u`` at ``q``, ``q̇ = 0`` (affine in ``u``)."""
-    n, m = len(q), len(active)
+    """``(b, B_u)`` with ``τ_0 − g = b`` and ``τ = τ_0 + B_u u`` at ``q``, ``v = 0`` (affine in ``u``).
+
+    Generalized forces over the ``nv`` tangent directions (a free base's six included: ``B_u`` is zero there).
+    """
+    n, m = rb.nv, len(active)
     ql, zero = list(q), [0.0] * n
 
     def tau(u: np.ndarray) -> np.ndarray:

@@ -435,7 +435,12 @@ class MjcfPlant(Plant):
     :meth:`retract`, :meth:`tangent_maps`; MuJoCo's ``mj_differentiatePos``
     / ``mj_integratePos`` and ``mjd_transitionFD`` conventions). A user's
     quaternion within :data:`QUATERNION_TOLERANCE` of unit norm is
-    normalized with a warning, else refused.
+    normalized with a warning, else refused. With ``contacts`` on a floating
+    base (a legged robot standing on its feet) the constrained dynamics live in
+    the tangent space and the base's rotations are always dependent, so the
+    state is again a flat ``[q_I; v_I]`` of joint coordinates (the trunk's pose
+    is completed from the feet) and :attr:`floating` is False; a base that its
+    contacts leave free to rotate is refused in one line.
 
     Args:
         model: MJCF/URDF path, or the name of a shipped asset; default the
@@ -507,15 +512,6 @@ class MjcfPlant(Plant):
         self.joint_names = tuple(j.name or f"q{i}" for i, j in enumerate(tree.joints))
         self.constraints: ConstrainedDynamics | None = None
         self.contacts = self._contact_frames(robot.path, contacts)
-        if self.contacts and tree.floating:
-            roots = ", ".join(
-                f"'{j.name or i}' ({j.type})" for i, j in enumerate(tree.joints) if j.type in ("ball", "free")
-            )
-            raise InvalidArgument(
-                f"{self._label()}: contacts on a model with ball or free joints ({roots}) are not supported yet (the "
-                "contact-constrained dynamics are in plain joint coordinates); give the base slide and hinge joints "
-                "(e.g. a planar base: slide x, slide z, hinge pitch)"
-            )
         if (tree.equalities or self.contacts) and tree.na:
             dyn = ", ".join(f"'{a.name or f'u{k}'}' ({a.dyntype})" for k, a in enumerate(tree.actuators) if a.act >= 0)
             raise InvalidArgument(
@@ -536,7 +532,9 @@ class MjcfPlant(Plant):
         nq = tree.nq
         free = self.constraints.independent if self.constraints else range(nq)
         acts = sorted((a.act, a.name or f"u{k}") for k, a in enumerate(tree.actuators) if a.act >= 0)
-        self.floating = tree.floating
+        # with constraints the design state [q_I; v_I] is flat even on a floating base (its rotations are dependent)
+        self.floating = tree.floating and self.constraints is None
+        _, dof_vel, dof_pos = _floating_names(tree, self.joint_names)  # per degree of freedom
         if self.floating:  # quaternions: [qpos; qvel] with nq != nv (see the class docstring)
             qn, vn, tn = _floating_names(tree, self.joint_names)
             self.state_names = (*qn, *vn, *(f"{name}_act" for _, name in acts))
@@ -547,8 +545,8 @@ class MjcfPlant(Plant):
             self.velocity_indices = tuple(nq + i for i in vi)
         else:
             self.state_names = (
-                *(self.joint_names[i] for i in free),
-                *(f"{self.joint_names[i]}_dot" for i in free),
+                *(dof_pos[i] for i in free),
+                *(dof_vel[i] for i in free),
                 *(f"{name}_act" for _, name in acts),
             )
             self._tangent_names = self.state_names
@@ -792,9 +790,11 @@ class MjcfPlant(Plant):
                     lo[i], hi[i] = j.range
             return lo, hi
         free = self.constraints.independent if self.constraints else range(self.tree.nq)
+        dof_joint = [j for j, jt in enumerate(self.tree.joints) for _ in range({"free": 6, "ball": 3}.get(jt.type, 1))]
         for k, i in enumerate(free):
-            if self.tree.joints[i].limited:
-                lo[k], hi[k] = self.tree.joints[i].range
+            joint = self.tree.joints[dof_joint[i]]
+            if joint.limited and joint.type in ("hinge", "slide"):
+                lo[k], hi[k] = joint.range
         return lo, hi
 
     def _constrained_x0(self, keyframe: tuple[str, np.ndarray] | None, x0: ArrayLike | None) -> np.ndarray:
@@ -802,12 +802,12 @@ class MjcfPlant(Plant):
 
         A user's ``x0`` is either the design state ``[q_I; q̇_I]`` (completed) or a full ``[q; q̇]`` (checked).
         """
-        cd, nq = self.constraints, self.tree.nq
+        cd, nq, nv = self.constraints, self.tree.nq, self.tree.nv
         if x0 is None:
             what = f"keyframe '{keyframe[0]}'" if keyframe and keyframe[0] else "the default operating point"
             full = cd.project_state(self._default_x0(keyframe), f"{self._label()}: {what}")
-        elif np.size(x0) == 2 * nq and nq != cd.ni:
-            full = cd.check_full(as_vector("x0", x0, 2 * nq), f"{self._label()}: x0")
+        elif np.size(x0) == nq + nv and nq + nv != 2 * cd.ni:
+            full = cd.check_full(as_vector("x0", x0, nq + nv), f"{self._label()}: x0")
         else:
             full = cd.complete(as_vector("x0", x0, 2 * cd.ni), what=f"{self._label()}: x0")
         self._check_in_range(full, "x0")
