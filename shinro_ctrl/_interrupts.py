@@ -139,10 +139,14 @@ def forkserver_context(preload: Sequence[str]) -> BaseContext:
     :func:`ignore_sigint` initializer too).
     """
     import multiprocessing
-    from multiprocessing import forkserver
+    from multiprocessing import forkserver, resource_tracker
 
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(list(preload))
+    # The forkserver starts the resource tracker first, and spawning it ends with an unconditional
+    # pthread_sigmask(SIG_UNBLOCK, {SIGINT, SIGTERM}): inside the block below that would unblock SIGINT while it
+    # is ignored, and a Ctrl-C then would be lost (the command ran to the end, exit 0). Start it before.
+    resource_tracker.ensure_running()
     with deferred_interrupts():
         ignoring = threading.current_thread() is threading.main_thread()
         handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if ignoring else None
