@@ -46,6 +46,7 @@ __all__ = [
     "integrate",
     "integrate_sx",
     "normalize_quaternions",
+    "plain_indices",
     "qpos_rate",
     "quat_matrix",
     "quaternion_slices",
@@ -95,7 +96,7 @@ def quaternion_slices(tree: ModelTree) -> list[tuple[int, int]]:
     return out
 
 
-def _linear(tree: ModelTree) -> tuple[list[int], list[int]]:
+def plain_indices(tree: ModelTree) -> tuple[list[int], list[int]]:
     """The ``qpos`` and ``qvel`` indices that are plain coordinates and their rates (``q̇ = v``)."""
     qi: list[int] = []
     vi: list[int] = []
@@ -109,7 +110,7 @@ def _linear(tree: ModelTree) -> tuple[list[int], list[int]]:
 def qpos_rate(tree: ModelTree, q: Sequence[object], v: Sequence[object]) -> list[object]:
     """``q̇pos (nq,)`` from ``qpos (nq,)``, ``qvel (nv,)``: ``v`` on coordinates, ``½ q ⊗ (0, ω)`` on quaternions."""
     out: list[object] = [0.0] * tree.nq
-    qi, vi = _linear(tree)
+    qi, vi = plain_indices(tree)
     for a, d in zip(qi, vi, strict=True):
         out[a] = v[d]
     for a, d in quaternion_slices(tree):
@@ -145,7 +146,7 @@ def integrate(tree: ModelTree, qpos: ArrayLike, v: ArrayLike, dt: float = 1.0) -
     """``qpos ⊕ v dt (nq,)``: MuJoCo's ``mj_integratePos`` (quaternions renormalized)."""
     q = np.array(qpos, dtype=float)
     v = np.asarray(v, dtype=float) * dt
-    qi, vi = _linear(tree)
+    qi, vi = plain_indices(tree)
     q[qi] += v[vi]
     for a, d in quaternion_slices(tree):
         r = _qmul(q[a : a + 4] / np.linalg.norm(q[a : a + 4]), _qexp(v[d : d + 3]))
@@ -158,7 +159,7 @@ def difference(tree: ModelTree, qpos1: ArrayLike, qpos0: ArrayLike, dt: float = 
     q1 = np.asarray(qpos1, dtype=float)
     q0 = np.asarray(qpos0, dtype=float)
     out = np.zeros(tree.nv)
-    qi, vi = _linear(tree)
+    qi, vi = plain_indices(tree)
     out[vi] = q1[qi] - q0[qi]
     for a, d in quaternion_slices(tree):
         b0 = q0[a : a + 4] / np.linalg.norm(q0[a : a + 4])
@@ -175,7 +176,7 @@ def integrate_sx(tree: ModelTree, qpos: cs.SX, v: cs.SX, dt: float | cs.SX = 1.0
     derivatives are smooth at ``φ = 0``.
     """
     q = [qpos[i] for i in range(tree.nq)]
-    qi, vi = _linear(tree)
+    qi, vi = plain_indices(tree)
     for a, d in zip(qi, vi, strict=True):
         q[a] = qpos[a] + v[d] * dt
     for a, d in quaternion_slices(tree):
@@ -226,7 +227,7 @@ def tangent_basis(tree: ModelTree, qpos: ArrayLike) -> np.ndarray:
     """``E = ∂ integrate(qpos, v) / ∂v`` at ``v = 0`` ``(nq, nv)``: ``½ L(q)[:, 1:]`` on a quaternion, else ``I``."""
     q = np.asarray(qpos, dtype=float)
     E = np.zeros((tree.nq, tree.nv))
-    qi, vi = _linear(tree)
+    qi, vi = plain_indices(tree)
     E[qi, vi] = 1.0
     for a, d in quaternion_slices(tree):
         u = q[a : a + 4] / np.linalg.norm(q[a : a + 4])
@@ -241,7 +242,7 @@ def difference_jacobian(tree: ModelTree, qpos: ArrayLike) -> np.ndarray:
     """
     q = np.asarray(qpos, dtype=float)
     D = np.zeros((tree.nv, tree.nq))
-    qi, vi = _linear(tree)
+    qi, vi = plain_indices(tree)
     D[vi, qi] = 1.0
     for a, d in quaternion_slices(tree):
         n = np.linalg.norm(q[a : a + 4])

@@ -86,7 +86,7 @@ import scipy.linalg
 
 from shinro_ctrl._scalar_algebra import _ldl_solve
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.multibody.configuration import _linear, integrate, integrate_sx, qpos_rate, quaternion_slices
+from shinro_ctrl.multibody.configuration import integrate, integrate_sx, plain_indices, qpos_rate, quaternion_slices
 from shinro_ctrl.multibody.rigid_body import CASADI_OPS, RigidBodyTree
 from shinro_ctrl.multibody.tree import ModelTree
 
@@ -273,7 +273,7 @@ class ConstrainedDynamics:
         n = self.nv = rb.nv
         tree = rb.tree
         # flat tangent directions (hinge, slide, a free joint's translation): q̇ = v there; the rest are rotations
-        flat_q, flat_v = _linear(tree)
+        flat_q, flat_v = plain_indices(tree)
         self._qof = dict(zip(flat_v, flat_q, strict=True))  # dof -> its qpos index (flat dofs only)
         self._rotational = tuple(d + k for _, d in quaternion_slices(tree) for k in range(3))
         self._row_owner = [k for k, c in enumerate(self.constraints) for _ in range(c.rows)]

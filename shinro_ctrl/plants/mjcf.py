@@ -138,17 +138,6 @@ def _floating_names(tree: ModelTree, joint_names: Sequence[str]) -> tuple[list[s
     return qn, vn, tn
 
 
-def _plain_indices(tree: ModelTree) -> tuple[list[int], list[int]]:
-    """``(qpos indices, qvel indices)`` of the coordinates whose rate is their velocity (not the quaternions)."""
-    qi: list[int] = []
-    vi: list[int] = []
-    for j, a, d in zip(tree.joints, tree.qposadr, tree.dofadr, strict=True):
-        n = {"hinge": 1, "slide": 1, "ball": 0, "free": 3}[j.type]
-        qi += range(a, a + n)
-        vi += range(d, d + n)
-    return qi, vi
-
-
 def _qpos0(tree: ModelTree) -> np.ndarray:
     """MuJoCo's ``qpos0``: each hinge's and slide's reference, a free body's model pose, a ball's identity."""
     out: list[float] = []
@@ -540,7 +529,7 @@ class MjcfPlant(Plant):
             self.state_names = (*qn, *vn, *(f"{name}_act" for _, name in acts))
             self._tangent_names = (*tn, *vn, *(f"{name}_act" for _, name in acts))
             # the plain coordinates and their rates (the quaternions are stepped on the manifold)
-            qi, vi = _plain_indices(tree)
+            qi, vi = configuration.plain_indices(tree)
             self.position_indices = tuple(qi)
             self.velocity_indices = tuple(nq + i for i in vi)
         else:
