@@ -145,8 +145,8 @@ def test_riccati_step_equals_the_condensed_qp_minimizer(codegen):
     back, fwd = riccati_functions(n, m, N, codegen)
     assert ("External" in repr(back)) == codegen  # the compiled library, or the virtual machine
     Gt, Wt = G.reshape(N * n, -1).T, np.swapaxes(W, 1, 2).reshape(N * n, n).T  # the column-major layouts
-    KK = back(Gt, Wt, R, e, du)
-    dU, dX, g = (np.array(v).T for v in fwd(Gt, KK, Wt, R, e, du, dx0))
+    KK, _ = back(Gt, Wt, R, e, du)
+    dU, dX, g, _ = (np.array(v).T for v in fwd(Gt, KK, Wt, R, e, du, dx0))
     inf = np.full(n, np.inf)
     qp = CondensedLTV(G, W, R, np.full(m, -np.inf), np.full(m, np.inf), -inf, inf)
     qp.build(e, du)

@@ -522,9 +522,12 @@ def riccati_functions(n: int, m: int, N: int, codegen: bool) -> tuple[cs.Functio
 
     Signatures (column-major CasADi shapes; each matches a C-ordered NumPy array of the transposed shape):
 
-    * backward ``(G (n+m+1, N n), W (n, N n), R (m, m), e (N n), du (N m)) -> KK (m, N (n+1))``
-      (``G`` the stage linearization's output, ``KK`` the blocks ``[K_k, κ_k]``);
-    * forward ``(G, KK, W, R, e, du, dx0 (n)) -> (dU (m, N), dX (n, N), g (m, N))``.
+    * backward ``(G (n+m+1, N n), W (n, N n), R (m, m), e (N n), du (N m)) -> (KK (m, N (n+1)), Re (m, N m))``
+      (``G`` the stage linearization's output, ``KK`` the blocks ``[K_k, κ_k]``, ``Re`` the blocks
+      ``R_e = R + B_kᵀ S B_k``: the Hessian of the QP in the prestabilized variables,
+      :mod:`~shinro_ctrl.controllers.qp.prestabilized`);
+    * forward ``(G, KK, W, R, e, du, dx0 (n)) -> (dU (m, N), dX (n, N), g (m, N), dX_free (n, N))``
+      (``dX_free`` the free response ``ΔU = 0`` from ``Δx_0``).
 
     The stage bodies are SX functions called ``N`` times from MX functions (not unrolled); both MX functions
     are compiled by :func:`shinro_ctrl.codegen.compiled` when ``codegen`` is true (the arm's bodies: about
@@ -550,7 +553,8 @@ def riccati_functions(n: int, m: int, N: int, codegen: bool) -> tuple[cs.Functio
     for i in range(n):
         for j in range(i, n):
             Pk[i, j] = Pk[j, i] = Z[i, j] + cs.dot(Ge[:, i], K[:, j])
-    update = cs.Function("nmpc_riccati_update", [Gt, Y, s, R, du], [KK, Pk, At_h + Ge.T @ kappa])
+    Re = R + Z[n : n + m, n : n + m]
+    update = cs.Function("nmpc_riccati_update", [Gt, Y, s, R, du], [KK, Pk, At_h + Ge.T @ kappa, Re])
     dx, fx, mu, An, Kp = sx("dx", n), sx("fx", n), sx("mu", n), sx("Ant", n, n), sx("KK", m, n + 1)
     u = Kp[:, :n] @ dx + Kp[:, n]
     fwd_stage = cs.Function("nmpc_policy_stage", [Gt, Kp, dx, fx], [u, A @ dx + B @ u + d, A @ fx + d])
@@ -570,12 +574,17 @@ def riccati_functions(n: int, m: int, N: int, codegen: bool) -> tuple[cs.Functio
 
     Pn, pn = cs.MX.zeros(n, n), cs.MX.zeros(n)
     blocks: list[cs.MX] = [cs.MX()] * N
+    reblocks: list[cs.MX] = [cs.MX()] * N
     for k in range(N - 1, -1, -1):
         Gs, Wk, ek, duk = stage(k)
         Yk, sk = product(Gs, Wk, Pn, pn, ek)
-        blocks[k], Pn, pn = update(Gs, Yk, sk, Rm, duk)
+        blocks[k], Pn, pn, reblocks[k] = update(Gs, Yk, sk, Rm, duk)
     backward = cs.Function(
-        "nmpc_riccati", [Gm, Wm, Rm, em, dum], [cs.horzcat(*blocks)], ["G", "W", "R", "e", "du"], ["KK"]
+        "nmpc_riccati",
+        [Gm, Wm, Rm, em, dum],
+        [cs.horzcat(*blocks), cs.horzcat(*reblocks)],
+        ["G", "W", "R", "e", "du"],
+        ["KK", "Re"],
     )
     KKm, dx0 = mx("KK", m, N * (n + 1)), mx("dx0", n)
     dxk, fxk = dx0, dx0
@@ -593,9 +602,9 @@ def riccati_functions(n: int, m: int, N: int, codegen: bool) -> tuple[cs.Functio
     forward = cs.Function(
         "nmpc_policy",
         [Gm, KKm, Wm, Rm, em, dum, dx0],
-        [cs.horzcat(*us), cs.horzcat(*xs), cs.horzcat(*gs)],
+        [cs.horzcat(*us), cs.horzcat(*xs), cs.horzcat(*gs), cs.horzcat(*fs)],
         ["G", "KK", "W", "R", "e", "du", "dx0"],
-        ["dU", "dX", "g"],
+        ["dU", "dX", "g", "dX_free"],
     )
     if codegen:  # each MX function with its stage bodies as one C library
         return compiled(backward), compiled(forward)

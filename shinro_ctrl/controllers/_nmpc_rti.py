@@ -21,6 +21,7 @@ from shinro_ctrl.controllers._nmpc_ipopt import IpoptSolver
 from shinro_ctrl.controllers._nmpc_ocp import NMPCProblem, failed_solution, riccati_functions
 from shinro_ctrl.controllers.qp.condensed import DAQP_STATUS
 from shinro_ctrl.controllers.qp.ltv import CondensedLTV, SparseLTV
+from shinro_ctrl.controllers.qp.prestabilized import PrestabilizedLTV
 from shinro_ctrl.controllers.qp.solution import NMPCSolution
 from shinro_ctrl.errors import MPCInfeasible
 
@@ -89,7 +90,6 @@ class RealTimeIteration:
         # virtual machine the recursion costs more than the condensing it saves)
         auto = ocp.compiled and not self.qp.direct if isinstance(self.qp, CondensedLTV) else False
         self.riccati = isinstance(self.qp, CondensedLTV) and (auto if o.riccati is None else bool(o.riccati))
-        self._built = False
         if self.riccati:
             self._init_riccati()
         self.reset()
@@ -103,6 +103,9 @@ class RealTimeIteration:
         self._Wt = np.ascontiguousarray(np.swapaxes(ocp.W, 1, 2))
         self._Rt = np.ascontiguousarray(ocp.R.T)
         self._KK = np.zeros((N * (n + 1), m))  # the blocks [K_k, κ_k], transposed
+        self._K = np.swapaxes(self._KK.reshape(N, n + 1, m)[:, :n, :], 1, 2)  # K_k (N, m, n): a view
+        self._Re = np.zeros((N, m, m))  # R + B_kᵀ S_k B_k (symmetric: the column-major blocks are themselves)
+        self._fX = np.zeros((N, n))  # the free response from Δx_0
         self._dx0 = np.zeros(n)
         self._dU = np.zeros((N, m))
         self._dX = np.zeros((N, n))
@@ -111,22 +114,35 @@ class RealTimeIteration:
         for i, a in enumerate((self._G, self._Wt, self._Rt, self._e, self._du)):
             self._rbuf.set_arg(i, memoryview(a))
         self._rbuf.set_res(0, memoryview(self._KK))
+        self._rbuf.set_res(1, memoryview(self._Re))
         self._fbuf, self._fwd = fwd.buffer()
         for i, a in enumerate((self._G, self._KK, self._Wt, self._Rt, self._e, self._du, self._dx0)):
             self._fbuf.set_arg(i, memoryview(a))
-        for i, a in enumerate((self._dU, self._dX, self._g)):
+        for i, a in enumerate((self._dU, self._dX, self._g, self._fX)):
             self._fbuf.set_res(i, memoryview(a))
         nu = N * m
         qp = self.qp
         assert isinstance(qp, CondensedLTV)
         self._cqp = qp
+        o = ocp.options
+        xmin = np.broadcast_to(o.x_min if ocp.manifold is None else -np.inf, (n,))
+        xmax = np.broadcast_to(o.x_max if ocp.manifold is None else np.inf, (n,))
+        # the QP where the Riccati step breaks a bound, in the policy's prestabilized variables (well conditioned)
+        self._pqp = PrestabilizedLTV(
+            self._G,
+            o.u_min,
+            o.u_max,
+            np.asarray(xmin, dtype=float),
+            np.asarray(xmax, dtype=float),
+            soft=o.soft,
+            soft_weight_l1=o.soft_weight_l1,
+            soft_weight_quad=o.soft_weight_quad,
+            warm_start=qp.warm_start,
+        )
         self._lo = qp.bl[:nu].reshape(N, m)  # ΔU bounds (views: set_bounds fills them)
         self._hi = qp.bu[:nu].reshape(N, m)
         # bounded state components: the predicted X̄₁…X̄_N + ΔX must lie within them too
         self._xcols = qp.bounded
-        o = ocp.options
-        xmin = np.broadcast_to(o.x_min if ocp.manifold is None else -np.inf, (n,))
-        xmax = np.broadcast_to(o.x_max if ocp.manifold is None else np.inf, (n,))
         self._xlo = np.asarray(xmin, dtype=float)[self._xcols]
         self._xhi = np.asarray(xmax, dtype=float)[self._xcols]
         self._xpred = np.zeros((N, self._xcols.size))
@@ -138,6 +154,8 @@ class RealTimeIteration:
         self._mu = 0.0
         if isinstance(self.qp, CondensedLTV):
             self.qp.clear_active_set()
+        if self.riccati:
+            self._pqp.mark_unconstrained()
 
     # ================================================================ phases
     def _tangent_stages(self) -> None:
@@ -182,9 +200,8 @@ class RealTimeIteration:
         else:
             self._e.reshape(N, n)[:] = self.ocp.manifold.difference(self.X[1:], self._ref)
         np.subtract(self.U, self.ocp.u0, out=self._du.reshape(N, self.ocp.m))
-        if self.riccati:  # the condensed QP is built only when a bound is reached (_riccati_step)
+        if self.riccati:  # no condensed QP: where a bound is reached, the prestabilized one (_riccati_step)
             self._back()
-            self._built = False
         else:
             self._build()
         self.qp.set_bounds(self.U, self._xb)
@@ -192,7 +209,6 @@ class RealTimeIteration:
     def _build(self) -> None:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverged prediction is reported by solve
             self.qp.build(self._e, self._du)
-        self._built = True
 
     def _riccati_step(self, dx0: np.ndarray) -> bool:
         """The unconstrained minimizer of the prepared QP by the Riccati policy; True when it meets the bounds.
@@ -212,7 +228,7 @@ class RealTimeIteration:
             np.add(self.X[1:, self._xcols], self._dX[:, self._xcols], out=xp)
             if not np.all((xp >= self._xlo) & (xp <= self._xhi)):
                 return False
-        self._cqp.mark_unconstrained()
+        self._pqp.mark_unconstrained()
         return True
 
     def _shift(self) -> None:
@@ -221,6 +237,8 @@ class RealTimeIteration:
         U[:-1] = U[1:]
         if isinstance(self.qp, CondensedLTV):
             self.qp.shift_active_set()
+        if self.riccati:
+            self._pqp.shift_active_set()
 
     def prepare(self) -> tuple[float, float, float] | None:
         """Shift the previous solution and linearize/condense for the next state.
@@ -290,15 +308,15 @@ class RealTimeIteration:
                 dU, dX = self._dU.reshape(-1), self._dX
                 qp_status, qp_it, qp_kkt = DAQP_STATUS[1], 0, float(np.max(np.abs(self._g)))  # H ΔU = -g
                 t_qp += time.perf_counter() - t0
+            elif self.riccati:  # a bound is reached: the QP around the Riccati step, prestabilized by its policy
+                pqp = self._pqp
+                ok, qp_status, qp_it = pqp.solve(self._K, self._Re, self._dU, self._dX, self.U, self._xb)
+                t_qp += time.perf_counter() - t0
+                if not ok:
+                    return self._fail(x, qp_status, t_start)
+                qp_kkt = pqp.kkt(self._g, self._fX)
+                dU, dX = pqp.dU, pqp.dX
             else:
-                if not self._built:  # a bound is reached: the condensed QP now
-                    t1 = time.perf_counter()
-                    self._build()
-                    if self.qp.rows.size:  # the state rows' offsets come from the condensed matrices just built
-                        self.qp.set_bounds(self.U, self._xb)
-                    t1 = time.perf_counter() - t1
-                    t_cond += t1
-                    t_qp -= t1
                 z, ok, qp_status, qp_it = self.qp.solve(dx0)
                 t_qp += time.perf_counter() - t0
                 if not ok:
@@ -380,7 +398,7 @@ class RealTimeIteration:
         qp = self.qp
         if isinstance(qp, SparseLTV):  # the sparse QP has them
             return float(np.max(np.abs(qp.dynamics_multipliers())))
-        nu_rows = qp.state_bound_multipliers()
+        nu_rows = self._pqp.state_bound_multipliers() if self.riccati else qp.state_bound_multipliers()
         Xp = self.ocp.deviation(self.X[1:], self._ref) + dX if self.ocp.manifold else self.X[1:] + dX - self._ref
         W = self.ocp.W
         lam_next = np.zeros(n)
@@ -420,7 +438,7 @@ class RealTimeIteration:
 
     def _fail(self, x: np.ndarray, status: str, t_start: float) -> NMPCSolution:
         message = f"NonlinearMPC: the QP failed ({status}) at x = {np.array2string(x, precision=4)}"
-        reason = self.qp.explain()
+        reason = self._pqp.explain() if self.riccati else self.qp.explain()
         if reason:
             message += f"; {reason}"
         self._started = False  # the next call starts cold
