@@ -29,7 +29,7 @@ import scipy.linalg as sla
 from shinro_ctrl.controllers.mpc import LinearMPC
 from shinro_ctrl.errors import ExportError
 from shinro_ctrl.export.parts import CArray, CField, Part, matvec
-from shinro_ctrl.export.qp_c import ldp_fields, ldp_solver_code
+from shinro_ctrl.export.qp_c import gram_table_code, gram_table_fields, ldp_solver_code
 from shinro_ctrl.export.registry import ExportContext, register_exporter
 
 __all__ = ["MAX_ITER", "MAX_ROWS", "LinearMPCExporter", "MPCTables"]
@@ -168,7 +168,7 @@ class LinearMPCExporter:
                 CArray("Dr", t.Dr, "row bounds: dependence on rho (mt x n)"),
                 CArray("dc", t.dc, "row bounds: constant shift A H^-1 f_c (mt)"),
             ]
-            fields += ldp_fields(mt, m, min(nz, mt))
+            fields += gram_table_fields(mt, min(nz, mt))
             nr = int(t.rate_rows.size)
             if nr:
                 tables += [
@@ -205,13 +205,14 @@ class LinearMPCExporter:
     }}
 """
                 + rate
-                + """    rc = @N@_ctl_ldp(ws, u);
+                + """    rc = @N@_ctl_ldp(ws);
     if (rc == 1) {
         return @U@_QP_INFEASIBLE;
     }
     if (rc == 2) {
         status |= @U@_SOLVER_MAX_ITER;
     }
+    @N@_ctl_output(ws, u);
 """
             )
         du = obj.du_max
@@ -250,7 +251,12 @@ class LinearMPCExporter:
             "        }\n    }\n"
         )
         code = (
-            (ldp_solver_code(mt, m, min(nz, mt), primal_tol=t.primal_tol, max_iter=MAX_ITER) if mt else "")
+            (
+                gram_table_code(mt, m)
+                + ldp_solver_code(mt, min(nz, mt), primal_tol=t.primal_tol, max_iter=MAX_ITER, refactor=False)
+                if mt
+                else ""
+            )
             + "\nvoid @N@_ctl_reset(@N@_workspace *ws) {\n    ws->ctl_has_uprev = 0;\n"
             + ("    ws->ctl_nW = 0;\n" if mt else "")
             + "}\n\n"

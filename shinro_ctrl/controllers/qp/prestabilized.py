@@ -212,7 +212,7 @@ class PrestabilizedLTV:
                     bl[r0:] = self._xlo - off
         if not (np.all(np.isfinite(self.A)) and np.all(np.isfinite(self.H)) and np.all(np.isfinite(du))):
             self.flag = -6
-            return False, "non-finite QP data", 0
+            return False, "QP data not finite", 0
         if self.ns:  # every slack starts at its bound s = 0 (DAQP's ACTIVE | LOWER): only violated rows leave
             self.sense[nu:nv] = 3
         if self.warm_start:
