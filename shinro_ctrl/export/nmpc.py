@@ -343,6 +343,7 @@ static int @N@_ctl_riccati(@N@_workspace *ws, const double *ref) {{
 static int @N@_ctl_qp(@N@_workspace *ws) {{
     int i, j, k, l, q, r, rc;
     double *T = ws->ctl_T, *Z = ws->ctl_Z;
+    (void)r; /* unused without state bounds */
     for (i = 0; i < {N * m * m}; ++i) {{
         if (!isfinite(ws->ctl_Re[i])) {{
             return 3;

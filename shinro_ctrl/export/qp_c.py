@@ -386,6 +386,16 @@ def block_rows_code(mt: int, nd: int, ns: int, nb: int, w1: float, w2: float, ta
     nz = nd + ns
     isq = 1.0 / w2**0.5
     nblk = nd // nb
+    slack_axpy = slack_dot = ""
+    if ns:  # (without slacks no row has a slack entry: no code that could index past w)
+        slack_axpy = f"""    if (ws->{t}_sidx[a] >= 0) {{
+        ws->{t}_w[{nd} + ws->{t}_sidx[a]] += c * ws->{t}_sval[a];
+    }}
+"""
+        slack_dot = f"""    if (ws->{t}_sidx[a] >= 0) {{
+        s += ws->{t}_sval[a] * ws->{t}_w[{nd} + ws->{t}_sidx[a]];
+    }}
+"""
     return f"""/* ---- rows of the least-distance QP formed each step: H block diagonal, one slack entry per row ---- */
 /* a . b over len entries, in four partial sums (independent chains: the compiler may overlap them) */
 static double @N@_{t}_dot(const double *a, const double *b, int len) {{
@@ -423,17 +433,11 @@ static void @N@_{t}_waxpy(@N@_workspace *ws, int a, double c) {{
     for (l = 0; l < len; ++l) {{
         ws->{t}_w[l] += c * ra[l];
     }}
-    if (ws->{t}_sidx[a] >= 0) {{
-        ws->{t}_w[{nd} + ws->{t}_sidx[a]] += c * ws->{t}_sval[a];
-    }}
-}}
+{slack_axpy}}}
 
 static double @N@_{t}_wrow(const @N@_workspace *ws, int a) {{
     double s = @N@_{t}_dot(ws->{t}_Md + (long)a * {nd}, ws->{t}_w, ws->{t}_len[a]);
-    if (ws->{t}_sidx[a] >= 0) {{
-        s += ws->{t}_sval[a] * ws->{t}_w[{nd} + ws->{t}_sidx[a]];
-    }}
-    return s;
+{slack_dot}    return s;
 }}
 
 /* M w of the rows with a finite bound (the others are never violated) */
