@@ -10,7 +10,8 @@ bounds <= 10 µs (:func:`mpc_rows`); NonlinearMPC RTI cart-pole swing-up N = 40 
 The quadrotor EKF row's C step is the EKF update and the LQR together (the goal is the EKF's; the LQR adds
 about 0.01 µs).
 
-Run: ``python benchmarks/export.py [--repeats R]`` (the machine is shared: take the median of repeats).
+Run: ``python benchmarks/export.py [--repeats R] [--only mpc|nmpc]`` (the machine is shared: take the median
+of repeats).
 """
 
 from __future__ import annotations
@@ -20,9 +21,6 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from shinro_ctrl.export import pipeline
-from shinro_ctrl.export.assemble import assemble
-from shinro_ctrl.export.build import build_and_verify
 from shinro_ctrl.export.pipeline import export_scenario
 from shinro_ctrl.resources import config_path
 
@@ -123,37 +121,47 @@ ACADOS_REFERENCE = (
 
 def nmpc_rows(tmp: Path, repeats: int) -> None:
     """NonlinearMPC RTI: the cart-pole swing-up of configs/cartpole_nmpc_swingup_mujoco.toml (N = 40, soft cart
-    bounds, |F| <= 40 N), recorded once in both loops (1,000 steps), the folder built ``repeats`` times with ``-O2``.
+    bounds, |F| <= 40 N, ``riccati = true``), exported ``repeats`` times as ``shinro-ctrl export`` does (1,000 recorded
+    steps from both loops, verified, ``-O2``).
 
-    Printed beside the C and Python step: the agreement (max relative error and the steps above the 1e-9 tolerance:
-    the swing-up's condensed Hessian has a condition number near 1e9, so its QP solution moves by ~1e-8 when the
-    Hessian is rounded differently; docs/deploying.md) and acados' published figures.
+    Both sides take the Riccati step and, where it breaks a bound, solve the QP in the policy's prestabilized
+    variables (condition number ~10; the condensed Hessian's is 1e8-1e9): printed beside the C and Python step are
+    the agreement (max relative error, steps above the 1e-9 tolerance; the export fails on any) and acados'
+    published figures.
     """
     cfg = config_path("cartpole_nmpc_swingup_mujoco.toml")
-    unit, recordings, py_s, _, _ = pipeline.prepare(cfg, "cp_nmpc")
-    c_ns = []
-    res = None
+    c_ns, py_s = [], []
+    rep = None
     for r in range(repeats):
-        out = tmp / f"nmpc{r}"
-        out.mkdir()
-        for fname, text in assemble(unit, recordings).items():
-            (out / fname).write_text(text, encoding="utf-8")
-        res = build_and_verify(out, "cp_nmpc", cflags="-O2")
-        assert res.c_step_ns is not None and res.errors == 0 and not res.heap, res.summary()
-        c_ns.append(res.c_step_ns)
-    assert res is not None
+        rep = export_scenario(cfg, tmp / f"nmpc{r}", cflags="-O2")
+        assert rep.build is not None and rep.build.ok and not rep.build.heap, rep.build.summary() if rep.build else ""
+        c_ns.append(rep.build.c_step_ns)
+        py_s.append(rep.python_step_s)
+    assert rep is not None and rep.build is not None
     c = statistics.median(c_ns) / 1e3
+    py = statistics.median(py_s) * 1e6
     label = "cart-pole NMPC RTI N=40"
-    print(f"{label:28s} {res.steps:6d} {res.max_rel_err:11.2e} {c:8.3f} µs {py_s * 1e6:9.2f} µs {'<= 40 µs':>8s}")
-    print(f"  steps above the 1e-9 tolerance: {res.disagreements} of {res.steps}")
+    print(f"{label:28s} {rep.build.steps:6d} {rep.build.max_rel_err:11.2e} {c:8.3f} µs {py:9.2f} µs {'<= 40 µs':>8s}")
+    print(
+        f"  steps above the 1e-9 tolerance: {rep.build.disagreements} of {rep.build.steps}; C step of each export: "
+        + ", ".join(f"{v / 1e3:.1f} µs" for v in c_ns)
+    )
     print(f"  {ACADOS_REFERENCE}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3, help="exports per scenario (median of their timings)")
+    ap.add_argument("--only", choices=("all", "mpc", "nmpc"), default="all", help="rows to run (default: all)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
+        print(f"{'scenario':28s} {'steps':>6s} {'max rel err':>11s} {'C step':>10s} {'Python step':>12s} {'goal':>8s}")
+        if args.only == "mpc":
+            mpc_rows(Path(tmp), args.repeats)
+            return
+        if args.only == "nmpc":
+            nmpc_rows(Path(tmp), args.repeats)
+            return
         quad = Path(tmp) / "quadrotor_ekf_lqr.toml"
         quad.write_text(QUAD_EKF)
         cases = [
@@ -164,7 +172,6 @@ def main() -> None:
             ("quadrotor EKF + LQR", quad, 2.0),
             ("cart-pole TVLQR swing-up", config_path("cartpole_swingup_mujoco.toml"), None),
         ]
-        print(f"{'scenario':28s} {'steps':>6s} {'max rel err':>11s} {'C step':>10s} {'Python step':>12s} {'goal':>8s}")
         for label, cfg, goal in cases:
             c_ns, py_s = [], []
             rep = None

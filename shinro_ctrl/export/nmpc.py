@@ -15,8 +15,8 @@ preparation before it, with the Riccati step first (``riccati = true``):
    bounds it is the QP's solution (``_riccati_step``) and step 4 is skipped;
 4. **the QP in the prestabilized variables** (:mod:`~shinro_ctrl.controllers.qp.prestabilized`, as the Python
    RTI solves it): ``ΔU = ΔU* + T v``, ``ΔX = ΔX* + Z v`` (``T``, ``Z`` by the closed-loop recursion
-   ``T_k = K_k Z_k + E_k``, ``Z_{k+1} = A_k Z_k + B_k T_k``), Hessian ``blockdiag(R_{e,k}, w₂ I)`` (condition
-   number ~10 on the swing-up, where the condensed Hessian's reaches 10⁸–10⁹), the input bounds and the
+   ``Z_{k+1} = (A_k + B_k K_k) Z_k + B_k E_k``, ``T_k = K_k Z_k + E_k``), Hessian ``blockdiag(R_{e,k}, w₂ I)``
+   (condition number ~10 on the swing-up, where the condensed Hessian's reaches 10⁸–10⁹), the input bounds and the
    soft state bounds as rows in ``z = (v, s)``; solved exactly by the one dual active-set solver of
    :mod:`~shinro_ctrl.export.qp_c` with its per-step rows (``block_rows_code``: the blocks factored, the rows
    of ``M = A L^{-T}`` normalized as DAQP normalizes them, the same primal tolerance, every slack bound
@@ -160,6 +160,7 @@ class NonlinearMPCExporter:
             CField("rg", nu, "Riccati: the gradient at dU = 0"),
             CField("T", nu * nu, "prestabilized QP: dU = dU* + T v (nu x nu)"),
             CField("Z", N * n * nu, "prestabilized QP: dX = dX* + Z v (N x n x nu)"),
+            CField("Acl", n * n, "prestabilized QP: the closed-loop transition A_k + B_k K_k"),
             CField("cw", max(sz_w, 1), "CasADi work array"),
             CField("ciw", max(sz_iw, 1), "CasADi integer work array", ctype="long long int"),
         ]
@@ -349,43 +350,44 @@ static int @N@_ctl_qp(@N@_workspace *ws) {{
             return 3;
         }}
     }}
-    /* T_k = K_k Z_k + E_k, Z_(k+1) = A_k Z_k + B_k T_k (Z_0 = 0; columns < (k+1) m, the rest zero) */
+    /* Z_(k+1) = (A_k + B_k K_k) Z_k + B_k E_k, T_k = K_k Z_k + E_k (Z_0 = 0; Z_k has no column >= k m) */
     memset(T, 0, {nu * nu} * sizeof(double));
     memset(Z, 0, {N * n * nu} * sizeof(double));
     for (k = 0; k < {N}; ++k) {{
-        int c0 = k * {m}, c = c0 + {m};
+        int c0 = k * {m};
         const double *Zk = Z + ((long)k - 1) * {n * nu}; /* Z_k: stored at k - 1 (Z_0 = 0) */
-        double *Zn = Z + (long)k * {n * nu};
+        double *Zn = Z + (long)k * {n * nu}, *Acl = ws->ctl_Acl;
         for (i = 0; i < {m}; ++i) {{
             double *trow = T + (long)(c0 + i) * {nu};
-            if (k > 0) {{
-                for (j = 0; j < {n}; ++j) {{
-                    double kij = @N@_ctl_K(k, i, j);
-                    const double *zr = Zk + j * {nu};
-                    for (q = 0; q < c0; ++q) {{
-                        trow[q] += kij * zr[q];
-                    }}
+            for (j = 0; k > 0 && j < {n}; ++j) {{
+                double kij = @N@_ctl_K(k, i, j);
+                const double *zr = Zk + j * {nu};
+                for (q = 0; q < c0; ++q) {{
+                    trow[q] += kij * zr[q];
                 }}
             }}
             trow[c0 + i] = 1.0;
         }}
         for (i = 0; i < {n}; ++i) {{
+            for (j = 0; j < {n}; ++j) {{
+                double s = @N@_ctl_A(k, i, j);
+                for (l = 0; l < {m}; ++l) {{
+                    s += @N@_ctl_B(k, i, l) * @N@_ctl_K(k, l, j);
+                }}
+                Acl[i * {n} + j] = s;
+            }}
+        }}
+        for (i = 0; i < {n}; ++i) {{
             double *zn = Zn + i * {nu};
-            if (k > 0) {{
-                for (j = 0; j < {n}; ++j) {{
-                    double a = @N@_ctl_A(k, i, j);
-                    const double *zr = Zk + j * {nu};
-                    for (q = 0; q < c0; ++q) {{
-                        zn[q] += a * zr[q];
-                    }}
+            for (j = 0; k > 0 && j < {n}; ++j) {{
+                double a = Acl[i * {n} + j];
+                const double *zr = Zk + j * {nu};
+                for (q = 0; q < c0; ++q) {{
+                    zn[q] += a * zr[q];
                 }}
             }}
             for (l = 0; l < {m}; ++l) {{
-                double bl = @N@_ctl_B(k, i, l);
-                const double *trow = T + (long)(c0 + l) * {nu};
-                for (q = 0; q < c; ++q) {{
-                    zn[q] += bl * trow[q];
-                }}
+                zn[c0 + l] = @N@_ctl_B(k, i, l);
             }}
         }}
     }}

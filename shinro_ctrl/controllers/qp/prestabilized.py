@@ -11,8 +11,8 @@ bound, the QP is solved here in the variables ``v`` of the prestabilized paramet
     \Delta x_{k+1} = (A_k + B_k K_k)\,\Delta x_k + B_k (\kappa_k + v_k) + d_k,
 
 so that ``ΔU = ΔU* + T v`` and ``ΔX = ΔX* + Z v`` (``T`` unit lower block-triangular, ``Z`` strictly
-lower block-triangular: ``∂Δu_k/∂v = K_k Z_k + E_k``, ``Z_{k+1} = A_k Z_k + B_k ∂Δu_k/∂v``, ``Z_0 = 0``:
-closed-loop transitions, stable where the policy stabilizes). Completing the square stage by stage with the
+lower block-triangular: ``∂Δu_k/∂v = T_k = K_k Z_k + E_k``, ``Z_{k+1} = (A_k + B_k K_k) Z_k + B_k E_k``,
+``Z_0 = 0``: closed-loop transitions, stable where the policy stabilizes). Completing the square stage by stage with the
 Riccati value function gives the cost exactly as
 
 .. math::
@@ -107,7 +107,11 @@ class PrestabilizedLTV:
         self.A = np.zeros((self.nrow, self.nvar))
         self.T = self.A[:nu, :nu]
         self._Z = np.zeros((N + 1, n, nu))  # Z_k = ∂Δx_k/∂v (Z_0 = 0)
-        self._Bt = np.zeros((n, nu))  # scratch: B_k ∂Δu_k/∂v
+        self._Acl = np.zeros((N, n, n))  # A_k + B_k K_k
+        self._T3 = np.zeros((N, m, nu))  # T by stages
+        self._E = np.zeros((N, m, nu))  # E_k: the identity at the columns of v_k
+        for k in range(N):
+            self._E[k, :, k * m : (k + 1) * m] = np.eye(m)
         if self.soft:
             E = np.eye(ns)
             self.A[nu : nu + nr, nu:] = -E
@@ -148,21 +152,23 @@ class PrestabilizedLTV:
         self.flag = 1
 
     def factor_rows(self, K: np.ndarray, Re: np.ndarray) -> None:
-        """``T``, ``Z`` and ``H`` from the policy gains ``K (N, m, n)`` and the blocks ``R_e (N, m, m)``."""
-        N, m = self.N, self.m
-        nu = self.nu
-        A, B, Z, T = self._A, self._B, self._Z, self.T
+        """``T``, ``Z`` and ``H`` from the policy gains ``K (N, m, n)`` and the blocks ``R_e (N, m, m)``.
+
+        ``Z_{k+1} = (A_k + B_k K_k) Z_k + B_k E_k`` (the closed-loop transition; ``Z_k`` has no column ``≥ k m``),
+        then ``T_k = K_k Z_k + E_k`` for all stages at once.
+        """
+        m, nu = self.m, self.nu
+        Z = self._Z
         mm = np.matmul
-        for k in range(N):
-            c0, c = k * m, (k + 1) * m
-            Tk = T[c0:c, :c]
-            if k:
-                mm(K[k], Z[k, :, :c0], out=Tk[:, :c0])
-            Tk[:, c0:c] = np.eye(m)
-            # Z_{k+1} = A_k Z_k + B_k T_k (columns < c; the rest stay zero)
-            mm(A[k], Z[k, :, :c], out=Z[k + 1, :, :c])
-            mm(B[k], Tk, out=self._Bt[:, :c])
-            Z[k + 1, :, :c] += self._Bt[:, :c]
+        mm(self._B, K, out=self._Acl)
+        self._Acl += self._A
+        for k, (acl, b) in enumerate(zip(self._Acl, self._B, strict=True)):
+            zn = Z[k + 1]
+            mm(acl, Z[k], out=zn)
+            zn[:, k * m : (k + 1) * m] = b
+        mm(K, Z[:-1], out=self._T3)
+        self._T3 += self._E
+        self.T[:] = self._T3.reshape(nu, nu)
         if self.nr:
             rows = Z[1:, self.bounded, :].reshape(self.nr, nu)
             self.A[nu : nu + self.nr, :nu] = rows
