@@ -461,6 +461,7 @@ SOLVER_BACKENDS = {
     "controllers/qp/condensed.py": "the condensed QP and its daqp.Model",
     "controllers/qp/ltv.py": "NonlinearMPC's condensed LTV QP (daqp.solve)",
     "controllers/qp/ltv_sparse.py": "NonlinearMPC's sparse LTV QP (holds an OsqpQP)",
+    "controllers/qp/prestabilized.py": "NonlinearMPC's QP around its Riccati step (daqp.solve)",
     "controllers/_nmpc_rti.py": "NonlinearMPC's real-time-iteration strategy",
     "controllers/_nmpc_ipopt.py": "NonlinearMPC's IPOPT strategy (casadi.nlpsol)",
     "multibody/contacts.py": "the standing-equilibrium QP of a contact model (casadi.nlpsol, IPOPT)",

@@ -109,11 +109,13 @@ class NMPCOptions:
         riccati: Take that Riccati step first (``solver = "daqp"``; the
             Riccati functions compiled, or in the virtual machine when no
             compiler works): ``True``, ``False``, or ``None`` (default) = as
-            ``codegen`` says above. Its unconstrained step does not form the
-            condensed Hessian, whose condition number reaches 10⁸–10⁹ on a
+            ``codegen`` says above. Neither its unconstrained step nor the QP
+            solved where it breaks a bound (in the policy's prestabilized
+            variables, :mod:`~shinro_ctrl.controllers.qp.prestabilized`) forms
+            the condensed Hessian, whose condition number reaches 10⁸–10⁹ on a
             swing-up (one rounding of ``H`` moves ``u₀`` by ~1e-8): ``True``
-            makes that step well conditioned, and the exported C takes the
-            same step (docs/deploying.md).
+            makes every step well conditioned, and the exported C takes the
+            same steps (docs/deploying.md).
         state_names: Names of the states, for messages (default ``x[i]``).
         input_names: Names of the inputs, for messages (default ``u[i]``).
     """

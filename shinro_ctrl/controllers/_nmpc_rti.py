@@ -4,8 +4,11 @@
 matrices ``G_k = [A_k, B_k, d_k]`` the compiled linearization writes into, and
 the LTV QP (condensed with DAQP, or sparse with OSQP). **prepare** shifts the
 previous solution, linearizes all stages in one compiled call and condenses
-the QP; **solve** (the feedback) solves the QP for the measured state and takes
-the step (with ``iterations > 1`` an ℓ1-merit Armijo line search and more SQP
+the QP (or, with the Riccati step first, runs the backward Riccati recursion);
+**solve** (the feedback) solves the QP for the measured state (with the Riccati
+step first: the policy's rollout, and where it breaks a bound the QP in the
+policy's prestabilized variables, :class:`PrestabilizedLTV`) and takes the step
+(with ``iterations > 1`` an ℓ1-merit Armijo line search and more SQP
 iterations follow). The module docstring of ``controllers/nmpc.py`` states the
 OCP.
 """
@@ -214,8 +217,9 @@ class RealTimeIteration:
         """The unconstrained minimizer of the prepared QP by the Riccati policy; True when it meets the bounds.
 
         The QP is convex, so a minimizer of its cost that meets every bound is its solution (all
-        multipliers zero; soft state bounds: every slack at zero): then neither the condensed Hessian nor
-        DAQP's dense factorization is needed. The bounds are the inputs' and the predicted states'
+        multipliers zero; soft state bounds: every slack at zero): then no QP is solved. Otherwise ``solve``
+        solves the QP around this step in the policy's prestabilized variables (:class:`PrestabilizedLTV`:
+        block-diagonal Hessian, the condensed one is never formed). The bounds are the inputs' and the predicted states'
         ``X̄₁…X̄_N + ΔX`` on the bounded components. ``ΔU``, ``ΔX`` and the gradient at ``ΔU = 0`` are left in
         ``_dU``, ``_dX``, ``_g``.
         """

@@ -6,4 +6,7 @@ one adapter in ``controllers/_osqp.py``; ``backend_daqp.py``: the condensed,
 input-only QP of ``condensed.py`` around a pre-stabilizing feedback, solved by
 DAQP's dual active-set method), named in ``dispatch.BACKENDS``; ``options.py``
 holds :class:`~.options.MPCOptions` and ``solution.py`` the per-call results.
+``NonlinearMPC``'s real-time iteration uses ``ltv.py`` (the condensed LTV QP),
+``ltv_sparse.py`` (the sparse one, OSQP) and ``prestabilized.py`` (the QP around
+its Riccati step, in the policy's prestabilized variables).
 """
