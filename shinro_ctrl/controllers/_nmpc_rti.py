@@ -126,7 +126,6 @@ class RealTimeIteration:
         nu = N * m
         qp = self.qp
         assert isinstance(qp, CondensedLTV)
-        self._cqp = qp
         o = ocp.options
         xmin = np.broadcast_to(o.x_min if ocp.manifold is None else -np.inf, (n,))
         xmax = np.broadcast_to(o.x_max if ocp.manifold is None else np.inf, (n,))
