@@ -10,7 +10,7 @@ bounds <= 10 µs (:func:`mpc_rows`); NonlinearMPC RTI cart-pole swing-up N = 40 
 The quadrotor EKF row's C step is the EKF update and the LQR together (the goal is the EKF's; the LQR adds
 about 0.01 µs).
 
-Run: ``python benchmarks/export.py [--repeats R] [--only mpc|nmpc]`` (the machine is shared: take the median
+Run: ``python benchmarks/export.py [--repeats R] [--only mpc|nmpc|cond]`` (the machine is shared: take the median
 of repeats).
 """
 
@@ -21,8 +21,14 @@ import statistics
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
+from shinro_ctrl.controllers._nmpc_ocp import riccati_functions
+from shinro_ctrl.controllers.qp.ltv import CondensedLTV
+from shinro_ctrl.controllers.qp.prestabilized import PrestabilizedLTV
 from shinro_ctrl.export.pipeline import export_scenario
 from shinro_ctrl.resources import config_path
+from shinro_ctrl.sim import RobotSim
 
 QUAD_EKF = """[plant]
 type = "Quadrotor"
@@ -149,11 +155,63 @@ def nmpc_rows(tmp: Path, repeats: int) -> None:
     print(f"  {ACADOS_REFERENCE}")
 
 
+def conditioning_rows() -> None:
+    """Conditioning of the swing-up's bound-active QPs (standalone, 8 s): the condensed Hessian ``H`` against the
+    prestabilized one ``blockdiag(R_e,k)`` (input parts; the slacks' block is ``w2 I`` in both), and the dual Hessian
+    ``A_W H_v^-1 A_W^T`` of the prestabilized QP's final working set (slack bounds included).
+
+    After each call the controller is prepared for the next (shifted, linearized): its linearization point and stage
+    matrices are read then, and on the calls where the Riccati step breaks a bound both QPs are rebuilt from them
+    (CondensedLTV's condensing; the Riccati functions and PrestabilizedLTV).
+    """
+    sim = RobotSim.from_config(config_path("cartpole_nmpc_swingup_mujoco.toml"), engine="standalone")
+    res = sim.run(8.0, progress=False)
+    ctrl = sim.controller
+    rti, ocp = ctrl.strategy, ctrl.ocp
+    o = ocp.options
+    n, m, N = ocp.n, ocp.m, ocp.N
+    back, fwd = riccati_functions(n, m, N, codegen=False)
+    Wt = np.swapaxes(ocp.W, 1, 2).reshape(N * n, n).T
+    ctrl.reset()
+    rows = []
+    saved = None
+    for k in range(res.x.shape[0] - 1):
+        x, ref = res.x[k], res.ref[k]
+        ctrl(x, ref)
+        if saved is not None and ctrl.last.qp_iterations > 0:  # this call's QP was the saved point's
+            X, U, G = saved
+            e, du = (X[1:] - ref).ravel(), (U - ocp.u0).ravel()
+            cond = CondensedLTV(G, ocp.W, ocp.R, o.u_min, o.u_max, o.x_min, o.x_max, soft=o.soft)
+            cond.build(e, du)
+            Gt = G.reshape(N * n, -1).T
+            KK, Re = back(Gt, Wt, ocp.R.T, e, du)
+            KK = np.array(KK).T.reshape(N, n + 1, m)
+            Re = np.array(Re).T.reshape(N, m, m)
+            dU, dX, _, _ = (np.array(v).T for v in fwd(Gt, KK.reshape(-1, m).T, Wt, ocp.R.T, e, du, x - X[0]))
+            pqp = PrestabilizedLTV(G, o.u_min, o.u_max, o.x_min, o.x_max, soft=o.soft)
+            ok, status, _ = pqp.solve(np.swapaxes(KK[:, :n, :], 1, 2), Re, dU, dX, U, X[1:])
+            assert ok, status
+            act = np.flatnonzero(pqp.lam)
+            Aall = np.vstack([np.eye(pqp.nvar), pqp.A])[act]
+            dual = Aall @ np.linalg.solve(pqp.H, Aall.T)
+            nu = N * m  # the input parts (the slacks' block is w2 I in both)
+            rows.append((np.linalg.cond(cond.H[:nu, :nu]), np.linalg.cond(pqp.H[:nu, :nu]), np.linalg.cond(dual)))
+        saved = (rti.X.copy(), rti.U.copy(), np.concatenate([rti.A, rti.B, rti.D[:, :, None]], axis=2))
+    c = np.array(rows)
+    print(f"conditioning over the {len(rows)} bound-active QPs of the standalone swing-up (min - max):")
+    print(f"  condensed Hessian H (inputs)     {c[:, 0].min():9.2e} - {c[:, 0].max():9.2e}")
+    print(f"  prestabilized blockdiag(R_e,k)   {c[:, 1].min():9.2e} - {c[:, 1].max():9.2e}")
+    print(f"  working set's dual Hessian       {c[:, 2].min():9.2e} - {c[:, 2].max():9.2e}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3, help="exports per scenario (median of their timings)")
-    ap.add_argument("--only", choices=("all", "mpc", "nmpc"), default="all", help="rows to run (default: all)")
+    ap.add_argument("--only", choices=("all", "mpc", "nmpc", "cond"), default="all", help="rows to run (default: all)")
     args = ap.parse_args()
+    if args.only == "cond":
+        conditioning_rows()
+        return
     with tempfile.TemporaryDirectory() as tmp:
         print(f"{'scenario':28s} {'steps':>6s} {'max rel err':>11s} {'C step':>10s} {'Python step':>12s} {'goal':>8s}")
         if args.only == "mpc":
@@ -186,6 +244,7 @@ def main() -> None:
             print(f"{label:28s} {rep.build.steps:6d} {rep.build.max_rel_err:11.2e} {c:8.3f} µs {py:9.2f} µs {g:>8s}")
         mpc_rows(Path(tmp), args.repeats)
         nmpc_rows(Path(tmp), args.repeats)
+        conditioning_rows()
 
 
 if __name__ == "__main__":
