@@ -35,8 +35,9 @@ Large condensed QPs without state bounds (the arm, the quadrotor) take the
 Riccati step first: prepare runs a compiled backward Riccati recursion
 instead of the condensing, feedback rolls out its policy from ``Δx_0``, and
 when that unconstrained minimizer meets every input bound it is the QP's
-solution; only otherwise are the condensed QP and DAQP built and solved
-(:func:`~._nmpc_ocp.riccati_functions`, ``RealTimeIteration._riccati_step``).
+solution; only otherwise is the QP solved by DAQP, around that step in the policy's prestabilized
+variables (block-diagonal Hessian; :class:`~shinro_ctrl.controllers.qp.prestabilized.PrestabilizedLTV`,
+:func:`~._nmpc_ocp.riccati_functions`, ``RealTimeIteration._riccati_step``).
 
 On a floating base (``plant.tangent_dim < plant.state_dim``: unit quaternions in the state) the
 prediction is the plant's own manifold step and the QP works in tangent deviations
