@@ -39,14 +39,30 @@ compensation) and ``g`` the gravity forces. It is solved as the convex QP
 .. math::
 
     \min_{u, λ}\ \|u\|^2 + ε\|λ\|^2 \quad\text{s.t. the balance, }
-    u_{\min} ≤ u ≤ u_{\max},\ f_z ≥ 0,\ |f_x|, |f_y| ≤ \tfrac{μ}{\sqrt 2} f_z,
+    u_{\min} ≤ u ≤ u_{\max},\ |f_x|, |f_y| ≤ \tfrac{μ}{\sqrt 2} f_z,\
+    f_{z,i} ≥ \frac{α}{N_b} \sum_{j \in b} f_{z,j},
 
 the inner linearized pyramid (inside the exact cone ``‖f_{xy}‖ ≤ μ f_z``, so its answers are
-in the exact cone). The torque rows of a flat contact are free (the centre of pressure is not
-checked against the sole's outline). When the QP is infeasible, three linear feasibility
-problems name the constraint that fails: the balance alone (``posture``: the actuators and
-contacts cannot hold ``q`` at all), with the friction cones (``friction``), with the actuator
-ranges (``torque``).
+in the exact cone).
+
+**Several contact points on one foot** (the last constraint, ``α`` = ``min_share``, default
+:data:`MIN_NORMAL_SHARE`). A flat sole modelled by its corner points (``N_b`` contacts on one body
+``b``) leaves the split of the foot's load between its corners to the optimizer: statics fix only
+the foot's total force and moment, and the least-torque split is degenerate. Left alone it may load
+one edge only (our humanoid: the inner sole corners at 0.18 kN, the outer ones at 0 N): the centre of
+pressure then sits on the sole's edge, where a real (or MuJoCo's soft) contact rolls about the edge
+that the design model holds fixed. So every contact carries at least ``α`` of the even share of its
+foot's load, which keeps each foot's centre of pressure inside its support polygon with a margin (a
+rectangle of corners: within ``1 − α`` of the half-length from its centre along each axis). It is
+linear in ``λ`` and homogeneous, so it scales with the load. A body with one contact (a point foot)
+is unaffected (``f_z ≥ 0`` only): the quadruped's equilibrium does not change. The torque rows of a
+*flat* (welded) contact are free: its centre of pressure is not checked against an outline (a site or
+body has none); model a sole by its corner points to get the constraint.
+
+When the QP is infeasible, linear feasibility problems name the constraint that fails: the balance
+alone (``posture``: the actuators and contacts cannot hold ``q`` at all), with the friction cones
+and ``f_z ≥ 0`` (``friction``), with the actuator ranges (``torque``), with the minimum share
+(``support``: a foot's centre of pressure would be too near its edge).
 """
 
 from __future__ import annotations
@@ -66,6 +82,7 @@ from shinro_ctrl.multibody.rigid_body import NUMPY_OPS, RigidBodyTree
 
 __all__ = [
     "EQUILIBRIUM_FAILURES",
+    "MIN_NORMAL_SHARE",
     "ContactFrame",
     "EquilibriumNotFound",
     "StandingEquilibrium",
@@ -74,7 +91,9 @@ __all__ = [
 ]
 
 #: The constraint an impossible standing equilibrium names first.
-EQUILIBRIUM_FAILURES = ("posture", "friction", "torque")
+EQUILIBRIUM_FAILURES = ("posture", "friction", "torque", "support")
+#: Default ``min_share``: each contact's normal force is at least this fraction of the even share of its foot's load.
+MIN_NORMAL_SHARE = 0.5
 #: Weight of ``‖λ‖²`` beside ``‖u‖²`` in the equilibrium QP (makes the forces unique).
 FORCE_WEIGHT = 1e-6
 #: Residual of the static balance [N or N m] accepted as zero.
@@ -194,6 +213,7 @@ def standing_equilibrium(
     active: Sequence[int],
     u_bounds: tuple[np.ndarray, np.ndarray],
     *,
+    min_share: float = MIN_NORMAL_SHARE,
     what: str = "the standing equilibrium",
 ) -> StandingEquilibrium:
     """The inputs and contact forces that hold ``q`` still (module docstring: the QP and its diagnosis).
@@ -204,11 +224,16 @@ def standing_equilibrium(
         q: Configuration ``(nq,)`` on the constraints.
         active: The actuators that are the inputs.
         u_bounds: ``(u_min, u_max)`` (±inf where unbounded).
+        min_share: ``α`` in ``[0, 1]``: every contact's normal force is at least ``α`` times the even share
+            ``Σ_{j on b} f_z,j / N_b`` of the load on its body ``b`` (its foot: the ``N_b`` contacts on that
+            body; module docstring); 0: only ``f_z ≥ 0``. Vacuous for a body's only contact.
         what: How messages name the problem.
 
     Raises:
         EquilibriumNotFound: no equilibrium (one line naming the failing constraint).
     """
+    if not (isinstance(min_share, int | float) and 0.0 <= min_share <= 1.0):
+        raise InvalidArgument(f"min_share must be a number in [0, 1] (a fraction of the even share), got {min_share!r}")
     rb = cd.rb
     m = len(active)
     b, Bu = _static_terms(rb, q, active)
@@ -218,7 +243,7 @@ def standing_equilibrium(
     A = np.hstack([Bu, J.T])  # A [u; λ] = −b
     nz = m + R
     # inequality rows G z ≤ 0 (friction pyramid) and bounds
-    G, names = [], []
+    G = []
     r = crow
     for f in frames:
         mu = f.friction / np.sqrt(2.0)
@@ -227,13 +252,21 @@ def standing_equilibrium(
                 row = np.zeros(nz)
                 row[m + r + k], row[m + r + 2] = s, -mu
                 G.append(row)
-                names.append(f.name)
-        row = np.zeros(nz)
-        row[m + r + 2] = -1.0
-        G.append(row)
-        names.append(f.name)
         r += f.rows
-    G = np.array(G) if G else np.zeros((0, nz))
+    zrows = [m + crow + sum(f.rows for f in frames[:i]) + 2 for i in range(len(frames))]
+
+    def support(share: float) -> np.ndarray:
+        """Rows ``−f_z,i + (share / N_b) Σ_{j on b} f_z,j ≤ 0``: each contact carries ``share`` of the even split
+        of its body's (foot's) load over the ``N_b`` contacts on that body (vacuous for a body's only contact)."""
+        rows = np.zeros((len(frames), nz))
+        for i, (f, zi) in enumerate(zip(frames, zrows, strict=True)):
+            group = [zj for g, zj in zip(frames, zrows, strict=True) if g.body == f.body]
+            rows[i, group] = share / len(group)
+            rows[i, zi] -= 1.0
+        return rows
+
+    pyramid = np.array(G).reshape(-1, nz)
+    G = np.vstack([pyramid, support(0.0)])  # the pyramid, and f_z ≥ 0
     lo, hi = np.r_[u_bounds[0], np.full(R, -np.inf)], np.r_[u_bounds[1], np.full(R, np.inf)]
     free = [(None, None)] * nz
     boxed = [
@@ -273,6 +306,20 @@ def standing_equilibrium(
             "cones needs torques outside the actuator ranges (ctrlrange; lower the load or change the posture)",
             "torque",
         )
+    if min_share > 0.0:
+        G = np.vstack([pyramid, support(float(min_share))])
+        bodies = [f.body for f in frames]
+        feet = "; ".join(
+            ", ".join(f.name for f in frames if f.body == b) for b in dict.fromkeys(bodies) if bodies.count(b) > 1
+        )
+        if not feasible(True, boxed):
+            raise EquilibriumNotFound(
+                f"{what} does not exist: support: no contact forces inside the friction cones and torques inside "
+                f"the actuator ranges give every contact at least {min_share:g} of the even share of its foot's "
+                f"load ({feet}: a foot's centre of pressure would sit too near its edge; move the centre of mass "
+                "over the feet, or lower min_share)",
+                "support",
+            )
     # the QP: min ‖u‖² + ε‖λ‖² (convex; IPOPT)
     H = np.diag(np.r_[np.ones(m), np.full(R, FORCE_WEIGHT)])
     Aall = np.vstack([A, G]) if len(G) else A

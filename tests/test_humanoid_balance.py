@@ -1,0 +1,111 @@
+"""Issue 26 item 4: the standing equilibrium of feet with several contact points, and the humanoid balance scenario.
+
+The equilibrium's minimum normal share (``min_share``) is checked against forces worked out by hand: a box on
+four corner points with its centre of mass off centre. Statics leave one free direction (the corners' "twist"
+``(+1, −1, −1, +1)``); the least-norm split is ``f_i = W/4 (1 + c_x x_i/a² + c_y y_i/b²)``, and with the
+lightest corner held at ``α W/4`` the other three follow from the three balance equations.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shinro_ctrl.engine.model_tree import read_contact_frames, read_model_tree
+from shinro_ctrl.multibody.constraints import ConstrainedDynamics
+from shinro_ctrl.multibody.contacts import EquilibriumNotFound, contact_constraints, standing_equilibrium
+from shinro_ctrl.multibody.rigid_body import RigidBodyTree
+from shinro_ctrl.plants.mjcf import MjcfPlant
+
+BIPED = Path(__file__).parent / "data" / "planar_biped_contacts.xml"
+A, B, MASS, G = 0.2, 0.1, 4.0, 9.81
+CX, CY = 0.3 * A, 0.3 * B  # the centre of mass, off centre
+CORNERS = {"pp": (A, B), "pm": (A, -B), "mp": (-A, B), "mm": (-A, -B)}
+# a box on four corner spheres; a light yawing lid (its mass on its axis: no gravity torque) gives one free motion
+BOX = f"""
+<mujoco>
+  <option gravity="0 0 -{G}"/>
+  <worldbody>
+    <body name="box" pos="0 0 0.1">
+      <freejoint name="root"/>
+      <inertial pos="{CX} {CY} 0" mass="{MASS}" diaginertia="0.1 0.1 0.1"/>
+      {"".join(f'<geom name="{n}" type="sphere" size="0.01" pos="{x} {y} -0.05"/>' for n, (x, y) in CORNERS.items())}
+      <body name="lid" pos="0 0 0.05">
+        <joint name="yaw" axis="0 0 1"/>
+        <inertial pos="0 0 0" mass="0.001" diaginertia="1e-4 1e-4 1e-4"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor name="yaw" joint="yaw" ctrlrange="-1 1"/></actuator>
+</mujoco>
+"""
+
+
+@pytest.fixture(scope="module")
+def box(tmp_path_factory):
+    path = tmp_path_factory.mktemp("box") / "box.xml"
+    path.write_text(BOX)
+    rb = RigidBodyTree(read_model_tree(str(path)))
+    all_frames = read_contact_frames(str(path))
+    frames = [all_frames[n] for n in CORNERS]
+    q = np.r_[0, 0, 0.1, 1, 0, 0, 0, 0.0]
+    cd = ConstrainedDynamics(rb, contact_constraints(rb, frames, q), active=(0,), q_ref=q)
+    return cd, frames, q
+
+
+def _normals(eq) -> dict[str, float]:
+    return {n: float(w[2]) for n, w in eq.forces.items()}
+
+
+def test_least_norm_split_when_every_corner_carries_its_share(box):
+    """``α = 0`` and ``α = 0.25``: the lightest corner already carries 0.4 of the even share: the least-norm split."""
+    cd, frames, q = box
+    W = (MASS + 0.001) * G
+    cx, cy = MASS * CX / (MASS + 0.001), MASS * CY / (MASS + 0.001)
+    for share in (0.0, 0.25):
+        eq = standing_equilibrium(cd, frames, q, (0,), (np.array([-1.0]), np.array([1.0])), min_share=share)
+        for n, (x, y) in CORNERS.items():
+            assert _normals(eq)[n] == pytest.approx(W / 4 * (1 + cx * x / A**2 + cy * y / B**2), rel=1e-6)
+            np.testing.assert_allclose(eq.forces[n][:2], 0.0, atol=1e-6)  # no tangential force is needed
+        assert eq.u == pytest.approx([0.0], abs=1e-9)
+
+
+def test_minimum_share_holds_the_lightest_corner_at_its_bound(box):
+    """``α = 0.5``: the corner (−a, −b) at ``α W/4``; the others from the three balance equations (by hand:
+    ``f₊₋ = f₋₊ = 0.225 W``, ``f₊₊ = 0.425 W`` for ``c = 0.3 (a, b)``, the lid's milligram ignored to 1e-3)."""
+    cd, frames, q = box
+    W = (MASS + 0.001) * G
+    eq = standing_equilibrium(cd, frames, q, (0,), (np.array([-1.0]), np.array([1.0])), min_share=0.5)
+    f = _normals(eq)
+    assert f["mm"] == pytest.approx(0.125 * W, rel=1e-6)
+    assert f["pm"] == pytest.approx(0.225 * W, rel=1e-3) and f["mp"] == pytest.approx(0.225 * W, rel=1e-3)
+    assert f["pp"] == pytest.approx(0.425 * W, rel=1e-3)
+    # the exact balance: total load and moments about the box's origin
+    assert sum(f.values()) == pytest.approx(W, rel=1e-9)
+    assert sum(f[n] * x for n, (x, _) in CORNERS.items()) == pytest.approx(MASS * CX * G, rel=1e-6)
+    assert sum(f[n] * y for n, (_, y) in CORNERS.items()) == pytest.approx(MASS * CY * G, rel=1e-6)
+
+
+def test_a_share_beyond_what_statics_allow_is_a_support_failure(box):
+    """Along the twist the lightest corner carries at most 0.7 of the even share here (0.1 W + t = 0.25 W − t)."""
+    cd, frames, q = box
+    bounds = (np.array([-1.0]), np.array([1.0]))
+    eq = standing_equilibrium(cd, frames, q, (0,), bounds, min_share=0.69)
+    assert min(_normals(eq).values()) >= 0.69 * sum(_normals(eq).values()) / 4 * (1 - 1e-6)
+    with pytest.raises(EquilibriumNotFound, match="does not exist: support") as info:
+        standing_equilibrium(cd, frames, q, (0,), bounds, min_share=0.75)
+    assert info.value.failure == "support" and "\n" not in str(info.value)
+    for bad in (-0.1, 1.5, float("nan"), "half"):
+        with pytest.raises(ValueError, match="min_share"):
+            standing_equilibrium(cd, frames, q, (0,), bounds, min_share=bad)
+
+
+def test_a_single_contact_per_foot_is_unchanged_by_the_share():
+    """The share is per foot (body): point feet (one contact each) keep their forces whatever ``α``."""
+    biped = MjcfPlant(BIPED, contacts=["lfoot", "rfoot"])
+    a, b = biped.standing_equilibrium(min_share=0.0), biped.standing_equilibrium(min_share=1.0)
+    for n in ("lfoot", "rfoot"):
+        np.testing.assert_allclose(a.forces[n], b.forces[n], atol=1e-9)
+    np.testing.assert_allclose(a.u, b.u, atol=1e-9)
