@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -109,3 +110,33 @@ def test_a_single_contact_per_foot_is_unchanged_by_the_share():
     for n in ("lfoot", "rfoot"):
         np.testing.assert_allclose(a.forces[n], b.forces[n], atol=1e-9)
     np.testing.assert_allclose(a.u, b.u, atol=1e-9)
+
+
+def test_tangential_weight_removes_the_internal_squeeze_and_mujoco_balances_it():
+    """Two point feet leave one internal horizontal force (a squeeze) free. With ``w_t = 0`` the least-torque
+    split squeezes; with the default weight it is gone (a sustained tangential load makes a soft contact
+    creep), the feet still carry the weight, and MuJoCo's own terms balance the result:
+    ``qfrc_actuator − qfrc_bias + Σ J_footᵀ f = 0`` at rest (``mj_jac`` at each foot's centre)."""
+    biped = MjcfPlant(BIPED, contacts=["lfoot", "rfoot"])
+    squeeze = biped.standing_equilibrium(tangential_weight=0.0)
+    eq = biped.standing_equilibrium()
+    assert abs(squeeze.forces["lfoot"][0]) > 1.0  # the least-torque split leans on friction
+    for n in ("lfoot", "rfoot"):
+        assert abs(eq.forces[n][0]) < 0.05 * abs(squeeze.forces[n][0])
+    total_z = sum(w[2] for w in squeeze.forces.values())
+    assert sum(w[2] for w in eq.forces.values()) == pytest.approx(total_z, rel=1e-9)  # the weight either way
+    m = mujoco.MjModel.from_xml_path(str(BIPED))
+    m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    d = mujoco.MjData(m)
+    d.qpos[:] = biped.constraints.complete(biped.equilibrium()[0])[: m.nq]
+    d.ctrl[:] = eq.u
+    mujoco.mj_forward(m, d)
+    total = d.qfrc_actuator - d.qfrc_bias
+    for n in ("lfoot", "rfoot"):
+        g = m.geom(n).id
+        jac = np.zeros((3, m.nv))
+        mujoco.mj_jac(m, d, jac, None, d.geom_xpos[g], m.geom_bodyid[g])
+        total += jac.T @ eq.forces[n]
+    np.testing.assert_allclose(total, 0.0, atol=1e-6)
+    with pytest.raises(ValueError, match="tangential_weight"):
+        biped.standing_equilibrium(tangential_weight=-1.0)

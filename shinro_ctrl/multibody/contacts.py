@@ -38,12 +38,23 @@ compensation) and ``g`` the gravity forces. It is solved as the convex QP
 
 .. math::
 
-    \min_{u, λ}\ \|u\|^2 + ε\|λ\|^2 \quad\text{s.t. the balance, }
+    \min_{u, λ}\ \|u\|^2 + w_t \|f_t\|^2 + ε\|λ\|^2 \quad\text{s.t. the balance, }
     u_{\min} ≤ u ≤ u_{\max},\ |f_x|, |f_y| ≤ \tfrac{μ}{\sqrt 2} f_z,\
     f_{z,i} ≥ \frac{α}{N_b} \sum_{j \in b} f_{z,j},
 
 the inner linearized pyramid (inside the exact cone ``‖f_{xy}‖ ≤ μ f_z``, so its answers are
 in the exact cone).
+
+**Tangential forces** (``w_t`` = ``tangential_weight``, default :data:`TANGENTIAL_WEIGHT`). With
+several contacts the statics leave internal forces free (two feet squeezing or splaying, heel and toe
+of one sole pulling apart), and the least-torque split uses them: our humanoid's legs splayed with
+24 N at each heel and squeezed each sole fore and aft with 47 N, the quadruped's with 5-10 N. A
+friction contact holds a sustained tangential load only by creeping (MuJoCo's soft friction needs a
+steady slip velocity for a steady force; a rubber sole creeps too), and the design model holds the
+feet still, so the feet slid apart (2 cm in 10 s) and the pelvis turned (0.13 rad). Weighting
+``‖f_t‖²`` [1/m², beside N² m² of torque] makes the equilibrium lean on friction only as much as the
+torques need: the humanoid's tangential forces fall to 0.2 N (the hip roll torques rise from 0.05 to
+23 N m, near the 20 N m of MuJoCo's own ``mj_inverse`` at rest), the quadruped's to 0.01 N.
 
 **Several contact points on one foot** (the last constraint, ``α`` = ``min_share``, default
 :data:`MIN_NORMAL_SHARE`). A flat sole modelled by its corner points (``N_b`` contacts on one body
@@ -58,6 +69,18 @@ linear in ``λ`` and homogeneous, so it scales with the load. A body with one co
 is unaffected (``f_z ≥ 0`` only): the quadruped's equilibrium does not change. The torque rows of a
 *flat* (welded) contact are free: its centre of pressure is not checked against an outline (a site or
 body has none); model a sole by its corner points to get the constraint.
+
+**Choosing the contacts.** Hold a foot where the robot's joints can hold it. Two flat soles welded to
+the floor (or each by its four corners) on legs *without an ankle roll joint* (our humanoid, like
+the H1) over-constrain the frontal plane: the contact Jacobian is then nearly rank-deficient (the
+humanoid's 12th singular value is 1e-4 beside 0.05 for the 11th). The design locks a motion (both
+knees bending with the pelvis pitching) that only 0.1 mm of foot deformation per radian resists; MuJoCo's
+soft contacts allow it, the LQR does not see it, and it grows at 3.3/s: the robot fell after 3-4 s
+for every weighting tried. Hold such a sole at two points on its centre line instead (sphere sites
+at the heel and the toe, ``<side>_heel`` and ``<side>_toe`` in ``assets/humanoid.xml``): the foot
+may roll about that line in the design, its centre of pressure lies on it (half the sole's width from
+either edge), the Jacobian's rank is clean (10, next singular value 0.13) and the LQR stands the
+robot for as long as it runs. Redundant rows are harmless; near-redundant ones are not.
 
 When the QP is infeasible, linear feasibility problems name the constraint that fails: the balance
 alone (``posture``: the actuators and contacts cannot hold ``q`` at all), with the friction cones
@@ -83,6 +106,7 @@ from shinro_ctrl.multibody.rigid_body import NUMPY_OPS, RigidBodyTree
 __all__ = [
     "EQUILIBRIUM_FAILURES",
     "MIN_NORMAL_SHARE",
+    "TANGENTIAL_WEIGHT",
     "ContactFrame",
     "EquilibriumNotFound",
     "StandingEquilibrium",
@@ -96,6 +120,8 @@ EQUILIBRIUM_FAILURES = ("posture", "friction", "torque", "support")
 MIN_NORMAL_SHARE = 0.5
 #: Weight of ``‖λ‖²`` beside ``‖u‖²`` in the equilibrium QP (makes the forces unique).
 FORCE_WEIGHT = 1e-6
+#: Default ``tangential_weight``: weight of the contacts' tangential forces ``‖f_t‖²`` [1/m²] beside ``‖u‖²``.
+TANGENTIAL_WEIGHT = 100.0
 #: Residual of the static balance [N or N m] accepted as zero.
 BALANCE_TOL = 1e-7
 
@@ -214,6 +240,7 @@ def standing_equilibrium(
     u_bounds: tuple[np.ndarray, np.ndarray],
     *,
     min_share: float = MIN_NORMAL_SHARE,
+    tangential_weight: float = TANGENTIAL_WEIGHT,
     what: str = "the standing equilibrium",
 ) -> StandingEquilibrium:
     """The inputs and contact forces that hold ``q`` still (module docstring: the QP and its diagnosis).
@@ -227,6 +254,8 @@ def standing_equilibrium(
         min_share: ``α`` in ``[0, 1]``: every contact's normal force is at least ``α`` times the even share
             ``Σ_{j on b} f_z,j / N_b`` of the load on its body ``b`` (its foot: the ``N_b`` contacts on that
             body; module docstring); 0: only ``f_z ≥ 0``. Vacuous for a body's only contact.
+        tangential_weight: ``w_t ≥ 0``, weight of the tangential forces ``‖f_t‖²`` in the objective (module
+            docstring); 0: only the least-norm tie-break.
         what: How messages name the problem.
 
     Raises:
@@ -234,6 +263,8 @@ def standing_equilibrium(
     """
     if not (isinstance(min_share, int | float) and 0.0 <= min_share <= 1.0):
         raise InvalidArgument(f"min_share must be a number in [0, 1] (a fraction of the even share), got {min_share!r}")
+    if not (isinstance(tangential_weight, int | float) and 0.0 <= tangential_weight < np.inf):
+        raise InvalidArgument(f"tangential_weight must be a finite number ≥ 0, got {tangential_weight!r}")
     rb = cd.rb
     m = len(active)
     b, Bu = _static_terms(rb, q, active)
@@ -321,7 +352,12 @@ def standing_equilibrium(
                 "support",
             )
     # the QP: min ‖u‖² + ε‖λ‖² (convex; IPOPT)
-    H = np.diag(np.r_[np.ones(m), np.full(R, FORCE_WEIGHT)])
+    weights = np.r_[np.ones(m), np.full(R, FORCE_WEIGHT)]
+    r = m + crow
+    for f in frames:  # the tangential rows f_x, f_y of each contact
+        weights[r : r + 2] = tangential_weight
+        r += f.rows
+    H = np.diag(weights)
     Aall = np.vstack([A, G]) if len(G) else A
     lba = np.r_[-b, np.full(len(G), -np.inf)]
     uba = np.r_[-b, np.zeros(len(G))]

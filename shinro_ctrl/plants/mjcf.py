@@ -66,6 +66,7 @@ from shinro_ctrl.multibody import RigidBodyTree, configuration
 from shinro_ctrl.multibody.constraints import ConstrainedDynamics
 from shinro_ctrl.multibody.contacts import (
     MIN_NORMAL_SHARE,
+    TANGENTIAL_WEIGHT,
     ContactFrame,
     StandingEquilibrium,
     contact_constraints,
@@ -607,7 +608,11 @@ class MjcfPlant(Plant):
         return x if self.constraints is None else self.constraints.complete(x, what=f"{self._label()}: x")
 
     def standing_equilibrium(
-        self, posture: ArrayLike | None = None, *, min_share: float = MIN_NORMAL_SHARE
+        self,
+        posture: ArrayLike | None = None,
+        *,
+        min_share: float = MIN_NORMAL_SHARE,
+        tangential_weight: float = TANGENTIAL_WEIGHT,
     ) -> StandingEquilibrium:
         """The inputs and contact forces that hold a posture still, inside the friction cones and actuator ranges.
 
@@ -620,6 +625,8 @@ class MjcfPlant(Plant):
                 the nearest configuration that keeps every contact where it is); default the operating state.
             min_share: ``α ∈ [0, 1]``: each contact carries at least ``α Σ_j f_z,j / N`` (keeps the centre of
                 pressure of a foot with several contact points off its edge; 0: only ``f_z ≥ 0``).
+            tangential_weight: Weight of the contacts' tangential forces ``‖f_t‖²`` beside ``‖u‖²`` (a sustained
+                tangential force makes a soft contact creep; 0: least torque only).
 
         Raises:
             InvalidArgument: no contacts; a posture off the contacts that cannot be projected.
@@ -643,6 +650,7 @@ class MjcfPlant(Plant):
             self.active_actuators,
             self.input_bounds(),
             min_share=min_share,
+            tangential_weight=tangential_weight,
             what=f"{self._label()}: the standing equilibrium",
         )
 
