@@ -140,3 +140,55 @@ def test_tangential_weight_removes_the_internal_squeeze_and_mujoco_balances_it()
     np.testing.assert_allclose(total, 0.0, atol=1e-6)
     with pytest.raises(ValueError, match="tangential_weight"):
         biped.standing_equilibrium(tangential_weight=-1.0)
+
+
+HUMANOID = Path(__file__).resolve().parent.parent / "assets" / "humanoid.xml"
+CONFIG = Path(__file__).resolve().parent.parent / "configs" / "humanoid_balance_lqr_mujoco.toml"
+
+
+def _contact_jacobian_singular_values(points: list[tuple[str, str]]) -> np.ndarray:
+    """Singular values of the stacked point Jacobians (MuJoCo's ``mj_jac``) at the keyframe 'stand'."""
+    m = mujoco.MjModel.from_xml_path(str(HUMANOID))
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, m.keyframe("stand").id)
+    mujoco.mj_forward(m, d)
+    rows = []
+    for kind, name in points:
+        jac = np.zeros((3, m.nv))
+        if kind == "geom":
+            g = m.geom(name).id
+            mujoco.mj_jac(m, d, jac, None, d.geom_xpos[g], m.geom_bodyid[g])
+        else:
+            mujoco.mj_jacSite(m, d, jac, None, m.site(name).id)
+        rows.append(jac)
+    return np.linalg.svd(np.vstack(rows), compute_uv=False)
+
+
+def test_welded_soles_without_ankle_roll_are_near_singular_and_heel_toe_lines_are_not():
+    """The cause of the old fall (contacts.py, "Choosing the contacts"): eight sole corners give rank 12 only by a
+    singular value of ~1e-4 (a motion that barely moves the feet is locked); heel and toe points give a clean 10."""
+    corners = [
+        ("geom", f"{side}_sole_{end}_{edge}")
+        for side in ("left", "right")
+        for end in ("heel", "toe")
+        for edge in ("in", "out")
+    ]
+    s = _contact_jacobian_singular_values(corners)
+    assert s[10] > 0.02 and s[11] < 2e-4 and s[12] < 1e-12
+    s = _contact_jacobian_singular_values(
+        [("site", f"{side}_{end}") for side in ("left", "right") for end in ("heel", "toe")]
+    )
+    assert s[9] > 0.1 and s[10] < 1e-12
+
+
+def test_humanoid_balance_lqr_holds_and_recovers_from_a_push_in_mujoco():
+    """The shipped scenario, cut to 2 s: LQR on the contact-constrained model, MuJoCo's own contacts at the eight
+    sole corners, 15 N sideways on the torso for 0.1 s at t = 1 s; back at rest by 2 s."""
+    from shinro_ctrl.sim import RobotSim
+
+    result = RobotSim.from_config(str(CONFIG)).run(2.0, progress=False)
+    m = result.metrics
+    assert np.abs(np.asarray(result.disturbance)).max() >= 15.0  # the push was applied
+    assert m["stable"] and m["trunk_height_error"] < 0.01 and m["trunk_orientation_error"] < 0.05
+    assert m["foot_slip"] < 0.01 and m["friction_cone_fraction"] == 1.0
+    assert m["final_error"] < 0.02
