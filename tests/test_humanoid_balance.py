@@ -20,6 +20,8 @@ from shinro_ctrl.multibody.contacts import EquilibriumNotFound, contact_constrai
 from shinro_ctrl.multibody.rigid_body import RigidBodyTree
 from shinro_ctrl.plants.mjcf import MjcfPlant
 
+from .bad_input_helpers import check_one_line_exit_2
+
 BIPED = Path(__file__).parent / "data" / "planar_biped_contacts.xml"
 A, B, MASS, G = 0.2, 0.1, 4.0, 9.81
 CX, CY = 0.3 * A, 0.3 * B  # the centre of mass, off centre
@@ -192,3 +194,16 @@ def test_humanoid_balance_lqr_holds_and_recovers_from_a_push_in_mujoco():
     assert m["stable"] and m["trunk_height_error"] < 0.01 and m["trunk_orientation_error"] < 0.05
     assert m["foot_slip"] < 0.01 and m["friction_cone_fraction"] == 1.0
     assert m["final_error"] < 0.02
+
+
+def test_a_support_failure_from_a_scenario_exits_2_in_one_line(tmp_path, capsys):
+    """The box with its centre of mass at 0.9 of the half-length: its two far corners carry at most 0.1 of the even
+    share whatever the split, below the default 0.5: the plant's default u0 has no equilibrium."""
+    model = tmp_path / "box_off_centre.xml"
+    model.write_text(BOX.replace(f'<inertial pos="{CX} {CY} 0"', f'<inertial pos="{0.9 * A} 0 0"'))
+    path = tmp_path / "box.toml"
+    path.write_text(
+        f'[plant]\ntype = "MjcfPlant"\nmodel = "{model}"\ncontacts = ["pp", "pm", "mp", "mm"]\n\n'
+        '[controller]\ntype = "LQR"\nQ = [1, 1]\nR = [1]\n'
+    )
+    check_one_line_exit_2(["design", "lqr", str(path)], "does not exist: support", capsys)
