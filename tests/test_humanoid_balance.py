@@ -8,6 +8,7 @@ lightest corner held at ``α W/4`` the other three follow from the three balance
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import mujoco
@@ -16,7 +17,14 @@ import pytest
 
 from shinro_ctrl.engine.model_tree import read_contact_frames, read_model_tree
 from shinro_ctrl.multibody.constraints import ConstrainedDynamics
-from shinro_ctrl.multibody.contacts import EquilibriumNotFound, contact_constraints, standing_equilibrium
+from shinro_ctrl.multibody.contacts import (
+    NEAR_REDUNDANT,
+    EquilibriumNotFound,
+    NearlyRedundantContacts,
+    check_conditioning,
+    contact_constraints,
+    standing_equilibrium,
+)
 from shinro_ctrl.multibody.rigid_body import RigidBodyTree
 from shinro_ctrl.plants.mjcf import MjcfPlant
 
@@ -207,3 +215,38 @@ def test_a_support_failure_from_a_scenario_exits_2_in_one_line(tmp_path, capsys)
         '[controller]\ntype = "LQR"\nQ = [1, 1]\nR = [1]\n'
     )
     check_one_line_exit_2(["design", "lqr", str(path)], "does not exist: support", capsys)
+
+
+TRIPOD = """
+<mujoco>
+  <worldbody>
+    <body name="plate" pos="0 0 0.1">
+      <freejoint name="root"/>
+      <geom type="box" size="0.2 0.2 0.01" mass="2"/>
+      <geom name="a" type="sphere" size="0.01" pos="0.2 0 -0.02"/>
+      <geom name="b" type="sphere" size="0.01" pos="-0.2 0 -0.02"/>
+      <geom name="c" type="sphere" size="0.01" pos="0 OFFSET -0.02"/>
+      <body name="lid" pos="0 0 0.02">
+        <joint name="yaw" axis="0 0 1"/>
+        <inertial pos="0 0 0" mass="0.01" diaginertia="1e-4 1e-4 1e-4"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor name="yaw" joint="yaw"/></actuator>
+</mujoco>
+"""
+
+
+def test_nearly_collinear_contacts_warn_that_a_motion_is_barely_held(tmp_path):
+    """Three points holding a plate: the roll about the line through two of them is held only by the third point's
+    offset from that line. 0.1 m: a clean rank; 10 µm: the row is nearly redundant and the plant warns."""
+    for offset, warns in ((0.1, False), (1e-5, True)):
+        path = tmp_path / f"tripod_{offset:g}.xml"
+        path.write_text(TRIPOD.replace("OFFSET", f"{offset}"))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            plant = MjcfPlant(path, contacts=["a", "b", "c"], u0=[0.0])
+            ratio = check_conditioning(plant.constraints, plant.contacts, plant.constraints.q_ref)
+        hits = [w for w in caught if issubclass(w.category, NearlyRedundantContacts)]
+        assert len(hits) == 2 * warns and (ratio < NEAR_REDUNDANT) == warns, offset
+    assert "a, b, c" in str(hits[0].message) and "nearly redundant" in str(hits[0].message)

@@ -80,7 +80,10 @@ for every weighting tried. Hold such a sole at two points on its centre line ins
 at the heel and the toe, ``<side>_heel`` and ``<side>_toe`` in ``assets/humanoid.xml``): the foot
 may roll about that line in the design, its centre of pressure lies on it (half the sole's width from
 either edge), the Jacobian's rank is clean (10, next singular value 0.13) and the LQR stands the
-robot for as long as it runs. Redundant rows are harmless; near-redundant ones are not.
+robot for as long as it runs. Redundant rows are harmless; near-redundant ones are not:
+:func:`check_conditioning` (called by ``MjcfPlant`` with contacts) warns with
+:class:`NearlyRedundantContacts` when the smallest singular value of the rows the dynamics keep is
+below :data:`NEAR_REDUNDANT` of the largest.
 
 When the QP is infeasible, linear feasibility problems name the constraint that fails: the balance
 alone (``posture``: the actuators and contacts cannot hold ``q`` at all), with the friction cones
@@ -90,6 +93,7 @@ and ``f_z ≥ 0`` (``friction``), with the actuator ranges (``torque``), with th
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -106,10 +110,13 @@ from shinro_ctrl.multibody.rigid_body import NUMPY_OPS, RigidBodyTree
 __all__ = [
     "EQUILIBRIUM_FAILURES",
     "MIN_NORMAL_SHARE",
+    "NEAR_REDUNDANT",
     "TANGENTIAL_WEIGHT",
     "ContactFrame",
     "EquilibriumNotFound",
+    "NearlyRedundantContacts",
     "StandingEquilibrium",
+    "check_conditioning",
     "contact_constraints",
     "standing_equilibrium",
 ]
@@ -122,6 +129,8 @@ MIN_NORMAL_SHARE = 0.5
 FORCE_WEIGHT = 1e-6
 #: Default ``tangential_weight``: weight of the contacts' tangential forces ``‖f_t‖²`` [1/m²] beside ``‖u‖²``.
 TANGENTIAL_WEIGHT = 100.0
+#: Kept constraint rows whose smallest singular value is below this fraction of the largest are nearly redundant.
+NEAR_REDUNDANT = 1e-3
 #: Residual of the static balance [N or N m] accepted as zero.
 BALANCE_TOL = 1e-7
 
@@ -186,6 +195,41 @@ def contact_constraints(rb: RigidBodyTree, frames: Sequence[ContactFrame], q: np
                 )
             )
     return out
+
+
+class NearlyRedundantContacts(UserWarning):
+    """Contacts that hold a motion only by a nearly redundant row (module docstring, "Choosing the contacts")."""
+
+
+def check_conditioning(
+    cd: ConstrainedDynamics, frames: Sequence[ContactFrame], q: np.ndarray, *, what: str = "the contacts"
+) -> float:
+    """``σ_r / σ_1`` of the constraint Jacobian at ``q (nq,)``, ``r`` the rows the dynamics keep; warns below
+    :data:`NEAR_REDUNDANT`.
+
+    A small ratio means a row the dynamics count as independent barely constrains anything: the design locks a
+    motion that the real (soft) contacts resist only by a tiny deformation (our humanoid's eight sole corners:
+    1.7e-5), so a controller designed on it does not see that motion.
+
+    Warns:
+        NearlyRedundantContacts: naming the contacts and the ratio.
+    """
+    _, J = cd.constraint_jacobian(q)
+    s = np.linalg.svd(J, compute_uv=False)
+    kept = len(cd.rows)
+    ratio = float(s[kept - 1] / s[0]) if kept and s[0] > 0 else 1.0
+    if ratio < NEAR_REDUNDANT:
+        names = ", ".join(f.name for f in frames)
+        warnings.warn(
+            NearlyRedundantContacts(
+                f"{what} ({names}) are nearly redundant: the smallest of the {kept} constraint directions the "
+                f"dynamics keep is {ratio:.2g} of the largest, so the design locks a motion the contacts barely "
+                "resist (a controller will not see it); hold fewer points, e.g. a sole without an ankle roll joint "
+                "at its heel and toe"
+            ),
+            stacklevel=3,
+        )
+    return ratio
 
 
 class EquilibriumNotFound(InvalidArgument):

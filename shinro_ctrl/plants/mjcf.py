@@ -69,6 +69,7 @@ from shinro_ctrl.multibody.contacts import (
     TANGENTIAL_WEIGHT,
     ContactFrame,
     StandingEquilibrium,
+    check_conditioning,
     contact_constraints,
     standing_equilibrium,
 )
@@ -568,6 +569,10 @@ class MjcfPlant(Plant):
         else:
             self._x0 = self._user_state(x0, "x0")
             self._check_in_range(self._x0, "x0")
+        if self.contacts:  # a warning when a contact row barely constrains anything (contacts.py)
+            check_conditioning(
+                self.constraints, self.contacts, self.constraints.q_ref, what=f"{self._label()}: contacts"
+            )
         if u0 is not None:
             self._u0 = as_vector("u0", u0, self.input_dim).copy()
         elif self.contacts:
