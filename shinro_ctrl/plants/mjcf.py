@@ -628,8 +628,9 @@ class MjcfPlant(Plant):
         Args:
             posture: Design state ``[q_I; q̇_I]`` or a full ``qpos (nq,)`` (projected onto the contacts:
                 the nearest configuration that keeps every contact where it is); default the operating state.
-            min_share: ``α ∈ [0, 1]``: each contact carries at least ``α Σ_j f_z,j / N`` (keeps the centre of
-                pressure of a foot with several contact points off its edge; 0: only ``f_z ≥ 0``).
+            min_share: ``α ∈ [0, 1]``: each contact carries at least ``α Σ_j f_z,j / N_b`` over the ``N_b``
+                contacts on its body (keeps the centre of pressure of a foot with several contact points off
+                its edge; 0: only ``f_z ≥ 0``; no effect on a body's only contact).
             tangential_weight: Weight of the contacts' tangential forces ``‖f_t‖²`` beside ``‖u‖²`` (a sustained
                 tangential force makes a soft contact creep; 0: least torque only).
 
