@@ -38,19 +38,62 @@ compensation) and ``g`` the gravity forces. It is solved as the convex QP
 
 .. math::
 
-    \min_{u, λ}\ \|u\|^2 + ε\|λ\|^2 \quad\text{s.t. the balance, }
-    u_{\min} ≤ u ≤ u_{\max},\ f_z ≥ 0,\ |f_x|, |f_y| ≤ \tfrac{μ}{\sqrt 2} f_z,
+    \min_{u, λ}\ \|u\|^2 + w_t \|f_t\|^2 + ε\|λ\|^2 \quad\text{s.t. the balance, }
+    u_{\min} ≤ u ≤ u_{\max},\ |f_x|, |f_y| ≤ \tfrac{μ}{\sqrt 2} f_z,\
+    f_{z,i} ≥ \frac{α}{N_b} \sum_{j \in b} f_{z,j},
 
 the inner linearized pyramid (inside the exact cone ``‖f_{xy}‖ ≤ μ f_z``, so its answers are
-in the exact cone). The torque rows of a flat contact are free (the centre of pressure is not
-checked against the sole's outline). When the QP is infeasible, three linear feasibility
-problems name the constraint that fails: the balance alone (``posture``: the actuators and
-contacts cannot hold ``q`` at all), with the friction cones (``friction``), with the actuator
-ranges (``torque``).
+in the exact cone).
+
+**Tangential forces** (``w_t`` = ``tangential_weight``, default :data:`TANGENTIAL_WEIGHT`). With
+several contacts the statics leave internal forces free (two feet squeezing or splaying, heel and toe
+of one sole pulling apart), and the least-torque split uses them: our humanoid's legs splayed with
+24 N at each heel and squeezed each sole fore and aft with 47 N, the quadruped's with 5-10 N. A
+friction contact holds a sustained tangential load only by creeping (MuJoCo's soft friction needs a
+steady slip velocity for a steady force; a rubber sole creeps too), and the design model holds the
+feet still, so the feet slid apart (2 cm in 10 s) and the pelvis turned (0.13 rad). Weighting
+``‖f_t‖²`` [1/m², beside N² m² of torque] makes the equilibrium lean on friction only as much as the
+torques need: the humanoid's tangential forces fall to 0.2 N (the hip roll torques rise from 0.05 to
+23 N m, near the 20 N m of MuJoCo's own ``mj_inverse`` at rest), the quadruped's to 0.01 N.
+
+**Several contact points on one foot** (the last constraint, ``α`` = ``min_share``, default
+:data:`MIN_NORMAL_SHARE`). A flat sole modelled by its corner points (``N_b`` contacts on one body
+``b``) leaves the split of the foot's load between its corners to the optimizer: statics fix only
+the foot's total force and moment, and the least-torque split is degenerate. Left alone it may load
+one edge only (our humanoid: the inner sole corners at 0.18 kN, the outer ones at 0 N): the centre of
+pressure then sits on the sole's edge, where a real (or MuJoCo's soft) contact rolls about the edge
+that the design model holds fixed. So every contact carries at least ``α`` of the even share of its
+foot's load, which keeps each foot's centre of pressure inside its support polygon with a margin (a
+rectangle of corners: within ``1 − α`` of the half-length from its centre along each axis). It is
+linear in ``λ`` and homogeneous, so it scales with the load. A body with one contact (a point foot)
+is unaffected (``f_z ≥ 0`` only): the quadruped's equilibrium does not change. The torque rows of a
+*flat* (welded) contact are free: its centre of pressure is not checked against an outline (a site or
+body has none); model a sole by its corner points to get the constraint.
+
+**Choosing the contacts.** Hold a foot where the robot's joints can hold it. Two flat soles welded to
+the floor (or each by its four corners) on legs *without an ankle roll joint* (our humanoid, like
+the H1) over-constrain the frontal plane: the contact Jacobian is then nearly rank-deficient (the
+humanoid's 12th singular value is 1e-4 beside 0.05 for the 11th). The design locks a motion (both
+knees bending with the pelvis pitching) that only 0.1 mm of foot deformation per radian resists; MuJoCo's
+soft contacts allow it, the LQR does not see it, and it grows at 3.3/s: the robot fell after 3-4 s
+for every weighting tried. Hold such a sole at two points on its centre line instead (sphere sites
+at the heel and the toe, ``<side>_heel`` and ``<side>_toe`` in ``assets/humanoid.xml``): the foot
+may roll about that line in the design, its centre of pressure lies on it (half the sole's width from
+either edge), the Jacobian's rank is clean (10, next singular value 0.13) and the LQR stands the
+robot for as long as it runs. Redundant rows are harmless; near-redundant ones are not:
+:func:`check_conditioning` (called by ``MjcfPlant`` with contacts) warns with
+:class:`NearlyRedundantContacts` when the smallest singular value of the rows the dynamics keep is
+below :data:`NEAR_REDUNDANT` of the largest.
+
+When the QP is infeasible, linear feasibility problems name the constraint that fails: the balance
+alone (``posture``: the actuators and contacts cannot hold ``q`` at all), with the friction cones
+and ``f_z ≥ 0`` (``friction``), with the actuator ranges (``torque``), with the minimum share
+(``support``: a foot's centre of pressure would be too near its edge).
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -66,17 +109,28 @@ from shinro_ctrl.multibody.rigid_body import NUMPY_OPS, RigidBodyTree
 
 __all__ = [
     "EQUILIBRIUM_FAILURES",
+    "MIN_NORMAL_SHARE",
+    "NEAR_REDUNDANT",
+    "TANGENTIAL_WEIGHT",
     "ContactFrame",
     "EquilibriumNotFound",
+    "NearlyRedundantContacts",
     "StandingEquilibrium",
+    "check_conditioning",
     "contact_constraints",
     "standing_equilibrium",
 ]
 
 #: The constraint an impossible standing equilibrium names first.
-EQUILIBRIUM_FAILURES = ("posture", "friction", "torque")
+EQUILIBRIUM_FAILURES = ("posture", "friction", "torque", "support")
+#: Default ``min_share``: each contact's normal force is at least this fraction of the even share of its foot's load.
+MIN_NORMAL_SHARE = 0.5
 #: Weight of ``‖λ‖²`` beside ``‖u‖²`` in the equilibrium QP (makes the forces unique).
 FORCE_WEIGHT = 1e-6
+#: Default ``tangential_weight``: weight of the contacts' tangential forces ``‖f_t‖²`` [1/m²] beside ``‖u‖²``.
+TANGENTIAL_WEIGHT = 100.0
+#: Kept constraint rows whose smallest singular value is below this fraction of the largest are nearly redundant.
+NEAR_REDUNDANT = 1e-3
 #: Residual of the static balance [N or N m] accepted as zero.
 BALANCE_TOL = 1e-7
 
@@ -143,6 +197,41 @@ def contact_constraints(rb: RigidBodyTree, frames: Sequence[ContactFrame], q: np
     return out
 
 
+class NearlyRedundantContacts(UserWarning):
+    """Contacts that hold a motion only by a nearly redundant row (module docstring, "Choosing the contacts")."""
+
+
+def check_conditioning(
+    cd: ConstrainedDynamics, frames: Sequence[ContactFrame], q: np.ndarray, *, what: str = "the contacts"
+) -> float:
+    """``σ_r / σ_1`` of the constraint Jacobian at ``q (nq,)``, ``r`` the rows the dynamics keep; warns below
+    :data:`NEAR_REDUNDANT`.
+
+    A small ratio means a row the dynamics count as independent barely constrains anything: the design locks a
+    motion that the real (soft) contacts resist only by a tiny deformation (our humanoid's eight sole corners:
+    1.7e-5), so a controller designed on it does not see that motion.
+
+    Warns:
+        NearlyRedundantContacts: naming the contacts and the ratio.
+    """
+    _, J = cd.constraint_jacobian(q)
+    s = np.linalg.svd(J, compute_uv=False)
+    kept = len(cd.rows)
+    ratio = float(s[kept - 1] / s[0]) if kept and s[0] > 0 else 1.0
+    if ratio < NEAR_REDUNDANT:
+        names = ", ".join(f.name for f in frames)
+        warnings.warn(
+            NearlyRedundantContacts(
+                f"{what} ({names}) are nearly redundant: the smallest of the {kept} constraint directions the "
+                f"dynamics keep is {ratio:.2g} of the largest, so the design locks a motion the contacts barely "
+                "resist (a controller will not see it); hold fewer points, e.g. a sole without an ankle roll joint "
+                "at its heel and toe"
+            ),
+            stacklevel=3,
+        )
+    return ratio
+
+
 class EquilibriumNotFound(InvalidArgument):
     """No standing equilibrium: :attr:`failure` is ``"posture"``, ``"friction"`` or ``"torque"``."""
 
@@ -194,6 +283,8 @@ def standing_equilibrium(
     active: Sequence[int],
     u_bounds: tuple[np.ndarray, np.ndarray],
     *,
+    min_share: float = MIN_NORMAL_SHARE,
+    tangential_weight: float = TANGENTIAL_WEIGHT,
     what: str = "the standing equilibrium",
 ) -> StandingEquilibrium:
     """The inputs and contact forces that hold ``q`` still (module docstring: the QP and its diagnosis).
@@ -204,11 +295,20 @@ def standing_equilibrium(
         q: Configuration ``(nq,)`` on the constraints.
         active: The actuators that are the inputs.
         u_bounds: ``(u_min, u_max)`` (±inf where unbounded).
+        min_share: ``α`` in ``[0, 1]``: every contact's normal force is at least ``α`` times the even share
+            ``Σ_{j on b} f_z,j / N_b`` of the load on its body ``b`` (its foot: the ``N_b`` contacts on that
+            body; module docstring); 0: only ``f_z ≥ 0``. Vacuous for a body's only contact.
+        tangential_weight: ``w_t ≥ 0``, weight of the tangential forces ``‖f_t‖²`` in the objective (module
+            docstring); 0: only the least-norm tie-break.
         what: How messages name the problem.
 
     Raises:
         EquilibriumNotFound: no equilibrium (one line naming the failing constraint).
     """
+    if not (isinstance(min_share, int | float) and 0.0 <= min_share <= 1.0):
+        raise InvalidArgument(f"min_share must be a number in [0, 1] (a fraction of the even share), got {min_share!r}")
+    if not (isinstance(tangential_weight, int | float) and 0.0 <= tangential_weight < np.inf):
+        raise InvalidArgument(f"tangential_weight must be a finite number ≥ 0, got {tangential_weight!r}")
     rb = cd.rb
     m = len(active)
     b, Bu = _static_terms(rb, q, active)
@@ -218,7 +318,7 @@ def standing_equilibrium(
     A = np.hstack([Bu, J.T])  # A [u; λ] = −b
     nz = m + R
     # inequality rows G z ≤ 0 (friction pyramid) and bounds
-    G, names = [], []
+    G = []
     r = crow
     for f in frames:
         mu = f.friction / np.sqrt(2.0)
@@ -227,13 +327,21 @@ def standing_equilibrium(
                 row = np.zeros(nz)
                 row[m + r + k], row[m + r + 2] = s, -mu
                 G.append(row)
-                names.append(f.name)
-        row = np.zeros(nz)
-        row[m + r + 2] = -1.0
-        G.append(row)
-        names.append(f.name)
         r += f.rows
-    G = np.array(G) if G else np.zeros((0, nz))
+    zrows = [m + crow + sum(f.rows for f in frames[:i]) + 2 for i in range(len(frames))]
+
+    def support(share: float) -> np.ndarray:
+        """Rows ``−f_z,i + (share / N_b) Σ_{j on b} f_z,j ≤ 0``: each contact carries ``share`` of the even split
+        of its body's (foot's) load over the ``N_b`` contacts on that body (vacuous for a body's only contact)."""
+        rows = np.zeros((len(frames), nz))
+        for i, (f, zi) in enumerate(zip(frames, zrows, strict=True)):
+            group = [zj for g, zj in zip(frames, zrows, strict=True) if g.body == f.body]
+            rows[i, group] = share / len(group)
+            rows[i, zi] -= 1.0
+        return rows
+
+    pyramid = np.array(G).reshape(-1, nz)
+    G = np.vstack([pyramid, support(0.0)])  # the pyramid, and f_z ≥ 0
     lo, hi = np.r_[u_bounds[0], np.full(R, -np.inf)], np.r_[u_bounds[1], np.full(R, np.inf)]
     free = [(None, None)] * nz
     boxed = [
@@ -273,8 +381,27 @@ def standing_equilibrium(
             "cones needs torques outside the actuator ranges (ctrlrange; lower the load or change the posture)",
             "torque",
         )
+    if min_share > 0.0:
+        G = np.vstack([pyramid, support(float(min_share))])
+        bodies = [f.body for f in frames]
+        feet = "; ".join(
+            ", ".join(f.name for f in frames if f.body == b) for b in dict.fromkeys(bodies) if bodies.count(b) > 1
+        )
+        if not feasible(True, boxed):
+            raise EquilibriumNotFound(
+                f"{what} does not exist: support: no contact forces inside the friction cones and torques inside "
+                f"the actuator ranges give every contact at least {min_share:g} of the even share of its foot's "
+                f"load ({feet}: a foot's centre of pressure would sit too near its edge; move the centre of mass "
+                "over the feet, or lower min_share)",
+                "support",
+            )
     # the QP: min ‖u‖² + ε‖λ‖² (convex; IPOPT)
-    H = np.diag(np.r_[np.ones(m), np.full(R, FORCE_WEIGHT)])
+    weights = np.r_[np.ones(m), np.full(R, FORCE_WEIGHT)]
+    r = m + crow
+    for f in frames:  # the tangential rows f_x, f_y of each contact
+        weights[r : r + 2] = tangential_weight
+        r += f.rows
+    H = np.diag(weights)
     Aall = np.vstack([A, G]) if len(G) else A
     lba = np.r_[-b, np.full(len(G), -np.inf)]
     uba = np.r_[-b, np.zeros(len(G))]

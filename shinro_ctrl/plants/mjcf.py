@@ -64,7 +64,15 @@ from shinro_ctrl.errors import InvalidArgument, NonFiniteError, UnknownName
 from shinro_ctrl.linearization import LinearModel, discretize
 from shinro_ctrl.multibody import RigidBodyTree, configuration
 from shinro_ctrl.multibody.constraints import ConstrainedDynamics
-from shinro_ctrl.multibody.contacts import ContactFrame, StandingEquilibrium, contact_constraints, standing_equilibrium
+from shinro_ctrl.multibody.contacts import (
+    MIN_NORMAL_SHARE,
+    TANGENTIAL_WEIGHT,
+    ContactFrame,
+    StandingEquilibrium,
+    check_conditioning,
+    contact_constraints,
+    standing_equilibrium,
+)
 from shinro_ctrl.plants.base import MjcfPatch, Plant
 from shinro_ctrl.validation import as_vector, check_positive, closest
 
@@ -561,6 +569,10 @@ class MjcfPlant(Plant):
         else:
             self._x0 = self._user_state(x0, "x0")
             self._check_in_range(self._x0, "x0")
+        if self.contacts:  # a warning when a contact row barely constrains anything (contacts.py)
+            check_conditioning(
+                self.constraints, self.contacts, self.constraints.q_ref, what=f"{self._label()}: contacts"
+            )
         if u0 is not None:
             self._u0 = as_vector("u0", u0, self.input_dim).copy()
         elif self.contacts:
@@ -600,20 +612,32 @@ class MjcfPlant(Plant):
         x = as_vector("x", self._x0 if x is None else x, self.state_dim)
         return x if self.constraints is None else self.constraints.complete(x, what=f"{self._label()}: x")
 
-    def standing_equilibrium(self, posture: ArrayLike | None = None) -> StandingEquilibrium:
+    def standing_equilibrium(
+        self,
+        posture: ArrayLike | None = None,
+        *,
+        min_share: float = MIN_NORMAL_SHARE,
+        tangential_weight: float = TANGENTIAL_WEIGHT,
+    ) -> StandingEquilibrium:
         """The inputs and contact forces that hold a posture still, inside the friction cones and actuator ranges.
 
         See :func:`shinro_ctrl.multibody.contacts.standing_equilibrium` (a QP: least ``‖u‖²``, contact
-        forces inside the inner friction pyramid, ``u`` inside the ``ctrlrange``).
+        forces inside the inner friction pyramid, each contact's normal force at least ``min_share`` of the even
+        share of the load, ``u`` inside the ``ctrlrange``).
 
         Args:
             posture: Design state ``[q_I; q̇_I]`` or a full ``qpos (nq,)`` (projected onto the contacts:
                 the nearest configuration that keeps every contact where it is); default the operating state.
+            min_share: ``α ∈ [0, 1]``: each contact carries at least ``α Σ_j f_z,j / N_b`` over the ``N_b``
+                contacts on its body (keeps the centre of pressure of a foot with several contact points off
+                its edge; 0: only ``f_z ≥ 0``; no effect on a body's only contact).
+            tangential_weight: Weight of the contacts' tangential forces ``‖f_t‖²`` beside ``‖u‖²`` (a sustained
+                tangential force makes a soft contact creep; 0: least torque only).
 
         Raises:
             InvalidArgument: no contacts; a posture off the contacts that cannot be projected.
             EquilibriumNotFound: none exists; the one-line message names the failing constraint
-                (``posture``, ``friction`` or ``torque``).
+                (``posture``, ``friction``, ``torque`` or ``support``).
         """
         if not self.contacts:
             raise InvalidArgument(
@@ -631,6 +655,8 @@ class MjcfPlant(Plant):
             q,
             self.active_actuators,
             self.input_bounds(),
+            min_share=min_share,
+            tangential_weight=tangential_weight,
             what=f"{self._label()}: the standing equilibrium",
         )
 
