@@ -76,6 +76,7 @@ i.e. near the reference's assembly branch.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -83,8 +84,10 @@ from dataclasses import dataclass, field
 import casadi as cs
 import numpy as np
 import scipy.linalg
+from scipy.linalg.lapack import dgesv as _dgesv
 
-from shinro_ctrl._scalar_algebra import _ldl_solve
+from shinro_ctrl._scalar_algebra import _ldl_back, _ldl_factor, _ldl_solve
+from shinro_ctrl.codegen import compiled, compiled_by_key
 from shinro_ctrl.errors import InvalidArgument
 from shinro_ctrl.multibody.configuration import integrate, integrate_sx, plain_indices, qpos_rate, quaternion_slices
 from shinro_ctrl.multibody.rigid_body import CASADI_OPS, RigidBodyTree
@@ -102,6 +105,8 @@ TOLERANCE = 1e-9
 NEWTON_UNROLL = 2
 #: Largest change [m or rad] of an independent coordinate per continuation stage (:meth:`ConstrainedDynamics.complete`).
 CONTINUATION_STEP = 0.25
+#: Most continuation stages :meth:`ConstrainedDynamics.complete` takes (a state further from the reference is refused).
+MAX_STAGES = 10_000
 #: Relative tolerance of the rank decisions (redundant rows, dependent joints).
 RANK_RTOL = 1e-9
 
@@ -186,16 +191,21 @@ def _lists(A: cs.SX) -> list[list[cs.SX]]:
     return [[A[i, j] for j in range(A.shape[1])] for i in range(A.shape[0])]
 
 
+def _dense(fun: cs.Function) -> cs.Function:
+    """``fun`` with dense outputs (itself when they are): buffers hold dense arrays."""
+    if all(fun.sparsity_out(k).is_dense() for k in range(fun.n_out())):
+        return fun
+    sx_in = fun.sx_in()
+    return cs.Function(fun.name(), sx_in, [cs.densify(o) for o in fun.call(sx_in)])
+
+
 class _Numeric:
     """A CasADi function evaluated on numpy arrays through one buffer (a lock serializes threads)."""
 
     def __init__(self, fun: cs.Function):
-        if not all(fun.sparsity_out(k).is_dense() for k in range(fun.n_out())):
-            # the buffers hold dense arrays: a structurally sparse output (e.g. a null-space basis with
-            # structural zeros) would be written as its nonzeros only, in the wrong places
-            sx_in = fun.sx_in()
-            fun = cs.Function(fun.name(), sx_in, [cs.densify(o) for o in fun.call(sx_in)])
-        self.fun = fun
+        # the buffers hold dense arrays: a structurally sparse output (e.g. a null-space basis with
+        # structural zeros) would be written as its nonzeros only, in the wrong places
+        fun = self.fun = _dense(fun)
         self.args = [np.zeros(fun.size1_in(k) * fun.size2_in(k)) for k in range(fun.n_in())]
         self.outs = [np.zeros(fun.size1_out(k) * fun.size2_out(k)) for k in range(fun.n_out())]
         self.shapes = [fun.size_out(k) for k in range(fun.n_out())]
@@ -212,6 +222,72 @@ class _Numeric:
                 a[:] = v
             self.run()
             return [o.reshape(s, order="F").copy() for o, s in zip(self.outs, self.shapes, strict=True)]
+
+
+class _Linearization:
+    r"""``(A, B)`` of the reduced dynamics from the compiled KKT-residual derivatives (implicit function theorem).
+
+    ``fun(q, v, u) -> (Kᵀ, R_z, Z)`` (:meth:`ConstrainedDynamics.linearization_function`, tangent columns ordered
+    ``I`` then ``D``), evaluated through one buffer into Fortran-ordered arrays that LAPACK (``dgesv``) factors in
+    place; then, with ``z = (q, v, u)`` (``∂/∂q`` in the tangent space),
+
+    * ``∂v̇_I/∂z``: the rows ``I`` of ``−K⁻¹ R_z``, i.e. ``−Yᵀ R_z`` with ``Kᵀ Y = [I; 0]`` (one LU);
+    * the null-space basis ``S = [I; S_D]``, ``S_D = −J_D⁻¹ J_I``, and the velocity map along the manifold
+      ``∂v_D/∂q_I = −J_D⁻¹ W S`` (differentiate ``J(q) S(q) v_I = 0`` with ``v_I`` held), one LU of ``J_D``;
+    * chained:
+
+    .. math::
+
+        \frac{dF}{dq_I} = \frac{\partial \dot v_I}{\partial q} E S
+            + \frac{\partial \dot v_I}{\partial v_D} \frac{\partial v_D}{\partial q_I}, \qquad
+        \frac{dF}{dv_I} = \frac{\partial \dot v_I}{\partial v} S, \qquad
+        \frac{dF}{du} = \frac{\partial \dot v_I}{\partial u}.
+
+    A lock serializes threads (the buffers are shared).
+    """
+
+    def __init__(self, fun: cs.Function, nv: int, ni: int, m: int):
+        fun = _dense(fun)
+        n, r = nv, nv - ni
+        self.n, self.ni, self.r, self.m = n, ni, r, m
+        self.q = np.zeros(fun.size1_in(0))
+        self.v = np.zeros(n)
+        self.u = np.zeros(m)
+        self.KT = np.zeros((n + r, n + r), order="F")
+        self.Rz = np.zeros((n + r, 2 * n + m), order="F")
+        self.Z = np.zeros((r, r + ni + n), order="F")
+        self.buf, self.run = fun.buffer()
+        for k, a in enumerate((self.q, self.v, self.u)):
+            self.buf.set_arg(k, memoryview(a))
+        for k, o in enumerate((self.KT, self.Rz, self.Z)):
+            self.buf.set_res(k, memoryview(o.reshape(-1, order="F")))
+        self.rows_I = np.zeros((n + r, ni), order="F")  # Kᵀ Y = [I; 0]: Y's columns are the rows I of K⁻¹
+        self.rows_I[:ni] = np.eye(ni)
+        self.T = np.zeros((2 * r, 2 * ni))  # [[S_D, 0], [∂v_D/∂q_I, S_D]]
+        self.lock = threading.Lock()
+
+    def __call__(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n, ni, r = self.n, self.ni, self.r
+        A = np.zeros((2 * ni, 2 * ni))
+        B = np.zeros((2 * ni, self.m))
+        A[:ni, ni:] = np.eye(ni)
+        with self.lock:
+            self.q[:], self.v[:], self.u[:] = q, v, u
+            self.run()
+            *_, Y, info = _dgesv(self.KT, self.rows_I, overwrite_a=1)
+            *_, PQ, info_d = _dgesv(self.Z[:, :r], self.Z[:, r:], overwrite_a=1, overwrite_b=1)
+            if info or info_d:  # a singular KKT system or J_D: no linearization (the caller reports non-finite)
+                A[ni:] = B[ni:] = np.nan
+                return A, B
+            dz = Y.T @ self.Rz  # −∂v̇_I/∂z, columns [q_I, v_I, q_D, v_D, u]
+            T = self.T
+            T[:r, :ni] = T[r:, ni:] = -PQ[:, :ni]  # S_D = −J_D⁻¹ J_I
+            T[r:, :ni] = PQ[:, 2 * ni :] @ PQ[:, :ni] - PQ[:, ni : 2 * ni]  # −J_D⁻¹ W S
+            A[ni:] = dz[:, : 2 * ni] + dz[:, 2 * ni : 2 * n] @ T
+            A[ni:] *= -1.0
+            B[ni:] = dz[:, 2 * n :]
+            B[ni:] *= -1.0
+        return A, B
 
 
 def _dof_joint(tree: ModelTree) -> list[int]:
@@ -264,6 +340,7 @@ class ConstrainedDynamics:
         active: Sequence[int],
         q_ref: np.ndarray,
         what: str = "the reference configuration",
+        compile_key: str | None = None,
     ):
         if not constraints:
             raise InvalidArgument("ConstrainedDynamics needs at least one constraint")
@@ -309,8 +386,9 @@ class ConstrainedDynamics:
         qdl = [qd[i] for i in range(n)]
         c = rb.bias(ql, qdl, CASADI_OPS, X)
         tau = rb.generalized_forces(ql, qdl, [u[k] for k in range(len(active))], active, (), CASADI_OPS, X)
-        qdd_f = _col(_ldl_solve(M, [tau[i] - c[i] for i in range(n)]))
-        MinvJT = cs.horzcat(*[_col(_ldl_solve(M, [Jr[k, j] for j in range(n)])) for k in range(r)])
+        L, D = _ldl_factor(M)  # one factorization for every right-hand side
+        qdd_f = _col(_ldl_back(L, D, [tau[i] - c[i] for i in range(n)]))
+        MinvJT = cs.horzcat(*[_col(_ldl_back(L, D, [Jr[k, j] for j in range(n)])) for k in range(r)])
         jdqd = cs.jtimes(cs.mtimes(Jr, qd), q, rate)  # J̇v = ∂(J v)/∂q · q̇, exact
         schur = cs.mtimes(Jr, MinvJT)
         rhs = -jdqd - cs.mtimes(Jr, qdd_f)
@@ -328,34 +406,36 @@ class ConstrainedDynamics:
             S[d, :] = SD[b, :]
         qdd_v, _ = self.kkt_function(q, cs.mtimes(S, vi), u)
         F = qdd_v[ind]
-        A = cs.vertcat(
-            cs.horzcat(cs.SX.zeros(self.ni, self.ni), cs.SX.eye(self.ni)),
-            cs.horzcat(cs.mtimes(cs.mtimes(cs.jacobian(F, q), E), S), cs.jacobian(F, vi)),
-        )
-        B = cs.vertcat(cs.SX.zeros(self.ni, u.shape[0]), cs.jacobian(F, u))
         self.reduced_function = cs.Function("f_reduced", [q, vi, u], [cs.vertcat(vi, F)], ["q", "vi", "u"], ["xdot"])
-        self.jacobian_function = cs.Function(
-            "jac_reduced", [q, vi, u], [cs.densify(A), cs.densify(B)], ["q", "vi", "u"], ["A", "B"]
-        )
+        self._schur_sym = (q, vi, u, F, E, S)  # for jacobian_function (built on first use)
+        self._jacobian_function: cs.Function | None = None
         self._f = _Numeric(self.reduced_function)
-        self._jac = _Numeric(self.jacobian_function)
         self._nu = len(active)
+        self._active = tuple(int(a) for a in active)
+        self._compile_key = compile_key
+        self._linearization: _Linearization | None = None
         self._symbolic: cs.Function | None = None
         self._build_lock = threading.Lock()
         self._phir = cs.Function("phir", [q], [phir, cs.densify(Jr)])
-        # NEWTON_UNROLL Newton steps on q_D per call, with max|φ| (all rows), q̇ = S q̇_I and ∂q_D/∂q_I at the result
+        # the predictor step q ⊕ δ_D, then NEWTON_UNROLL Newton steps on q_D per call, with max|φ| (all rows),
+        # v = S v_I and ∂q_D/∂q_I at the result
         phi_fun = cs.Function("phi_all", [q], [phi])
         S_fun = cs.Function("S", [q], [S])
-        qn = q
+        dD = cs.SX.sym("dD", r)
+        qn = self._step_sx(q, dD)
         for _ in range(NEWTON_UNROLL):  # Newton in the dependent tangent directions, on the manifold
             phin, Jn = self._phir(qn)
             qn = self._step_sx(qn, -cs.solve(Jn[:, dep], phin))
         Sn = S_fun(qn)
-        self._newton = _Numeric(
-            cs.Function("newton", [q, vi], [qn, cs.mtimes(Sn, vi), cs.mmax(cs.fabs(phi_fun(qn))), Sn[dep, :]])
+        self._newton_function = cs.Function(
+            "constrained_newton", [q, dD, vi], [qn, cs.mtimes(Sn, vi), cs.mmax(cs.fabs(phi_fun(qn))), Sn[dep, :]]
         )
+        self._newton = _Numeric(self._newton_function)
         J0r = J0[list(rows)]
         self._predict = -np.linalg.solve(J0r[:, dep], J0r[:, ind])  # ∂δ_D/∂q_I at the reference
+        self._indq = np.array(self.independent_q, dtype=int)
+        self._qref_I = self.q_ref[self._indq]
+        self._no_step = np.zeros(r)
 
     def _step_sx(self, q: cs.SX, dD: cs.SX) -> cs.SX:
         """``q ⊕ v`` with ``v`` zero but on the dependent tangent directions (``dD``)."""
@@ -413,8 +493,10 @@ class ConstrainedDynamics:
         JD = J0[np.ix_(rows, dep)]
         left = [i for i in self._rotational if i not in dep]
         if left:
+            joints = ", ".join(dict.fromkeys(repr(rb.tree.joints[dof_joint[i]].name or dof_joint[i]) for i in left))
             raise InvalidArgument(
-                f"the constraints leave {len(left)} rotation(s) of a ball or free joint free (dofs {left}): "
+                f"the constraints leave {len(left)} rotation(s) of a ball or free joint free (joint {joints}, "
+                f"tangent dofs {left}): "
                 "a floating base held by too few contacts (at least three point contacts or one flat contact) "
                 "is not supported yet"
             )
@@ -477,36 +559,70 @@ class ConstrainedDynamics:
             InvalidArgument: Newton does not converge: no configuration of the reference's branch
                 has these independent coordinates (naming the worst constraint).
         """
-        ind, indq = list(self.independent), list(self.independent_q)
-        qi = np.asarray(x[: self.ni], dtype=float)
-        vi = np.asarray(x[self.ni :], dtype=float)
+        x = np.asarray(x, dtype=float)
+        indq, ni = self._indq, self.ni
+        if x.shape != (2 * ni,):
+            raise InvalidArgument(f"{what}: expected the design state [q_I; v_I] of shape ({2 * ni},), got {x.shape}")
+        qi, vi = x[:ni], x[ni:]
         q = self.q_ref.copy()
         predict = self._predict
-        delta = qi - self.q_ref[indq]
+        delta = qi - self._qref_I
+        far = float(np.abs(delta).max(initial=0.0))
+        if not (math.isfinite(far) and math.isfinite(float(vi.sum()))):
+            raise InvalidArgument(f"{what} holds NaN or inf: {self._independent_names(qi, vi)}")
+        if far > MAX_STAGES * CONTINUATION_STEP:  # the continuation would take too long: refuse, never hang
+            raise InvalidArgument(
+                f"{what} ({self._independent_names(qi)}) is {far:.3g} (m or rad) from the reference "
+                f"configuration; at most {MAX_STAGES * CONTINUATION_STEP:g} is followed along its branch"
+            )
         res = np.inf
         # continuation from the reference in steps of at most CONTINUATION_STEP: stays on its assembly branch
-        stages = max(1, int(np.ceil(np.abs(delta).max(initial=0.0) / CONTINUATION_STEP)))
+        stages = max(1, math.ceil(far / CONTINUATION_STEP))
         for s in range(1, stages + 1):
-            target = self.q_ref[indq] + delta * (s / stages)
-            q = self._step(q, predict @ (target - q[indq]))
+            target = qi if s == stages else self._qref_I + delta * (s / stages)
+            step = predict @ (target - q[indq])  # first-order prediction of the dependent directions
             q[indq] = target
             previous = np.inf
             for _ in range(25):
-                qn, qd, r, predict = self._newton(q, vi)
-                q, res = qn.ravel(), float(r[0, 0])
-                if not np.isfinite(res) or res <= 1e-14 or res > 0.5 * previous:  # converged, or stalled
+                qn, qd, r, predict = self._newton(q, step, vi)
+                q, res, step = qn.ravel(), float(r[0, 0]), self._no_step
+                if not math.isfinite(res) or res <= 1e-14 or res > 0.5 * previous:  # converged, or stalled
                     break
                 previous = res
-            if not np.isfinite(res):
+            if not math.isfinite(res):
                 break
-        if not np.isfinite(res) or res > TOLERANCE:
-            names = ", ".join(f"{self.rb.tree.joints[i].name or i} = {qi[k]:.4g}" for k, i in enumerate(ind))
+        if not math.isfinite(res) or res > TOLERANCE:
             raise self._violation(
                 q if np.isfinite(q).all() else self.q_ref,
-                f"{what} ({names})",
+                f"{what} ({self._independent_names(qi)})",
                 "the dependent joints cannot close the constraints there (Newton failed)",
             )
         return np.concatenate([q, qd.ravel()])
+
+    def independent_names(self) -> list[str]:
+        """Each independent tangent direction named by its joint (``"knee"``; a free joint's translation ``"root y"``).
+
+        :attr:`independent` holds tangent (``qvel``) indices, not joint indices: a free joint has six.
+        """
+        tree, dof_joint = self.rb.tree, _dof_joint(self.rb.tree)
+        out = []
+        for i in self.independent:
+            j = dof_joint[i]
+            joint = tree.joints[j]
+            name = joint.name or f"joint {j}"
+            if joint.type == "free":  # only its translations can be independent (its rotation is dependent)
+                name += f" {'xyz'[i - tree.dofadr[j]]}"
+            out.append(name)
+        return out
+
+    def _independent_names(self, qi: np.ndarray, vi: np.ndarray | None = None) -> str:
+        """``"knee = 0.3, root y = 0.1"`` (and ``"knee_dot = …"`` with ``vi``): the values ``qi`` are the ``qpos``
+        entries :attr:`independent_q`."""
+        names = self.independent_names()
+        parts = [f"{name} = {qi[k]:.4g}" for k, name in enumerate(names)]
+        if vi is not None:
+            parts += [f"{name}_dot = {vi[k]:.4g}" for k, name in enumerate(names)]
+        return ", ".join(parts)
 
     def reduce(self, x_full: np.ndarray) -> np.ndarray:
         """The design state ``[q_I; v_I]`` of a full state ``[q; v] (nq + nv,)``."""
@@ -543,10 +659,126 @@ class ConstrainedDynamics:
         return self._f(full[: self.nq], x[self.ni :], u)[0].ravel()
 
     def jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Exact ``(A (2nᵢ, 2nᵢ), B (2nᵢ, m))`` of :meth:`xdot` (implicit function theorem; module docstring)."""
+        """Exact ``(A (2nᵢ, 2nᵢ), B (2nᵢ, m))`` of :meth:`xdot` (implicit function theorem; module docstring).
+
+        Compiled: the first call compiles :meth:`linearization_function` and the Newton completion to C
+        (:mod:`shinro_ctrl.codegen`, cached on disk; CasADi's virtual machine when no compiler builds them);
+        every call completes ``x``, evaluates them and solves the KKT system in NumPy (:class:`_Linearization`).
+        """
+        lin = self._linearization or self._compile()
         full = self.complete(x)
-        A, B = self._jac(full[: self.nq], x[self.ni :], u)
-        return A, B
+        return lin(full[: self.nq], full[self.nq :], np.asarray(u, dtype=float))
+
+    @property
+    def jacobian_function(self) -> cs.Function:
+        """``(q, v_I, u) -> (A, B)``: ``cs.jacobian`` of the Schur-complement solution, in ``SX`` (built on first use).
+
+        The reference :meth:`jacobians` is tested against: exact and the same values, but its expression
+        is far larger (too large to compile on an 18-DOF robot; evaluated in CasADi's virtual machine).
+        """
+        with self._build_lock:
+            if self._jacobian_function is None:
+                q, vi, u, F, E, S = self._schur_sym
+                A = cs.vertcat(
+                    cs.horzcat(cs.SX.zeros(self.ni, self.ni), cs.SX.eye(self.ni)),
+                    cs.horzcat(cs.mtimes(cs.mtimes(cs.jacobian(F, q), E), S), cs.jacobian(F, vi)),
+                )
+                B = cs.vertcat(cs.SX.zeros(self.ni, u.shape[0]), cs.jacobian(F, u))
+                self._jacobian_function = cs.Function(
+                    "jac_reduced", [q, vi, u], [cs.densify(A), cs.densify(B)], ["q", "vi", "u"], ["A", "B"]
+                )
+            return self._jacobian_function
+
+    def linearization_function(self) -> cs.Function:
+        r"""``G(q (nq,), v (nv,), u (m,)) -> (Kᵀ, R_z, Z)``: the KKT system's derivatives at its solution, in ``SX``.
+
+        With the residual of the KKT system (kept rows ``J (r, nv)``, tangent, ``M̃ = M + diag(armature)``)
+
+        .. math::
+
+            R(q, v, u; a, \lambda) = \begin{bmatrix} \operatorname{RNEA}(q, v, a) - \tau(q, v, u)
+                - J^\top\lambda \\ J(q) a + \dot J v \end{bmatrix} = 0
+            \quad\text{at } (a, \lambda) = (\dot v, \lambda)(q, v, u),
+
+        the outputs are ``K = ∂R/∂(a, λ) = [[M̃, −Jᵀ], [J, 0]] (nv + r, nv + r)`` (transposed, the unknowns
+        ``a`` ordered independent ``I`` then dependent ``D``), ``R_z = ∂R/∂z (nv + r, 2nv + m)``, columns
+        ``[q_I, v_I, q_D, v_D, u]`` (``∂/∂q`` in the tangent space: ``∂R/∂q · E``), and
+        ``Z = [J_D, J_I, W_I, W_D] (r, r + nᵢ + nv)`` with ``W = ∂(J v)/∂q · E``. ``R_z`` is built by
+        reverse-mode derivatives of ``R``, one row at a time, with ``a``, ``λ`` free symbols, which are then
+        replaced by the KKT solution (Schur complement, one LDLᵀ of ``M̃``): no derivative goes through the
+        solve, so the expression stays a few times the size of the dynamics. Then ``∂(a, λ)/∂z = −K⁻¹ R_z``
+        (:class:`_Linearization`). Built afresh on every call (:meth:`jacobians` compiles it once).
+        """
+        rb, tree, n, nq, m = self.rb, self.rb.tree, self.nv, self.nq, self._nu
+        rows, r = list(self.rows), len(self.rows)
+        q, v, u = cs.SX.sym("q", nq), cs.SX.sym("v", n), cs.SX.sym("u", m)
+        a, lam = cs.SX.sym("a", n), cs.SX.sym("lam", r)
+        ql, vl, ul = [q[i] for i in range(nq)], [v[i] for i in range(n)], [u[k] for k in range(m)]
+        rate = _col(qpos_rate(tree, ql, vl))
+        E = cs.jacobian(rate, v)
+        phi = cs.vertcat(*[v_ for c in self.constraints for v_ in c.residual(rb, ql)])[rows]
+        J = cs.mtimes(cs.jacobian(phi, q), E)
+        Jv = cs.mtimes(J, v)
+        X = rb.transforms(ql, CASADI_OPS)
+        inv = rb.inverse_dynamics(ql, vl, [a[i] for i in range(n)], CASADI_OPS, X)
+        tau = rb.generalized_forces(ql, vl, ul, self._active, (), CASADI_OPS, X)
+        jdv = cs.jtimes(Jv, q, rate)  # J̇v = ∂(J v)/∂q · q̇
+        R = cs.vertcat(_col([inv[i] - tau[i] for i in range(n)]) - cs.mtimes(J.T, lam), cs.mtimes(J, a) + jdv)
+        z = cs.vertcat(q, v, u)
+        Rz = cs.vertcat(*[cs.gradient(R[i], z).T for i in range(n + r)])
+        Rz = cs.horzcat(cs.mtimes(Rz[:, :nq], E), Rz[:, nq:])
+        W = cs.mtimes(cs.jacobian(Jv, q), E)
+        ind, dep = list(self.independent), list(self.dependent)
+        # the KKT solution (Schur complement, one LDLᵀ of M̃), substituted for the symbols a, λ
+        M = rb.mass_matrix(ql, CASADI_OPS, X)
+        for i, arm in enumerate(_dof_armature(tree)):
+            M[i][i] = M[i][i] + arm
+        L, D = _ldl_factor(M)
+        c = rb.bias(ql, vl, CASADI_OPS, X)
+        a_f = _col(_ldl_back(L, D, [tau[i] - c[i] for i in range(n)]))
+        MinvJT = cs.horzcat(*[_col(_ldl_back(L, D, [J[k, j] for j in range(n)])) for k in range(r)])
+        rhs = -jdv - cs.mtimes(J, a_f)
+        lam_s = _col(_ldl_solve(_lists(cs.mtimes(J, MinvJT)), [rhs[k] for k in range(r)]))
+        a_s = a_f + cs.mtimes(MinvJT, lam_s)
+        Rz = cs.substitute(Rz, cs.vertcat(a, lam), cs.vertcat(a_s, lam_s))
+        Mm = cs.vertcat(*[cs.horzcat(*[cs.SX(M[i][j]) for j in range(n)]) for i in range(n)])
+        p = ind + dep  # the unknowns a ordered I, D
+        K = cs.vertcat(cs.horzcat(Mm[:, p], -J.T), cs.horzcat(J[:, p], cs.SX.zeros(r, r)))
+        Rq, Rv, Ru = Rz[:, :n], Rz[:, n : 2 * n], Rz[:, 2 * n :]
+        Rz = cs.horzcat(Rq[:, ind], Rv[:, ind], Rq[:, dep], Rv[:, dep], Ru)
+        Z = cs.horzcat(J[:, dep], J[:, ind], W[:, ind], W[:, dep])
+        return cs.Function(
+            "constrained_jac",
+            [q, v, u],
+            [cs.densify(K.T), cs.densify(Rz), cs.densify(Z)],
+            ["q", "v", "u"],
+            ["K_T", "R_z", "Z"],
+        )
+
+    def _key(self) -> str:
+        """What the compiled functions depend on beyond ``compile_key``: inputs, kept rows, coordinates, constraints."""
+        cons = [
+            {k: (val.tolist() if isinstance(val, np.ndarray) else val) for k, val in vars(c).items()}
+            for c in self.constraints
+        ]
+        return f"active={list(self._active)}|rows={list(self.rows)}|dependent={list(self.dependent)}|{cons!r}"
+
+    def _compile(self) -> _Linearization:
+        """Compile the linearization and Newton functions (once; see :meth:`jacobians`)."""
+        with self._build_lock:
+            if self._linearization is None:
+                if self._compile_key is None:  # keyed by the generated source (built here)
+                    jac = compiled(self.linearization_function())
+                    newton = compiled(_dense(self._newton_function))
+                else:  # keyed by what the functions depend on: a cache hit builds nothing
+                    key = f"{self._compile_key}|{self._key()}"
+                    jac = compiled_by_key("constrained_jac", f"jac|{key}", self.linearization_function)
+                    newton = compiled_by_key(
+                        "constrained_newton", f"newton|{key}", lambda: _dense(self._newton_function)
+                    )
+                self._newton = _Numeric(newton)
+                self._linearization = _Linearization(jac, self.nv, self.ni, self._nu)
+            return self._linearization
 
     def accelerations(self, x_full: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(v̇ (nv,), λ (r,))`` of the KKT system at a full state ``[q; v]`` (on the constraints)."""
