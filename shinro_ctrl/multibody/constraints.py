@@ -290,6 +290,25 @@ class _Linearization:
         return A, B
 
 
+class _NewtonBuffers:
+    """The Newton function ``(q, δ_D, v_I) -> (q_n, v, max|φ|, S_D)`` bound to arrays it reads and writes in place.
+
+    :meth:`ConstrainedDynamics.complete` holds :attr:`lock` while it uses them (threads share one set).
+    """
+
+    def __init__(self, fun: cs.Function):
+        fun = _dense(fun)
+        self.q, self.dD, self.vi = (np.zeros(fun.size1_in(k)) for k in range(3))
+        self.qn, self.v, self.res = (np.zeros(fun.size1_out(k)) for k in range(3))
+        self.SD = np.zeros(fun.size_out(3), order="F")
+        self.buf, self.run = fun.buffer()
+        for k, a in enumerate((self.q, self.dD, self.vi)):
+            self.buf.set_arg(k, memoryview(a))
+        for k, o in enumerate((self.qn, self.v, self.res, self.SD.reshape(-1, order="F"))):
+            self.buf.set_res(k, memoryview(o))
+        self.lock = threading.Lock()
+
+
 def _dof_joint(tree: ModelTree) -> list[int]:
     """The joint of each degree of freedom."""
     out: list[int] = []
@@ -430,12 +449,11 @@ class ConstrainedDynamics:
         self._newton_function = cs.Function(
             "constrained_newton", [q, dD, vi], [qn, cs.mtimes(Sn, vi), cs.mmax(cs.fabs(phi_fun(qn))), Sn[dep, :]]
         )
-        self._newton = _Numeric(self._newton_function)
+        self._newton = _NewtonBuffers(self._newton_function)
         J0r = J0[list(rows)]
         self._predict = -np.linalg.solve(J0r[:, dep], J0r[:, ind])  # ∂δ_D/∂q_I at the reference
         self._indq = np.array(self.independent_q, dtype=int)
         self._qref_I = self.q_ref[self._indq]
-        self._no_step = np.zeros(r)
 
     def _step_sx(self, q: cs.SX, dD: cs.SX) -> cs.SX:
         """``q ⊕ v`` with ``v`` zero but on the dependent tangent directions (``dD``)."""
@@ -564,7 +582,6 @@ class ConstrainedDynamics:
         if x.shape != (2 * ni,):
             raise InvalidArgument(f"{what}: expected the design state [q_I; v_I] of shape ({2 * ni},), got {x.shape}")
         qi, vi = x[:ni], x[ni:]
-        q = self.q_ref.copy()
         predict = self._predict
         delta = qi - self._qref_I
         far = float(np.abs(delta).max(initial=0.0))
@@ -575,29 +592,37 @@ class ConstrainedDynamics:
                 f"{what} ({self._independent_names(qi)}) is {far:.3g} (m or rad) from the reference "
                 f"configuration; at most {MAX_STAGES * CONTINUATION_STEP:g} is followed along its branch"
             )
-        res = np.inf
-        # continuation from the reference in steps of at most CONTINUATION_STEP: stays on its assembly branch
-        stages = max(1, math.ceil(far / CONTINUATION_STEP))
-        for s in range(1, stages + 1):
-            target = qi if s == stages else self._qref_I + delta * (s / stages)
-            step = predict @ (target - q[indq])  # first-order prediction of the dependent directions
-            q[indq] = target
-            previous = np.inf
-            for _ in range(25):
-                qn, qd, r, predict = self._newton(q, step, vi)
-                q, res, step = qn.ravel(), float(r[0, 0]), self._no_step
-                if not math.isfinite(res) or res <= 1e-14 or res > 0.5 * previous:  # converged, or stalled
+        nb = self._newton
+        with nb.lock:  # the buffers are shared: q is the Newton function's input, updated in place
+            q, step = nb.q, nb.dD
+            q[:] = self.q_ref
+            nb.vi[:] = vi
+            res = math.inf
+            # continuation from the reference in steps of at most CONTINUATION_STEP: stays on its assembly branch
+            stages = max(1, math.ceil(far / CONTINUATION_STEP))
+            for s in range(1, stages + 1):
+                target = qi if s == stages else self._qref_I + delta * (s / stages)
+                step[:] = predict @ (target - q[indq])  # first-order prediction of the dependent directions
+                q[indq] = target
+                previous = math.inf
+                for _ in range(25):
+                    nb.run()
+                    q[:] = nb.qn
+                    step[:] = 0.0
+                    res = float(nb.res[0])
+                    if not math.isfinite(res) or res <= 1e-14 or res > 0.5 * previous:  # converged, or stalled
+                        break
+                    previous = res
+                predict = nb.SD  # ∂δ_D/∂q_I at the stage's end (read before the next run)
+                if not math.isfinite(res):
                     break
-                previous = res
-            if not math.isfinite(res):
-                break
-        if not math.isfinite(res) or res > TOLERANCE:
-            raise self._violation(
-                q if np.isfinite(q).all() else self.q_ref,
-                f"{what} ({self._independent_names(qi)})",
-                "the dependent joints cannot close the constraints there (Newton failed)",
-            )
-        return np.concatenate([q, qd.ravel()])
+            if not math.isfinite(res) or res > TOLERANCE:
+                raise self._violation(
+                    q.copy() if np.isfinite(q).all() else self.q_ref,
+                    f"{what} ({self._independent_names(qi)})",
+                    "the dependent joints cannot close the constraints there (Newton failed)",
+                )
+            return np.concatenate([q, nb.v])
 
     def independent_names(self) -> list[str]:
         """Each independent tangent direction named by its joint (``"knee"``; a free joint's translation ``"root y"``).
@@ -776,7 +801,7 @@ class ConstrainedDynamics:
                     newton = compiled_by_key(
                         "constrained_newton", f"newton|{key}", lambda: _dense(self._newton_function)
                     )
-                self._newton = _Numeric(newton)
+                self._newton = _NewtonBuffers(newton)
                 self._linearization = _Linearization(jac, self.nv, self.ni, self._nu)
             return self._linearization
 
