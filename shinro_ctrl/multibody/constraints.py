@@ -84,7 +84,6 @@ from dataclasses import dataclass, field
 import casadi as cs
 import numpy as np
 import scipy.linalg
-from scipy.linalg.lapack import dgesv as _dgesv
 
 from shinro_ctrl._scalar_algebra import _ldl_back, _ldl_factor, _ldl_solve
 from shinro_ctrl.codegen import compiled, compiled_by_key
@@ -225,69 +224,34 @@ class _Numeric:
 
 
 class _Linearization:
-    r"""``(A, B)`` of the reduced dynamics from the compiled KKT-residual derivatives (implicit function theorem).
+    """``(A, B)`` at ``(q, v, u)``: :meth:`ConstrainedDynamics.linearization_function` then
+    :meth:`ConstrainedDynamics.chain_function` (compiled), the first's output arrays bound as the second's inputs
+    (no copies). A lock serializes threads; every call returns fresh arrays."""
 
-    ``fun(q, v, u) -> (Kᵀ, R_z, Z)`` (:meth:`ConstrainedDynamics.linearization_function`, tangent columns ordered
-    ``I`` then ``D``), evaluated through one buffer into Fortran-ordered arrays that LAPACK (``dgesv``) factors in
-    place; then, with ``z = (q, v, u)`` (``∂/∂q`` in the tangent space),
-
-    * ``∂v̇_I/∂z``: the rows ``I`` of ``−K⁻¹ R_z``, i.e. ``−Yᵀ R_z`` with ``Kᵀ Y = [I; 0]`` (one LU);
-    * the null-space basis ``S = [I; S_D]``, ``S_D = −J_D⁻¹ J_I``, and the velocity map along the manifold
-      ``∂v_D/∂q_I = −J_D⁻¹ W S`` (differentiate ``J(q) S(q) v_I = 0`` with ``v_I`` held), one LU of ``J_D``;
-    * chained:
-
-    .. math::
-
-        \frac{dF}{dq_I} = \frac{\partial \dot v_I}{\partial q} E S
-            + \frac{\partial \dot v_I}{\partial v_D} \frac{\partial v_D}{\partial q_I}, \qquad
-        \frac{dF}{dv_I} = \frac{\partial \dot v_I}{\partial v} S, \qquad
-        \frac{dF}{du} = \frac{\partial \dot v_I}{\partial u}.
-
-    A lock serializes threads (the buffers are shared).
-    """
-
-    def __init__(self, fun: cs.Function, nv: int, ni: int, m: int):
-        fun = _dense(fun)
-        n, r = nv, nv - ni
-        self.n, self.ni, self.r, self.m = n, ni, r, m
-        self.q = np.zeros(fun.size1_in(0))
-        self.v = np.zeros(n)
-        self.u = np.zeros(m)
-        self.KT = np.zeros((n + r, n + r), order="F")
-        self.Rz = np.zeros((n + r, 2 * n + m), order="F")
-        self.Z = np.zeros((r, r + ni + n), order="F")
-        self.buf, self.run = fun.buffer()
+    def __init__(self, jac: cs.Function, chain: cs.Function, ni: int, m: int):
+        jac, chain = _dense(jac), _dense(chain)
+        self.q, self.v, self.u = (np.zeros(jac.size1_in(k)) for k in range(3))
+        self.mid = [np.zeros(jac.size_out(k), order="F") for k in range(jac.n_out())]
+        self.A = np.zeros((2 * ni, 2 * ni))
+        self.B = np.zeros((2 * ni, m))
+        self.jac_buf, self.run_jac = jac.buffer()
         for k, a in enumerate((self.q, self.v, self.u)):
-            self.buf.set_arg(k, memoryview(a))
-        for k, o in enumerate((self.KT, self.Rz, self.Z)):
-            self.buf.set_res(k, memoryview(o.reshape(-1, order="F")))
-        self.rows_I = np.zeros((n + r, ni), order="F")  # Kᵀ Y = [I; 0]: Y's columns are the rows I of K⁻¹
-        self.rows_I[:ni] = np.eye(ni)
-        self.T = np.zeros((2 * r, 2 * ni))  # [[S_D, 0], [∂v_D/∂q_I, S_D]]
+            self.jac_buf.set_arg(k, memoryview(a))
+        self.chain_buf, self.run_chain = chain.buffer()
+        for k, a in enumerate(self.mid):
+            flat = a.reshape(-1, order="F")
+            self.jac_buf.set_res(k, memoryview(flat))
+            self.chain_buf.set_arg(k, memoryview(flat))
+        for k, o in enumerate((self.A, self.B)):
+            self.chain_buf.set_res(k, memoryview(o.reshape(-1)))
         self.lock = threading.Lock()
 
     def __call__(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        n, ni, r = self.n, self.ni, self.r
-        A = np.zeros((2 * ni, 2 * ni))
-        B = np.zeros((2 * ni, self.m))
-        A[:ni, ni:] = np.eye(ni)
         with self.lock:
             self.q[:], self.v[:], self.u[:] = q, v, u
-            self.run()
-            *_, Y, info = _dgesv(self.KT, self.rows_I, overwrite_a=1)
-            *_, PQ, info_d = _dgesv(self.Z[:, :r], self.Z[:, r:], overwrite_a=1, overwrite_b=1)
-            if info or info_d:  # a singular KKT system or J_D: no linearization (the caller reports non-finite)
-                A[ni:] = B[ni:] = np.nan
-                return A, B
-            dz = Y.T @ self.Rz  # −∂v̇_I/∂z, columns [q_I, v_I, q_D, v_D, u]
-            T = self.T
-            T[:r, :ni] = T[r:, ni:] = -PQ[:, :ni]  # S_D = −J_D⁻¹ J_I
-            T[r:, :ni] = PQ[:, 2 * ni :] @ PQ[:, :ni] - PQ[:, ni : 2 * ni]  # −J_D⁻¹ W S
-            A[ni:] = dz[:, : 2 * ni] + dz[:, 2 * ni : 2 * n] @ T
-            A[ni:] *= -1.0
-            B[ni:] = dz[:, 2 * n :]
-            B[ni:] *= -1.0
-        return A, B
+            self.run_jac()
+            self.run_chain()
+            return self.A.copy(), self.B.copy()
 
 
 class _NewtonBuffers:
@@ -715,7 +679,7 @@ class ConstrainedDynamics:
             return self._jacobian_function
 
     def linearization_function(self) -> cs.Function:
-        r"""``G(q (nq,), v (nv,), u (m,)) -> (Kᵀ, R_z, Z)``: the KKT system's derivatives at its solution, in ``SX``.
+        r"""``G(q (nq,), v (nv,), u (m,)) -> (M̃, J, W, R_z)``: the KKT system's derivatives at its solution, in ``SX``.
 
         With the residual of the KKT system (kept rows ``J (r, nv)``, tangent, ``M̃ = M + diag(armature)``)
 
@@ -725,14 +689,13 @@ class ConstrainedDynamics:
                 - J^\top\lambda \\ J(q) a + \dot J v \end{bmatrix} = 0
             \quad\text{at } (a, \lambda) = (\dot v, \lambda)(q, v, u),
 
-        the outputs are ``K = ∂R/∂(a, λ) = [[M̃, −Jᵀ], [J, 0]] (nv + r, nv + r)`` (transposed, the unknowns
-        ``a`` ordered independent ``I`` then dependent ``D``), ``R_z = ∂R/∂z (nv + r, 2nv + m)``, columns
-        ``[q_I, v_I, q_D, v_D, u]`` (``∂/∂q`` in the tangent space: ``∂R/∂q · E``), and
-        ``Z = [J_D, J_I, W_I, W_D] (r, r + nᵢ + nv)`` with ``W = ∂(J v)/∂q · E``. ``R_z`` is built by
-        reverse-mode derivatives of ``R``, one row at a time, with ``a``, ``λ`` free symbols, which are then
-        replaced by the KKT solution (Schur complement, one LDLᵀ of ``M̃``): no derivative goes through the
-        solve, so the expression stays a few times the size of the dynamics. Then ``∂(a, λ)/∂z = −K⁻¹ R_z``
-        (:class:`_Linearization`). Built afresh on every call (:meth:`jacobians` compiles it once).
+        the outputs are ``M̃ (nv, nv)`` and ``J`` (so ``K = ∂R/∂(a, λ) = [[M̃, −Jᵀ], [J, 0]]``), ``W = ∂(J v)/∂q · E
+        (r, nv)`` and ``R_z = ∂R/∂z (nv + r, 2nv + m)``, columns ``[q, v, u]`` (``∂/∂q`` in the tangent space:
+        ``∂R/∂q · E``). ``R_z`` is built by reverse-mode derivatives of ``R``, one row at a time, with ``a``, ``λ``
+        free symbols, which are then replaced by the KKT solution (Schur complement, one LDLᵀ of ``M̃``): no
+        derivative goes through the solve, so the expression stays a few times the size of the dynamics. Then
+        ``∂(a, λ)/∂z = −K⁻¹ R_z`` (:meth:`chain_function`). Built afresh on every call (:meth:`jacobians`
+        compiles it once).
         """
         rb, tree, n, nq, m = self.rb, self.rb.tree, self.nv, self.nq, self._nu
         rows, r = list(self.rows), len(self.rows)
@@ -753,7 +716,6 @@ class ConstrainedDynamics:
         Rz = cs.vertcat(*[cs.gradient(R[i], z).T for i in range(n + r)])
         Rz = cs.horzcat(cs.mtimes(Rz[:, :nq], E), Rz[:, nq:])
         W = cs.mtimes(cs.jacobian(Jv, q), E)
-        ind, dep = list(self.independent), list(self.dependent)
         # the KKT solution (Schur complement, one LDLᵀ of M̃), substituted for the symbols a, λ
         M = rb.mass_matrix(ql, CASADI_OPS, X)
         for i, arm in enumerate(_dof_armature(tree)):
@@ -767,17 +729,56 @@ class ConstrainedDynamics:
         a_s = a_f + cs.mtimes(MinvJT, lam_s)
         Rz = cs.substitute(Rz, cs.vertcat(a, lam), cs.vertcat(a_s, lam_s))
         Mm = cs.vertcat(*[cs.horzcat(*[cs.SX(M[i][j]) for j in range(n)]) for i in range(n)])
-        p = ind + dep  # the unknowns a ordered I, D
-        K = cs.vertcat(cs.horzcat(Mm[:, p], -J.T), cs.horzcat(J[:, p], cs.SX.zeros(r, r)))
-        Rq, Rv, Ru = Rz[:, :n], Rz[:, n : 2 * n], Rz[:, 2 * n :]
-        Rz = cs.horzcat(Rq[:, ind], Rv[:, ind], Rq[:, dep], Rv[:, dep], Ru)
-        Z = cs.horzcat(J[:, dep], J[:, ind], W[:, ind], W[:, dep])
         return cs.Function(
             "constrained_jac",
             [q, v, u],
-            [cs.densify(K.T), cs.densify(Rz), cs.densify(Z)],
+            [cs.densify(Mm), cs.densify(J), cs.densify(W), cs.densify(Rz)],
             ["q", "v", "u"],
-            ["K_T", "R_z", "Z"],
+            ["M", "J", "W", "R_z"],
+        )
+
+    def chain_function(self) -> cs.Function:
+        r"""``(M̃, J, W, R_z) -> (Aᵀ, Bᵀ)``: the reduced Jacobians from :meth:`linearization_function`'s outputs.
+
+        With ``S = [I; S_D]`` (rows ``I``, ``D``), ``S_D = −J_D⁻¹ J_I``, the velocity map along the manifold
+        ``∂v_D/∂q_I = −J_D⁻¹ W S`` (differentiate ``J(q) S(q) v_I = 0`` with ``v_I`` held), the columns of ``R_z``
+        chained to ``C = [R_q S + R_{v_D} ∂v_D/∂q_I, R_v S, R_u]``; then the null-space solution of
+        ``K [da; dλ] = −C``: ``da = S da_I + P(−C₂)`` with ``P = [0; J_D⁻¹]`` satisfies the constraint rows for any
+        ``da_I``, and ``Sᵀ`` (with ``Sᵀ Jᵀ = 0``) removes ``dλ`` from the others:
+
+        .. math::
+
+            (S^\top \tilde M S)\, \frac{dF}{d(q_I, v_I, u)} = -\left(S^\top C_1 - S^\top \tilde M P\, C_2\right),
+
+        ``Sᵀ M̃ S`` (``nᵢ × nᵢ``, positive definite) by LDLᵀ. A separate function of numbers (no model in it): it
+        compiles in a moment, where the same arithmetic inside :meth:`linearization_function` made the compiler
+        take ten times longer. Transposed outputs: their column-major entries are ``A``'s and ``B``'s row-major ones.
+        """
+        n, r, m, ni = self.nv, len(self.rows), self._nu, self.ni
+        ind, dep = list(self.independent), list(self.dependent)
+        Mm, J, W = cs.SX.sym("M", n, n), cs.SX.sym("J", r, n), cs.SX.sym("W", r, n)
+        Rz = cs.SX.sym("R_z", n + r, 2 * n + m)
+        JDinv = cs.inv(J[:, dep])
+        SD = -cs.mtimes(JDinv, J[:, ind])  # the null-space basis S = [I; S_D] (rows I, D)
+        dvD = -cs.mtimes(JDinv, W[:, ind] + cs.mtimes(W[:, dep], SD))  # ∂v_D/∂q_I = −J_D⁻¹ W S
+        Rq, Rv = Rz[:, :n], Rz[:, n : 2 * n]
+        Cq = Rq[:, ind] + cs.mtimes(Rq[:, dep], SD) + cs.mtimes(Rv[:, dep], dvD)
+        C = cs.horzcat(Cq, Rv[:, ind] + cs.mtimes(Rv[:, dep], SD), Rz[:, 2 * n :])
+        MS = Mm[:, ind] + cs.mtimes(Mm[:, dep], SD)
+        Mr = MS[ind, :] + cs.mtimes(SD.T, MS[dep, :])  # Sᵀ M̃ S
+        Xt = cs.mtimes(MS[dep, :].T, JDinv)  # Sᵀ M̃ P (M̃ symmetric)
+        C1, C2 = C[:n, :], C[n:, :]
+        rhs = C1[ind, :] + cs.mtimes(SD.T, C1[dep, :]) - cs.mtimes(Xt, C2)
+        Lr, Dr = _ldl_factor(_lists(Mr))
+        AB = cs.horzcat(*[_col(_ldl_back(Lr, Dr, [-rhs[i, j] for i in range(ni)])) for j in range(rhs.shape[1])])
+        A = cs.vertcat(cs.horzcat(cs.SX.zeros(ni, ni), cs.SX.eye(ni)), AB[:, : 2 * ni])
+        B = cs.vertcat(cs.SX.zeros(ni, m), AB[:, 2 * ni :])
+        return cs.Function(
+            "constrained_chain",
+            [Mm, J, W, Rz],
+            [cs.densify(A.T), cs.densify(B.T)],
+            ["M", "J", "W", "R_z"],
+            ["A_T", "B_T"],
         )
 
     def _key(self) -> str:
@@ -794,15 +795,17 @@ class ConstrainedDynamics:
             if self._linearization is None:
                 if self._compile_key is None:  # keyed by the generated source (built here)
                     jac = compiled(self.linearization_function())
+                    chain = compiled(self.chain_function())
                     newton = compiled(_dense(self._newton_function))
                 else:  # keyed by what the functions depend on: a cache hit builds nothing
                     key = f"{self._compile_key}|{self._key()}"
                     jac = compiled_by_key("constrained_jac", f"jac|{key}", self.linearization_function)
+                    chain = compiled_by_key("constrained_chain", f"chain|{key}", self.chain_function)
                     newton = compiled_by_key(
                         "constrained_newton", f"newton|{key}", lambda: _dense(self._newton_function)
                     )
                 self._newton = _NewtonBuffers(newton)
-                self._linearization = _Linearization(jac, self.nv, self.ni, self._nu)
+                self._linearization = _Linearization(jac, chain, self.ni, self._nu)
             return self._linearization
 
     def accelerations(self, x_full: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
