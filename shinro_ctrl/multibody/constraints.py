@@ -224,18 +224,21 @@ class _Numeric:
 
 
 class _Linearization:
-    """``(A, B)`` at ``(q, v, u)``: :meth:`ConstrainedDynamics.linearization_function` then
-    :meth:`ConstrainedDynamics.chain_function` (compiled), the first's output arrays bound as the second's inputs
-    (no copies). A lock serializes threads; every call returns fresh arrays."""
+    """``(A, B)`` from the compiled :meth:`ConstrainedDynamics.linearization_function` and ``chain_function``.
 
-    def __init__(self, jac: cs.Function, chain: cs.Function, ni: int, m: int):
+    The first's output arrays are bound as the second's inputs, its inputs ``q``, ``v`` to the Newton completion's
+    arrays (:attr:`newton`): no copies. The caller holds ``newton.lock``.
+    """
+
+    def __init__(self, jac: cs.Function, chain: cs.Function, newton: _NewtonBuffers, ni: int, m: int):
         jac, chain = _dense(jac), _dense(chain)
-        self.q, self.v, self.u = (np.zeros(jac.size1_in(k)) for k in range(3))
+        self.newton = newton
+        self.u = np.zeros(m)
         self.mid = [np.zeros(jac.size_out(k), order="F") for k in range(jac.n_out())]
         self.A = np.zeros((2 * ni, 2 * ni))
         self.B = np.zeros((2 * ni, m))
         self.jac_buf, self.run_jac = jac.buffer()
-        for k, a in enumerate((self.q, self.v, self.u)):
+        for k, a in enumerate((newton.q, newton.v, self.u)):
             self.jac_buf.set_arg(k, memoryview(a))
         self.chain_buf, self.run_chain = chain.buffer()
         for k, a in enumerate(self.mid):
@@ -244,14 +247,13 @@ class _Linearization:
             self.chain_buf.set_arg(k, memoryview(flat))
         for k, o in enumerate((self.A, self.B)):
             self.chain_buf.set_res(k, memoryview(o.reshape(-1)))
-        self.lock = threading.Lock()
 
-    def __call__(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        with self.lock:
-            self.q[:], self.v[:], self.u[:] = q, v, u
-            self.run_jac()
-            self.run_chain()
-            return self.A.copy(), self.B.copy()
+    def __call__(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, B)`` at the Newton buffers' ``(q, v)`` and ``u`` (fresh arrays)."""
+        self.u[:] = u
+        self.run_jac()
+        self.run_chain()
+        return self.A.copy(), self.B.copy()
 
 
 class _NewtonBuffers:
@@ -541,52 +543,59 @@ class ConstrainedDynamics:
             InvalidArgument: Newton does not converge: no configuration of the reference's branch
                 has these independent coordinates (naming the worst constraint).
         """
+        nb = self._newton
+        with nb.lock:  # the buffers are shared
+            self._complete_locked(nb, x, what)
+            return np.concatenate([nb.q, nb.v])
+
+    def _complete_locked(self, nb: _NewtonBuffers, x: np.ndarray, what: str) -> None:
+        """:meth:`complete` into ``nb``'s buffers (``q``, ``v``); the caller holds ``nb.lock``."""
         x = np.asarray(x, dtype=float)
-        indq, ni = self._indq, self.ni
+        ni = self.ni
         if x.shape != (2 * ni,):
             raise InvalidArgument(f"{what}: expected the design state [q_I; v_I] of shape ({2 * ni},), got {x.shape}")
         qi, vi = x[:ni], x[ni:]
-        predict = self._predict
         delta = qi - self._qref_I
-        far = float(np.abs(delta).max(initial=0.0))
-        if not (math.isfinite(far) and math.isfinite(float(vi.sum()))):
+        far = float(np.abs(delta).max()) if ni else 0.0
+        if not (math.isfinite(far) and math.isfinite(vi.sum())):
             raise InvalidArgument(f"{what} holds NaN or inf: {self._independent_names(qi, vi)}")
         if far > MAX_STAGES * CONTINUATION_STEP:  # the continuation would take too long: refuse, never hang
             raise InvalidArgument(
                 f"{what} ({self._independent_names(qi)}) is {far:.3g} (m or rad) from the reference "
                 f"configuration; at most {MAX_STAGES * CONTINUATION_STEP:g} is followed along its branch"
             )
-        nb = self._newton
-        with nb.lock:  # the buffers are shared: q is the Newton function's input, updated in place
-            q, step = nb.q, nb.dD
-            q[:] = self.q_ref
-            nb.vi[:] = vi
-            res = math.inf
-            # continuation from the reference in steps of at most CONTINUATION_STEP: stays on its assembly branch
-            stages = max(1, math.ceil(far / CONTINUATION_STEP))
-            for s in range(1, stages + 1):
+        indq, q, step = self._indq, nb.q, nb.dD  # q: the Newton function's input, updated in place
+        q[:] = self.q_ref
+        nb.vi[:] = vi
+        res = math.inf
+        # continuation from the reference in steps of at most CONTINUATION_STEP: stays on its assembly branch
+        stages = max(1, math.ceil(far / CONTINUATION_STEP))
+        if stages == 1:  # from the reference: the first-order prediction of the dependent directions
+            np.dot(self._predict, delta, out=step)
+            q[indq] = qi
+        for s in range(1, stages + 1):
+            if stages > 1:
                 target = qi if s == stages else self._qref_I + delta * (s / stages)
-                step[:] = predict @ (target - q[indq])  # first-order prediction of the dependent directions
+                step[:] = (self._predict if s == 1 else nb.SD) @ (target - q[indq])
                 q[indq] = target
-                previous = math.inf
-                for _ in range(25):
-                    nb.run()
-                    q[:] = nb.qn
-                    step[:] = 0.0
-                    res = float(nb.res[0])
-                    if not math.isfinite(res) or res <= 1e-14 or res > 0.5 * previous:  # converged, or stalled
-                        break
+            previous = math.inf
+            for _ in range(25):
+                nb.run()
+                q[:] = nb.qn
+                step.fill(0.0)
+                res = nb.res[0]
+                if not res <= 1e-14 and res <= 0.5 * previous:  # neither converged nor stalled (nor NaN)
                     previous = res
-                predict = nb.SD  # ∂δ_D/∂q_I at the stage's end (read before the next run)
-                if not math.isfinite(res):
-                    break
-            if not math.isfinite(res) or res > TOLERANCE:
-                raise self._violation(
-                    q.copy() if np.isfinite(q).all() else self.q_ref,
-                    f"{what} ({self._independent_names(qi)})",
-                    "the dependent joints cannot close the constraints there (Newton failed)",
-                )
-            return np.concatenate([q, nb.v])
+                    continue
+                break
+            if not math.isfinite(res):
+                break
+        if not math.isfinite(res) or res > TOLERANCE:
+            raise self._violation(
+                q.copy() if np.isfinite(q).all() else self.q_ref,
+                f"{what} ({self._independent_names(qi)})",
+                "the dependent joints cannot close the constraints there (Newton failed)",
+            )
 
     def independent_names(self) -> list[str]:
         """Each independent tangent direction named by its joint (``"knee"``; a free joint's translation ``"root y"``).
@@ -655,8 +664,10 @@ class ConstrainedDynamics:
         every call completes ``x``, evaluates them and solves the KKT system in NumPy (:class:`_Linearization`).
         """
         lin = self._linearization or self._compile()
-        full = self.complete(x)
-        return lin(full[: self.nq], full[self.nq :], np.asarray(u, dtype=float))
+        nb = lin.newton
+        with nb.lock:  # the completion's buffers are the linearization's inputs
+            self._complete_locked(nb, x, "the state")
+            return lin(u)
 
     @property
     def jacobian_function(self) -> cs.Function:
@@ -804,8 +815,9 @@ class ConstrainedDynamics:
                     newton = compiled_by_key(
                         "constrained_newton", f"newton|{key}", lambda: _dense(self._newton_function)
                     )
-                self._newton = _NewtonBuffers(newton)
-                self._linearization = _Linearization(jac, chain, self.ni, self._nu)
+                nb = _NewtonBuffers(newton)
+                self._linearization = _Linearization(jac, chain, nb, self.ni, self._nu)
+                self._newton = nb
             return self._linearization
 
     def accelerations(self, x_full: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
