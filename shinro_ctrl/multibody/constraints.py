@@ -444,11 +444,6 @@ class ConstrainedDynamics:
             v[d] = dD[b]
         return integrate_sx(self.rb.tree, q, cs.vertcat(*v))
 
-    def _step(self, q: np.ndarray, dD: np.ndarray) -> np.ndarray:
-        v = np.zeros(self.nv)
-        v[list(self.dependent)] = dD
-        return integrate(self.rb.tree, q, v)
-
     # ------------------------------------------------------------ choices at the reference
     def _choose(
         self, J0: np.ndarray, constraints: Sequence[Constraint], rb: RigidBodyTree, active: Sequence[int]
@@ -675,9 +670,9 @@ class ConstrainedDynamics:
     def jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exact ``(A (2nᵢ, 2nᵢ), B (2nᵢ, m))`` of :meth:`xdot` (implicit function theorem; module docstring).
 
-        Compiled: the first call compiles :meth:`linearization_function` and the Newton completion to C
-        (:mod:`shinro_ctrl.codegen`, cached on disk; CasADi's virtual machine when no compiler builds them);
-        every call completes ``x``, evaluates them and solves the KKT system in NumPy (:class:`_Linearization`).
+        Compiled: the first call compiles :meth:`linearization_function`, :meth:`chain_function` and the Newton
+        completion to C (:mod:`shinro_ctrl.codegen`, cached on disk; CasADi's virtual machine when no compiler
+        builds them); every call completes ``x`` and evaluates the two, through buffers bound to each other.
         """
         lin = self._linearization or self._compile()
         nb = lin.newton
