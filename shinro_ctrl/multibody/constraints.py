@@ -243,10 +243,10 @@ class _Linearization:
     """
 
     def __init__(self, jac: cs.Function, chain: cs.Function, newton: _NewtonBuffers, ni: int, m: int):
-        jac, chain = _dense(jac), _dense(chain)
+        chain = _dense(chain)
         self.newton = newton
         self.u = np.zeros(m)
-        self.mid = [np.zeros(jac.size_out(k), order="F") for k in range(jac.n_out())]
+        self.mid = [np.zeros(jac.nnz_out(k)) for k in range(jac.n_out())]  # nonzeros: the chain's inputs
         self.A = np.zeros((2 * ni, 2 * ni))
         self.B = np.zeros((2 * ni, m))
         self.jac_buf, self.run_jac = jac.buffer()
@@ -254,9 +254,10 @@ class _Linearization:
             self.jac_buf.set_arg(k, memoryview(a))
         self.chain_buf, self.run_chain = chain.buffer()
         for k, a in enumerate(self.mid):
-            flat = a.reshape(-1, order="F")
-            self.jac_buf.set_res(k, memoryview(flat))
-            self.chain_buf.set_arg(k, memoryview(flat))
+            if jac.sparsity_out(k) != chain.sparsity_in(k):
+                raise ValueError(f"constrained_chain input {k} does not match constrained_jac output {k}")
+            self.jac_buf.set_res(k, memoryview(a))
+            self.chain_buf.set_arg(k, memoryview(a))
         for k, o in enumerate((self.A, self.B)):
             self.chain_buf.set_res(k, memoryview(o.reshape(-1)))
 
@@ -751,15 +752,10 @@ class ConstrainedDynamics:
         a_s = a_f + cs.mtimes(MinvJT, lam_s)
         Rz = cs.substitute(Rz, cs.vertcat(a, lam), cs.vertcat(a_s, lam_s))
         Mm = cs.vertcat(*[cs.horzcat(*[cs.SX(M[i][j]) for j in range(n)]) for i in range(n)])
-        return cs.Function(
-            "constrained_jac",
-            [q, v, u],
-            [cs.densify(Mm), cs.densify(J), cs.densify(W), cs.densify(Rz)],
-            ["q", "v", "u"],
-            ["M", "J", "W", "R_z"],
-        )
+        # outputs keep their structural zeros: chain_function takes them with the same sparsity (fewer operations)
+        return cs.Function("constrained_jac", [q, v, u], [Mm, J, W, Rz], ["q", "v", "u"], ["M", "J", "W", "R_z"])
 
-    def chain_function(self) -> cs.Function:
+    def chain_function(self, sparsity: Sequence[cs.Sparsity] | None = None) -> cs.Function:
         r"""``(M̃, J, W, R_z) -> (Aᵀ, Bᵀ)``: the reduced Jacobians from :meth:`linearization_function`'s outputs.
 
         With ``S = [I; S_D]`` (rows ``I``, ``D``), ``S_D = −J_D⁻¹ J_I``, the velocity map along the manifold
@@ -772,14 +768,20 @@ class ConstrainedDynamics:
 
             (S^\top \tilde M S)\, \frac{dF}{d(q_I, v_I, u)} = -\left(S^\top C_1 - S^\top \tilde M P\, C_2\right),
 
-        ``Sᵀ M̃ S`` (``nᵢ × nᵢ``, positive definite) by LDLᵀ. A separate function of numbers (no model in it): it
-        compiles in a moment, where the same arithmetic inside :meth:`linearization_function` made the compiler
-        take ten times longer. Transposed outputs: their column-major entries are ``A``'s and ``B``'s row-major ones.
+        ``Sᵀ M̃ S`` (``nᵢ × nᵢ``, positive definite) by LDLᵀ. A separate function of numbers (no model in it): the
+        same arithmetic inside :meth:`linearization_function` made the compiler take ten times longer.
+        ``sparsity``: the inputs' structural sparsity (:meth:`linearization_function`'s outputs'; default dense):
+        their structural zeros drop out of the products, and the inputs are their nonzeros. Transposed outputs:
+        their column-major entries are ``A``'s and ``B``'s row-major ones.
         """
         n, r, m, ni = self.nv, len(self.rows), self._nu, self.ni
         ind, dep = list(self.independent), list(self.dependent)
-        Mm, J, W = cs.SX.sym("M", n, n), cs.SX.sym("J", r, n), cs.SX.sym("W", r, n)
-        Rz = cs.SX.sym("R_z", n + r, 2 * n + m)
+        shapes = ((n, n), (r, n), (r, n), (n + r, 2 * n + m))
+        if sparsity is None:
+            sparsity = [cs.Sparsity.dense(*shape) for shape in shapes]
+        if [sp.shape for sp in sparsity] != list(shapes):
+            raise ValueError(f"chain_function: sparsity shapes {[sp.shape for sp in sparsity]}, expected {shapes}")
+        Mm, J, W, Rz = (cs.SX.sym(name, sp) for name, sp in zip(("M", "J", "W", "R_z"), sparsity, strict=True))
         JDinv = cs.inv(J[:, dep])
         SD = -cs.mtimes(JDinv, J[:, ind])  # the null-space basis S = [I; S_D] (rows I, D)
         dvD = -cs.mtimes(JDinv, W[:, ind] + cs.mtimes(W[:, dep], SD))  # ∂v_D/∂q_I = −J_D⁻¹ W S
@@ -803,6 +805,10 @@ class ConstrainedDynamics:
             ["A_T", "B_T"],
         )
 
+    def _chain_for(self, jac: cs.Function) -> cs.Function:
+        """:meth:`chain_function` for the inputs ``jac``'s outputs are (their sparsity)."""
+        return self.chain_function([jac.sparsity_out(k) for k in range(jac.n_out())])
+
     def _key(self) -> str:
         """What the compiled functions depend on beyond ``compile_key``: inputs, kept rows, coordinates, constraints."""
         cons = [
@@ -817,12 +823,12 @@ class ConstrainedDynamics:
             if self._linearization is None:
                 if self._compile_key is None:  # keyed by the generated source (built here)
                     jac = compiled(self.linearization_function())
-                    chain = compiled(self.chain_function())
+                    chain = compiled(self._chain_for(jac))
                     newton = compiled(_dense(self._newton_function))
                 else:  # keyed by what the functions depend on: a cache hit builds nothing
                     key = f"{self._compile_key}|{self._key()}"
                     jac = compiled_by_key("constrained_jac", f"jac|{key}", self.linearization_function)
-                    chain = compiled_by_key("constrained_chain", f"chain|{key}", self.chain_function)
+                    chain = compiled_by_key("constrained_chain", f"chain|{key}", lambda: self._chain_for(jac))
                     newton = compiled_by_key(
                         "constrained_newton", f"newton|{key}", lambda: _dense(self._newton_function)
                     )
