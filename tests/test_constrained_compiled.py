@@ -95,7 +95,7 @@ def test_failed_completion_on_a_floating_base_names_the_joints() -> None:
     plant = MjcfPlant(QUADRUPED, contacts=FEET)  # the module fixture's model (built once per process)
     cd = plant.constraints
     names = cd.independent_names()
-    assert names == [n for n in plant.state_names[: cd.ni]]  # tangent dofs 8.. map to their joints, not joints[8]
+    assert names == list(plant.state_names[: cd.ni])  # tangent dofs 8.. map to their joints, not joints[8]
     x = np.concatenate([np.full(cd.ni, 3.0), np.zeros(cd.ni)])  # the feet cannot reach their points
     with pytest.raises(InvalidArgument, match="Newton failed") as exc:
         cd.complete(x)
