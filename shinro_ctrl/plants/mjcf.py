@@ -203,7 +203,9 @@ def _constrained(
     if contacts and equalities:
         q = ConstrainedDynamics(rb, equalities, active=active, q_ref=q, what=what).q_ref
     constraints = equalities + contact_constraints(rb, [frames[c] for c in contacts], q)
-    return ConstrainedDynamics(rb, constraints, active=active, q_ref=q, what=what)
+    # compiled at the first linearize, keyed by the model's numbers and code (+ the constraints, rows, coordinates)
+    key = _model_key(robot.tree, "constrained")
+    return ConstrainedDynamics(rb, constraints, active=active, q_ref=q, what=what, compile_key=key)
 
 
 @functools.lru_cache(maxsize=1)
@@ -978,7 +980,8 @@ class MjcfPlant(Plant):
         ``x0``, ``u0``, ``A`` and ``B`` computed in C (the general path, with
         every check and message, decides whenever it is not finite). A
         constrained model's exact Jacobians come from the implicit function
-        theorem (:meth:`ConstrainedDynamics.jacobians`), not compiled.
+        theorem on its KKT system, compiled at the first call
+        (:meth:`ConstrainedDynamics.jacobians`).
         """
         if self.floating:  # the tangent space: A_t = D A E, B_t = D B (see tangent_maps)
             x0, u0 = self.operating_point(x0, u0)
@@ -996,8 +999,9 @@ class MjcfPlant(Plant):
                 return super().linearize(x0, u0, method=method, eps=eps)
             x0, u0 = self.operating_point(x0, u0)
             A, B = self.constraints.jacobians(x0, u0)
-            where = f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}"
-            self._check_finite_model(A, B, where)
+            if not (math.isfinite(A.sum()) and math.isfinite(B.sum())):  # the message only when it is needed
+                where = f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}"
+                self._check_finite_model(A, B, where)
             return A, B
         if (
             method == "exact"
