@@ -46,10 +46,8 @@ _FORKER = textwrap.dedent(
             pid = os.fork()
             if pid == 0:
                 null = os.open(os.devnull, os.O_RDWR)
-                log = os.open(request["log"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC) if request["log"] else null
-                os.dup2(null, 0)
-                os.dup2(log, 1)
-                os.dup2(log, 2)
+                for fd in (0, 1, 2):
+                    os.dup2(null, fd)
                 sys.argv = ["shinro-ctrl", *request["argv"]]
                 main(request["argv"])  # sys.exit: the child ends here, never back in this loop
             reply = {"pid": pid}
@@ -98,12 +96,9 @@ class CommandForker:
         assert line, f"the forking process ended (status {self._proc.wait()})"
         return json.loads(line)
 
-    def start(self, *args: str, log: Path | None = None) -> int:
-        """Fork a child running ``shinro-ctrl ARGS`` (in this process's working directory); its pid.
-
-        Its output (stdout and stderr) goes to the file ``log`` when given, else nowhere.
-        """
-        return self._ask({"argv": list(args), "log": str(log) if log else None})["pid"]
+    def start(self, *args: str) -> int:
+        """Fork a child running ``shinro-ctrl ARGS`` (in this process's working directory); its pid."""
+        return self._ask({"argv": list(args)})["pid"]
 
     def wait(self, pid: int) -> int:
         """Wait for the child ``pid`` to end; its exit code (negative: the signal that ended it)."""

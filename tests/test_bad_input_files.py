@@ -240,13 +240,18 @@ def test_cleanup_never_deletes_a_live_writers_temporary(tmp_path):
 
 def test_two_concurrent_updates_on_one_folder(tmp_path):
     _copy_regression(tmp_path, ("cartpole_lqr",))
-    logs = tmp_path.parent / f"{tmp_path.name}-logs"
-    logs.mkdir()
-    # forked after the imports (CommandForker): both updates start their work together, not a second apart
-    with CommandForker() as forker:
-        pids = [forker.start("regress", str(tmp_path), "--update", log=logs / f"{i}.log") for i in range(2)]
-        for i, pid in enumerate(pids):
-            assert forker.wait(pid) == 0, (logs / f"{i}.log").read_text()
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "shinro_ctrl.cli", "regress", str(tmp_path), "--update"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(2)
+    ]
+    for proc in procs:
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err
     assert main(["regress", str(tmp_path)]) == 0
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
