@@ -7,19 +7,26 @@ BIN := $(VENV)/bin
 # runtime one, so it refreshes both stamps; either is redone only when pyproject.toml changed since.
 STAMP_RUN := $(VENV)/.installed-runtime
 STAMP_DEV := $(VENV)/.installed-dev
+# pip byte-compiles the ~8000 files it installs one after the other (~25 s of CPU); instead they are compiled in
+# batches on every core (two fresh dev installs: 7 and 12 s shorter on two cores). As pip does, a file that does
+# not compile is left alone (the interpreter reports it if it is ever imported).
+COMPILE = find $(VENV)/lib -name '*.py' -print0 | \
+	xargs -0 -P "$$(getconf _NPROCESSORS_ONLN 2>/dev/null || echo 2)" -n 1000 $(BIN)/python -m compileall -q >/dev/null || true
 
 .PHONY: demo test sysdeps docs lint format bench clean
 
 $(STAMP_RUN): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e .
+	$(BIN)/python -m pip install --quiet --no-compile -e .
+	$(COMPILE)
 	touch $(STAMP_RUN)
 
 $(STAMP_DEV): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet --no-compile -e ".[dev]"
+	$(COMPILE)
 	touch $(STAMP_DEV) $(STAMP_RUN)
 
 demo: $(STAMP_RUN)

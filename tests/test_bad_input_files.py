@@ -18,7 +18,7 @@ import pytest
 from shinro_ctrl.cli import main
 from shinro_ctrl.resources import regression_dir
 
-from .bad_input_helpers import GOOD, _copy_regression, check_one_line_exit_2, cli_subprocess
+from .bad_input_helpers import GOOD, CommandForker, _copy_regression, check_one_line_exit_2
 
 # ----------------------------------------------------------------- fault cases
 KILL_MID_WRITE = textwrap.dedent(
@@ -277,29 +277,28 @@ def _run_folder_state(d: Path) -> str | None:
 
 
 def test_random_kills_of_run_out_leave_one_complete_run(tmp_path):
-    # item 3: SIGKILL at random points (seeded) of `run --out`: the folder holds the previous run or the new one
+    # item 3: SIGKILL at random points (seeded) of `run --out`: the folder holds the previous run or the new one.
+    # The commands are forked after the imports (CommandForker): every kill lands in the run or the writes (a kill
+    # in the imports touched no file), at a quarter of a fresh interpreter's cost.
     out = tmp_path / "out"
     assert main(["run", "--out", str(out), "--duration", "0.2"]) == 0
     states = {_run_folder_state(out)}
-    t0 = time.perf_counter()
-    ok = cli_subprocess("run", "--out", str(out), "--duration", "0.4")
-    full = time.perf_counter() - t0
-    assert ok.returncode == 0, ok.stderr
-    states.add(_run_folder_state(out))
-    rng = random.Random(14)
-    for k in range(4):  # seeded random kill times over the whole command (imports, run, writes)
-        duration = ("0.2", "0.4", "0.3")[k % 3]
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "shinro_ctrl.cli", "run", "--out", str(out), "--duration", duration],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        time.sleep(rng.uniform(0.3, 1.0) * full)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-        state = _run_folder_state(out)
-        assert state is not None
-        states.add(state)
+    with CommandForker() as forker:
+        t0 = time.perf_counter()
+        pid = forker.start("run", "--out", str(out), "--duration", "0.4")
+        assert forker.wait(pid) == 0
+        full = time.perf_counter() - t0
+        states.add(_run_folder_state(out))
+        rng = random.Random(14)
+        for k in range(4):  # seeded random kill times over the whole command (run, plot, writes)
+            duration = ("0.2", "0.4", "0.3")[k % 3]
+            pid = forker.start("run", "--out", str(out), "--duration", duration)
+            time.sleep(rng.uniform(0.1, 1.0) * full)
+            os.kill(pid, signal.SIGKILL)
+            forker.wait(pid)
+            state = _run_folder_state(out)
+            assert state is not None
+            states.add(state)
     assert states <= {"21 steps", "41 steps", "31 steps"}
     assert main(["run", "--out", str(out), "--duration", "0.2"]) == 0  # cleans up the orphans of the kills
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
@@ -316,26 +315,23 @@ def test_random_kills_of_regress_update_leave_one_complete_set(tmp_path):
         data["metrics"]["rms_error"] = 123.0
         p.write_text(json.dumps(data))
         stale[p.name] = p.read_text()
-    t0 = time.perf_counter()
-    assert cli_subprocess("regress", str(tmp_path / "cartpole_lqr.toml")).returncode == 1
-    full = 1.5 * (time.perf_counter() - t0)
-    rng = random.Random(13)
-    for _ in range(4):
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "shinro_ctrl.cli", "regress", str(tmp_path), "--update"],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        time.sleep(rng.uniform(0.2, 1.2) * full)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-        recover_journals(tmp_path)  # what the next regress does first: a set killed after its commit completes
-        now = {p.name: p.read_text() for p in tmp_path.glob("*.baseline.json")}
-        is_old = [now[n] == stale[n] for n in stale]
-        assert all(is_old) or not any(is_old), is_old  # all previous or all new, never mixed
-        if not any(is_old):
-            for p in tmp_path.glob("*.baseline.json"):  # make the next kill meaningful again
-                p.write_text(stale[p.name])
+    with CommandForker() as forker:  # forked after the imports: each kill lands in the work (see the run test)
+        t0 = time.perf_counter()
+        assert forker.wait(forker.start("regress", str(tmp_path / "cartpole_lqr.toml"))) == 1
+        full = 1.5 * (time.perf_counter() - t0)
+        rng = random.Random(13)
+        for _ in range(4):
+            pid = forker.start("regress", str(tmp_path), "--update")
+            time.sleep(rng.uniform(0.1, 1.2) * full)
+            os.kill(pid, signal.SIGKILL)
+            forker.wait(pid)
+            recover_journals(tmp_path)  # what the next regress does first: a set killed after its commit completes
+            now = {p.name: p.read_text() for p in tmp_path.glob("*.baseline.json")}
+            is_old = [now[n] == stale[n] for n in stale]
+            assert all(is_old) or not any(is_old), is_old  # all previous or all new, never mixed
+            if not any(is_old):
+                for p in tmp_path.glob("*.baseline.json"):  # make the next kill meaningful again
+                    p.write_text(stale[p.name])
     assert main(["regress", str(tmp_path), "--update"]) == 0
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 

@@ -255,8 +255,9 @@ def test_makefile_demo_installs_runtime_only_and_test_the_dev_extra():
     env = {"PATH": "/usr/bin:/bin", "HOME": "/tmp"}
     demo = subprocess.run(["make", "-n", "-B", "demo"], cwd=root, capture_output=True, text=True, env=env).stdout
     test = subprocess.run(["make", "-n", "-B", "test"], cwd=root, capture_output=True, text=True, env=env).stdout
-    assert "pip install --quiet -e ." in demo and "[dev]" not in demo and "shinro-ctrl run" in demo
-    assert 'pip install --quiet -e ".[dev]"' in test and "pytest" in test
+    assert "pip install --quiet --no-compile -e ." in demo and "[dev]" not in demo and "shinro-ctrl run" in demo
+    assert 'pip install --quiet --no-compile -e ".[dev]"' in test and "pytest" in test
+    assert "compileall" in demo and "compileall" in test  # pip's byte-compile, done on every core
     assert "make test" in (root / ".ci" / "run").read_text()
 
 
