@@ -99,8 +99,6 @@ from dataclasses import dataclass
 
 import casadi as cs
 import numpy as np
-import scipy.optimize
-from scipy.spatial.transform import Rotation
 
 from shinro_ctrl._interrupts import solve_interruptibly
 from shinro_ctrl.errors import InvalidArgument
@@ -187,6 +185,8 @@ def contact_constraints(rb: RigidBodyTree, frames: Sequence[ContactFrame], q: np
         if f.point:
             out.append(Constraint("connect", label=f.describe(), body1=f.body, pos1=f.pos, body2=0, pos2=p))
         else:
+            from scipy.spatial.transform import Rotation  # here: the weld case only (an import of ~50 ms)
+
             xyzw = Rotation.from_matrix(np.array([[float(v) for v in r] for r in R])).as_quat()
             quat2 = np.r_[xyzw[3], xyzw[:3]]
             out.append(
@@ -305,6 +305,8 @@ def standing_equilibrium(
     Raises:
         EquilibriumNotFound: no equilibrium (one line naming the failing constraint).
     """
+    import scipy.optimize  # here, not at module import: every plant imports this module, few need the LP
+
     if not (isinstance(min_share, int | float) and 0.0 <= min_share <= 1.0):
         raise InvalidArgument(f"min_share must be a number in [0, 1] (a fraction of the even share), got {min_share!r}")
     if not (isinstance(tangential_weight, int | float) and 0.0 <= tangential_weight < np.inf):
