@@ -193,8 +193,9 @@ def test_welded_soles_without_ankle_roll_are_near_singular_and_heel_toe_lines_ar
 
 
 def test_humanoid_balance_lqr_holds_and_recovers_from_a_push_in_mujoco(monkeypatch):
-    """The shipped scenario, cut to 2 s: LQR on the contact-constrained model, MuJoCo's own contacts at the eight
-    sole corners, 15 N sideways on the torso for 0.1 s at t = 1 s; back at rest by 2 s.
+    """The shipped scenario, its whole 5 s run: LQR on the contact-constrained model, MuJoCo's own contacts at the
+    eight sole corners, 15 N sideways on the torso for 0.1 s at t = 1 s; back at rest and still standing at 5 s
+    (tests/test_sim.py's shipped-LQR check, settling and final error, is made here for this scenario).
 
     The design's one linearization runs in CasADi's virtual machine (no compiler): compiling the humanoid's
     constrained Jacobians costs ~15 s of gcc even at -O0, and the compiled path equals the virtual machine's to
@@ -204,12 +205,15 @@ def test_humanoid_balance_lqr_holds_and_recovers_from_a_push_in_mujoco(monkeypat
     monkeypatch.setenv("CC", "no-such-compiler-humanoid-test")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CompilerUnavailable)
-        result = RobotSim.from_config(str(CONFIG)).run(2.0, progress=False)
+        sim = RobotSim.from_config(str(CONFIG))
+        result = sim.run(progress=False)
     m = result.metrics
+    assert sim.loop == "mujoco" and result.t[-1] >= 5.0 - 1e-9
+    assert m["settling_time"] < sim.scenario.sim.duration
     assert np.abs(np.asarray(result.disturbance)).max() >= 15.0  # the push was applied
     assert m["stable"] and m["trunk_height_error"] < 0.01 and m["trunk_orientation_error"] < 0.05
     assert m["foot_slip"] < 0.01 and m["friction_cone_fraction"] == 1.0
-    assert m["final_error"] < 0.02
+    assert m["final_error"] < 1e-2
 
 
 def test_a_support_failure_from_a_scenario_exits_2_in_one_line(tmp_path, capsys):
