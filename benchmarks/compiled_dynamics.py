@@ -27,36 +27,23 @@ import subprocess
 import sys
 import tempfile
 import textwrap
-import time
 from pathlib import Path
 
 import casadi as cs
 import mujoco
 import numpy as np
 import pinocchio as pin
+from _timing import CALLS, REPEATS, WARMUP, per_call_us  # benchmarks/_timing.py
 
 from shinro_ctrl.codegen import default_flags
 from shinro_ctrl.linearization import ExactJacobian
 from shinro_ctrl.plants import MjcfPlant
 from shinro_ctrl.resources import asset_path
 
-CALLS, WARMUP, REPEATS = 2000, 200, 3
-
 
 def median_us(fn) -> float:
-    """Min over REPEATS of the median per-call time [µs] of CALLS calls after WARMUP calls."""
-    clock = time.perf_counter_ns
-    medians = []
-    for _ in range(REPEATS):
-        for _ in range(WARMUP):
-            fn()
-        samples = np.empty(CALLS)
-        for k in range(CALLS):
-            t0 = clock()
-            fn()
-            samples[k] = clock() - t0
-        medians.append(np.median(samples) / 1e3)
-    return float(min(medians))
+    """The median per-call time [µs] (:func:`_timing.per_call_us`: min over REPEATS of the median of CALLS calls)."""
+    return per_call_us(fn)[0]
 
 
 def model_path(name: str, folder: Path) -> str:

@@ -12,8 +12,9 @@ Two models, each held on its feet by point contacts, at its standing equilibrium
 the dependent coordinates (compiled), the compiled derivatives of the KKT residual and their chaining in NumPy
 (the implicit function theorem: :meth:`ConstrainedDynamics.jacobians`). ``mjd_transitionFD`` (centred and
 forward) differentiates MuJoCo's full step with its soft contacts, on the same file at the same full state
-``[qpos; qvel]``, ctrl ``u0``. Medians of 7 repeats of 300 calls each; the CPU time per call
-(``time.process_time``) is printed beside the wall time, since the 2-core machine is shared and noisy.
+``[qpos; qvel]``, ctrl ``u0``. Each figure is the median of 2,000 individually timed calls, the minimum over 3
+repeats (``benchmarks/_timing.py``, as ``benchmarks/compiled_dynamics.py``), with the mean of all calls in
+brackets: the 2-core machine is shared, and the mean carries the preemptions the median leaves out.
 
 ``compile`` is the first linearize in a fresh cache folder (C generation and the compiler, default flags
 ``-O1``); ``cached load`` the first linearize of a new process when the libraries are already on disk (a
@@ -26,16 +27,15 @@ from __future__ import annotations
 
 import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import mujoco
 import numpy as np
+from _timing import per_call_us  # benchmarks/_timing.py (the script's folder is on sys.path)
 
 from shinro_ctrl.plants.mjcf import MjcfPlant
 
@@ -44,18 +44,6 @@ MODELS = {
     "planar biped, 2 point feet": (ROOT / "tests" / "data" / "planar_biped_contacts.xml", ["lfoot", "rfoot"]),
     "quadruped, 4 point feet": (ROOT / "assets" / "quadruped.xml", ["FL_foot", "FR_foot", "RL_foot", "RR_foot"]),
 }
-
-
-def _median_us(fn: Callable[[], object], calls: int = 300, repeats: int = 7) -> tuple[float, float]:
-    """``(wall, cpu)`` microseconds per call: medians over the repeats."""
-    wall, cpu = [], []
-    for _ in range(repeats):
-        t, c = time.perf_counter(), time.process_time()
-        for _ in range(calls):
-            fn()
-        wall.append((time.perf_counter() - t) / calls * 1e6)
-        cpu.append((time.process_time() - c) / calls * 1e6)
-    return statistics.median(wall), statistics.median(cpu)
 
 
 def _first(name: str) -> dict[str, float]:
@@ -80,7 +68,7 @@ def _row(name: str) -> list[str]:
     )
     plant = MjcfPlant(path, contacts=contacts)
     x0, u0 = plant.equilibrium()
-    ours = _median_us(lambda: plant.linearize(x0, u0))
+    ours = per_call_us(lambda: plant.linearize(x0, u0))
 
     m = mujoco.MjModel.from_xml_path(str(path))
     d = mujoco.MjData(m)
@@ -91,8 +79,8 @@ def _row(name: str) -> list[str]:
     mujoco.mj_forward(m, d)
     nx = 2 * m.nv + m.na
     Ad, Bd = np.zeros((nx, nx)), np.zeros((nx, m.nu))
-    centred = _median_us(lambda: mujoco.mjd_transitionFD(m, d, 1e-6, True, Ad, Bd, None, None))
-    forward = _median_us(lambda: mujoco.mjd_transitionFD(m, d, 1e-6, False, Ad, Bd, None, None))
+    centred = per_call_us(lambda: mujoco.mjd_transitionFD(m, d, 1e-6, True, Ad, Bd, None, None))
+    forward = per_call_us(lambda: mujoco.mjd_transitionFD(m, d, 1e-6, False, Ad, Bd, None, None))
     print(
         f"{name}: nq {m.nq}, nv {m.nv}, design state {plant.state_dim}, full state {nx}, MuJoCo contacts "
         f"at the state {d.ncon}; plant build {first['build']:.2f} s, compile (first linearize, cold cache) "
@@ -113,7 +101,7 @@ def main() -> None:
             rows += _row(name)
     print()
     print(
-        "| model | MjcfPlant.linearize [us] wall (cpu) | transitionFD centred [us] | transitionFD forward [us] "
+        "| model | MjcfPlant.linearize [us] median (mean) | transitionFD centred [us] | transitionFD forward [us] "
         "| speed-up centred / forward |"
     )
     print("| --- | --- | --- | --- | --- |")
