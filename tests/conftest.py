@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import tempfile
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -48,6 +49,22 @@ def _one_blas_thread() -> None:
 
 
 _one_blas_thread()
+
+
+def _sigint_reaches_commands() -> None:
+    """Undo an inherited "ignore SIGINT" (a suite started in the background: ``make test &``).
+
+    A shell without job control starts background commands with SIGINT ignored, an ignored signal stays ignored
+    across ``exec``, and Python then installs no KeyboardInterrupt handler: every command the Ctrl-C tests start
+    would run to the end and exit 0. A handler set here is reset to the default at ``exec``, so the xdist
+    workers and the commands they start get Python's usual Ctrl-C handling. (The CLI itself keeps an ignored
+    SIGINT ignored: a user who runs it under ``nohup`` or in the background means it.)
+    """
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+_sigint_reaches_commands()
 
 PENDULUM_FAMILY = [InvertedPendulum, CartPole, DoublePendulum]
 

@@ -43,6 +43,7 @@ from typing import Any
 import daqp
 import numpy as np
 
+from shinro_ctrl.controllers.qp.active_set import InputActiveSet
 from shinro_ctrl.controllers.qp.condensed import DAQP_STATUS
 from shinro_ctrl.controllers.qp.ltv_sparse import SPARSE_OSQP_SETTINGS, SparseLTV
 
@@ -157,21 +158,19 @@ class CondensedLTV:
         self._umin = np.tile(np.broadcast_to(u_min, (m,)), N)
         self._init_recursions(G)
         self.warm_start = not self.direct
-        self._active = np.zeros(nu, dtype=np.int32)  # DAQP's sense of each input bound: 1 upper, 3 lower active
+        self._active = InputActiveSet(nu, m)  # the warm start's input bounds
 
     def shift_active_set(self) -> None:
         """Move the warm-start active set one stage on (the RTI shift); the last stage starts inactive."""
-        m = self.m
-        self._active[:-m] = self._active[m:]
-        self._active[-m:] = 0
+        self._active.shift()
 
     def clear_active_set(self) -> None:
         """Start the next solve with no active input bound."""
-        self._active[:] = 0
+        self._active.clear()
 
     def mark_unconstrained(self) -> None:
         """The last solution, found without DAQP, met every bound: no active set, zero multipliers."""
-        self._active[:] = 0
+        self._active.clear()
         self.lam = np.zeros_like(self.lam)
         self.flag = 1
 
@@ -351,16 +350,12 @@ class CondensedLTV:
         if self.soft:  # start with every slack at its bound s = 0 (DAQP's ACTIVE | LOWER): only violated rows leave
             self.sense[self.nu : nv] = 3
         if self.warm_start:
-            self.sense[: self.nu] = self._active
+            self.sense[: self.nu] = self._active.sense
         z, _, flag, info = daqp.solve(self.H, self.g, self.A, self.bu, self.bl, self.sense, **self.settings)
         self.lam = info["lam"]
         self.flag = int(flag)
         if self.warm_start:
-            lam_u = self.lam[: self.nu]
-            self._active[:] = 0
-            if flag in (1, 2):
-                self._active[lam_u > 0] = 1  # DAQP's multipliers: > 0 at an upper bound, < 0 at a lower one
-                self._active[lam_u < 0] = 3
+            self._active.record(self.lam[: self.nu], flag in (1, 2))
         return z, flag in (1, 2), DAQP_STATUS.get(self.flag, f"exit flag {self.flag}"), int(info["iterations"])
 
     def step(self, z: np.ndarray, dx0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

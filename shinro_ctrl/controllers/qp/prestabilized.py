@@ -44,6 +44,7 @@ import daqp
 import numpy as np
 import scipy.linalg as sla
 
+from shinro_ctrl.controllers.qp.active_set import InputActiveSet
 from shinro_ctrl.controllers.qp.condensed import DAQP_STATUS
 
 __all__ = ["PrestabilizedLTV"]
@@ -132,7 +133,7 @@ class PrestabilizedLTV:
         self.sense = np.zeros(mt, dtype=np.int32)
         self.settings = dict(daqp_settings or {})
         self.warm_start = bool(warm_start)
-        self._active = np.zeros(nu, dtype=np.int32)  # DAQP's sense of each input row: 1 upper, 3 lower active
+        self._active = InputActiveSet(nu, self.m)  # the warm start's input rows
         self.dU = np.zeros(nu)
         self.dX = np.zeros((N, n))
         self.z = np.zeros(self.nvar)
@@ -141,13 +142,11 @@ class PrestabilizedLTV:
 
     def shift_active_set(self) -> None:
         """Move the warm-start active set one stage on (the RTI shift); the last stage starts inactive."""
-        m = self.m
-        self._active[:-m] = self._active[m:]
-        self._active[-m:] = 0
+        self._active.shift()
 
     def mark_unconstrained(self) -> None:
         """The last step met every bound without this QP: no active set, zero multipliers."""
-        self._active[:] = 0
+        self._active.clear()
         self.lam = np.zeros_like(self.lam)
         self.flag = 1
 
@@ -222,17 +221,13 @@ class PrestabilizedLTV:
         if self.ns:  # every slack starts at its bound s = 0 (DAQP's ACTIVE | LOWER): only violated rows leave
             self.sense[nu:nv] = 3
         if self.warm_start:
-            self.sense[nv : nv + nu] = self._active
+            self.sense[nv : nv + nu] = self._active.sense
         z, _, flag, info = daqp.solve(self.H, self.f, self.A, bu, bl, self.sense, **self.settings)
         self.lam = info["lam"]
         self.flag = int(flag)
         ok = flag in (1, 2)
         if self.warm_start:
-            lam_u = self.lam[nv : nv + nu]
-            self._active[:] = 0
-            if ok:
-                self._active[lam_u > 0] = 1  # DAQP's multipliers: > 0 at an upper bound, < 0 at a lower one
-                self._active[lam_u < 0] = 3
+            self._active.record(self.lam[nv : nv + nu], ok)
         if ok:
             self.z = z
             v = z[:nu]
