@@ -947,15 +947,7 @@ class MjcfPlant(Plant):
             InvalidArgument: wrong shapes.
             NonFiniteError: ``x`` or ``u`` holds NaN or inf, or ``ẋ`` overflows float64.
         """
-        if (  # fast path: one float64 state and input, straight into this thread's compiled-function buffer
-            params is None
-            and type(state) is np.ndarray
-            and type(control) is np.ndarray
-            and state.shape == (self.state_dim,)
-            and control.shape == (self.input_dim,)
-            and state.dtype == np.float64
-            and control.dtype == np.float64
-        ):
+        if params is None and self._plain(state, control):  # straight into this thread's compiled-function buffer
             self.check_model_domain(state)
             xdot, total = self._eval_checked(state, control)
             if math.isfinite(total):  # no NaN or inf in x, u or ẋ (or an overflow: the general path decides)
@@ -969,6 +961,17 @@ class MjcfPlant(Plant):
                     f"{np.array2string(a, precision=4)}"
                 )
         return super().dynamics(state, control, params)
+
+    def _plain(self, x: object, u: object) -> bool:
+        """One float64 state ``(n,)`` and input ``(m,)``: the compiled fast paths take them as they are."""
+        return (
+            type(x) is np.ndarray
+            and type(u) is np.ndarray
+            and x.shape == (self.state_dim,)
+            and u.shape == (self.input_dim,)
+            and x.dtype == np.float64
+            and u.dtype == np.float64
+        )
 
     def linearize(
         self, x0: ArrayLike | None = None, u0: ArrayLike | None = None, *, method: str = "exact", eps: float = 1e-6
@@ -1003,15 +1006,7 @@ class MjcfPlant(Plant):
                 where = f"{self._label()}.linearize (exact) at x0 = {x0.tolist()}, u0 = {u0.tolist()}"
                 self._check_finite_model(A, B, where)
             return A, B
-        if (
-            method == "exact"
-            and type(x0) is np.ndarray
-            and type(u0) is np.ndarray
-            and x0.shape == (self.state_dim,)
-            and u0.shape == (self.input_dim,)
-            and x0.dtype == np.float64
-            and u0.dtype == np.float64
-        ):
+        if method == "exact" and self._plain(x0, u0):
             self.check_model_domain(x0)
             A, B, total = self._jacobian.evaluate(x0, u0)
             if math.isfinite(total):
