@@ -384,7 +384,7 @@ def standing_equilibrium(
             "torque",
         )
     if min_share > 0.0:
-        G = np.vstack([pyramid, support(float(min_share))])
+        G = np.vstack([G, support(float(min_share))])  # f_z ≥ 0 kept: at min_share = 1 a lone contact's row is 0 ≤ 0
         bodies = [f.body for f in frames]
         feet = "; ".join(
             ", ".join(f.name for f in frames if f.body == b) for b in dict.fromkeys(bodies) if bodies.count(b) > 1
