@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from shinro_ctrl.errors import InvalidArgument, NonFiniteError
+from shinro_ctrl.errors import InvalidArgument, NonFiniteError, ShinroError
 
 __all__ = [
     "MAX_MODEL_ENTRY",
@@ -33,6 +33,7 @@ __all__ = [
     "state_space",
     "unknown_keys",
     "weight_matrix",
+    "whole_step_count",
 ]
 
 
@@ -327,3 +328,25 @@ def all_finite(*arrays: np.ndarray) -> bool:
     unlike a numpy sum, it cannot overflow into a warning.
     """
     return all(bool(np.isfinite(a).all()) for a in arrays)
+
+
+#: Relative tolerance of "a whole number of steps" (``t / dt`` is rarely an exact integer in floats).
+STEP_RTOL = 1e-9
+
+
+def whole_step_count(seconds: float, dt: float, what: str, error: type[ShinroError] = InvalidArgument) -> int:
+    """``round(seconds / dt)``, refusing a time between two whole steps (rounding it would move it silently).
+
+    Raises:
+        error: ``seconds / dt`` is not within :data:`STEP_RTOL` (relative) of a whole number; the message names
+            both values and the two nearest valid times.
+    """
+    ratio = seconds / dt
+    steps = round(ratio)
+    if abs(ratio - steps) > STEP_RTOL * max(1.0, ratio):
+        lo, hi = math.floor(ratio) * dt, math.ceil(ratio) * dt
+        raise error(
+            f"{what} = {seconds:g} s is not a whole number of steps of dt = {dt:g} s ({ratio:.6g} steps): "
+            f"use {lo:g} s or {hi:g} s"
+        )
+    return int(steps)

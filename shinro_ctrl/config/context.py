@@ -8,12 +8,9 @@ from typing import Any
 
 from shinro_ctrl.config.strict import check_value
 from shinro_ctrl.errors import ConfigError
-from shinro_ctrl.validation import did_you_mean, unknown_keys
+from shinro_ctrl.validation import STEP_RTOL, did_you_mean, unknown_keys, whole_step_count
 
 __all__ = ["ConfigContext", "whole_steps"]
-
-#: Relative tolerance of "a whole number of steps" (``duration / dt`` is rarely an exact integer in floats).
-STEP_RTOL = 1e-9
 
 
 def whole_steps(duration: float, dt: float, what: str = "duration") -> int:
@@ -40,16 +37,9 @@ def whole_steps(duration: float, dt: float, what: str = "duration") -> int:
             f"{what} = {duration:g} s is too long: its number of steps of dt = {dt:g} s overflows float64 "
             "(give a shorter duration)"
         )
-    steps = round(ratio)
     if ratio < 1 - STEP_RTOL:
         raise ConfigError(f"{what} = {duration:g} s is shorter than one step (dt = {dt:g} s): give at least {dt:g} s")
-    if abs(ratio - steps) > STEP_RTOL * max(1.0, ratio):
-        lo, hi = math.floor(ratio) * dt, math.ceil(ratio) * dt
-        raise ConfigError(
-            f"{what} = {duration:g} s is not a whole number of steps of dt = {dt:g} s ({ratio:.6g} steps): "
-            f"use {lo:g} s or {hi:g} s"
-        )
-    return int(steps)
+    return whole_step_count(duration, dt, what, ConfigError)
 
 
 class ConfigContext:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument
-from shinro_ctrl.validation import did_you_mean
+from shinro_ctrl.validation import did_you_mean, whole_step_count
 
 __all__ = ["ACTUATOR_KEYS", "MAX_DELAY_STEPS", "MIN_QUANTUM", "SENSOR_KEYS", "delay_steps", "nonideal_channels"]
 
@@ -35,7 +35,6 @@ SENSOR_KEYS = ("delay", "quantization")
 MAX_DELAY_STEPS = 100_000
 #: Smallest quantization step: ``y / q`` stays finite for any value a loop can hold (|y| < 1e208).
 MIN_QUANTUM = 1e-100
-_STEP_RTOL = 1e-9
 
 
 def delay_steps(delay: float, dt: float, what: str = "delay") -> int:
@@ -52,14 +51,7 @@ def delay_steps(delay: float, dt: float, what: str = "delay") -> int:
         raise InvalidArgument(
             f"{what} = {delay:g} s is {ratio:.3g} steps of dt = {dt:g} s; the limit is {MAX_DELAY_STEPS:,}"
         )
-    steps = round(ratio)
-    if abs(ratio - steps) > _STEP_RTOL * max(1.0, ratio):
-        lo, hi = math.floor(ratio) * dt, math.ceil(ratio) * dt
-        raise InvalidArgument(
-            f"{what} = {delay:g} s is not a whole number of steps of dt = {dt:g} s ({ratio:.6g} steps): "
-            f"use {lo:g} s or {hi:g} s"
-        )
-    return int(steps)
+    return whole_step_count(delay, dt, what)
 
 
 def _values(key: str, value: Any, size: int, unit: str, what: str) -> np.ndarray:
