@@ -27,6 +27,7 @@ __all__ = [
     "check_finite",
     "check_nonnegative",
     "check_positive",
+    "close_match_hint",
     "closest",
     "did_you_mean",
     "measurement_matrix",
@@ -50,6 +51,13 @@ def did_you_mean(word: str, choices: Iterable[str]) -> str:
     if near is not None:
         return f"; did you mean '{near}'?"
     return f"; valid: {', '.join(choices)}" if choices else ""
+
+
+def close_match_hint(word: str, choices: Iterable[str]) -> str:
+    """``"; did you mean 'x'?"`` when one of ``choices`` is close to ``word``, else ``""`` (for a message that lists
+    the valid choices itself; :func:`did_you_mean` lists them when none is close)."""
+    near = closest(word, choices)
+    return f"; did you mean '{near}'?" if near is not None else ""
 
 
 def unknown_keys(mapping: Mapping[str, Any], allowed: Iterable[str]) -> list[str]:

@@ -10,7 +10,7 @@ from shinro_ctrl.config.context import _Ctx, whole_steps
 from shinro_ctrl.config.schema import REFERENCE_KINDS, SIM_KEYS, EstimatorConfig, SimConfig
 from shinro_ctrl.config.strict import signature_annotations, table_annotations, toml_type
 from shinro_ctrl.errors import ConfigError
-from shinro_ctrl.validation import did_you_mean
+from shinro_ctrl.validation import close_match_hint, did_you_mean
 
 __all__: list[str] = []
 
@@ -129,11 +129,9 @@ def _parse_output_feedback(ctx: _Ctx, st: Mapping[str, Any], sim: SimConfig, pro
             raise ctx.error("sim", f"'measured' must be a non-empty list of state names, got {measured!r}")
         for v in measured:
             if v not in names:
-                hint = did_you_mean(v, names)
                 raise ctx.error(
                     "sim",
-                    f"'measured': unknown state '{v}'{hint if 'did you mean' in hint else ''} "
-                    f"(valid: {', '.join(names)})",
+                    f"'measured': unknown state '{v}'{close_match_hint(v, names)} (valid: {', '.join(names)})",
                 )
         if len(set(measured)) != len(measured):
             raise ctx.error("sim", f"'measured' lists a state twice: {measured!r}")

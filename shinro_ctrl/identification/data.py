@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from shinro_ctrl.errors import InvalidArgument, UnknownName
-from shinro_ctrl.validation import closest
+from shinro_ctrl.validation import close_match_hint
 
 __all__ = ["Experiment", "check_sampling", "experiment", "load_data"]
 
@@ -344,9 +344,3 @@ def _load_csv(p: Path, states: tuple[str, ...], inputs: tuple[str, ...]) -> Expe
     u = values[:-1, [col[i] for i in inputs]]
     y = values[:, [col[s] for s in outputs]]
     return experiment(t, u, y, outputs, inputs, source=str(p), row_label="line", row_offset=2)
-
-
-def close_match_hint(word: str, choices: Sequence[str]) -> str:
-    """``"; did you mean 'x'?"`` when one of ``choices`` is close to ``word``, else nothing (the caller lists them)."""
-    near = closest(word, choices)
-    return f"; did you mean '{near}'?" if near else ""

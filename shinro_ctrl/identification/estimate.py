@@ -44,7 +44,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from shinro_ctrl.errors import IdentificationError, InvalidArgument, UnknownName
-from shinro_ctrl.identification.data import Experiment, check_sampling, close_match_hint, select_outputs
+from shinro_ctrl.identification.data import Experiment, check_sampling, select_outputs
 from shinro_ctrl.identification.fit import fit_percent, nrmse
 from shinro_ctrl.identification.result import IdentificationResult
 from shinro_ctrl.identification.uncertainty import (
@@ -54,6 +54,7 @@ from shinro_ctrl.identification.uncertainty import (
     weak_directions,
 )
 from shinro_ctrl.plants.base import Plant
+from shinro_ctrl.validation import close_match_hint
 
 __all__ = ["IdentificationError", "default_bounds", "discrete_step", "identify"]
 

@@ -39,7 +39,7 @@ from shinro_ctrl.errors import ConfigError, InvalidArgument, NonFiniteError
 from shinro_ctrl.linearization import MODEL_DISCRETIZATIONS, ExactJacobian, LinearModel, discretize, fd_jacobians
 from shinro_ctrl.plants.standalone import Engine, StandaloneEngine
 from shinro_ctrl.registry import Registry
-from shinro_ctrl.validation import all_finite, as_vector, check_positive, did_you_mean, unknown_keys
+from shinro_ctrl.validation import all_finite, as_vector, check_positive, close_match_hint, did_you_mean, unknown_keys
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -789,10 +789,9 @@ class Plant:
         for s in measured:
             if isinstance(s, str):
                 if s not in names:
-                    hint = did_you_mean(s, names)
                     raise InvalidArgument(
                         f"measured: unknown state '{s}' of {type(self).__name__}"
-                        f"{hint if 'did you mean' in hint else ''} (valid: {', '.join(names)})"
+                        f"{close_match_hint(s, names)} (valid: {', '.join(names)})"
                     )
                 i = names.index(s)
             elif isinstance(s, int | np.integer) and not isinstance(s, bool) and 0 <= s < self.state_dim:

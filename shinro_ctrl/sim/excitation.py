@@ -63,7 +63,7 @@ from typing import Any
 import numpy as np
 
 from shinro_ctrl.errors import ConfigError, InvalidArgument
-from shinro_ctrl.validation import did_you_mean
+from shinro_ctrl.validation import close_match_hint
 
 __all__ = [
     "EXCITATION_KINDS",
@@ -321,20 +321,21 @@ def parse_excitation(
             raise ConfigError(f"{w}: expected a table such as {example}, got {t!r}")
         for k in t:
             if k not in _KEYS:
-                raise ConfigError(f"{w}: unknown key '{k}'{_close(str(k), _KEYS)} (valid: {', '.join(_KEYS)})")
+                hint = close_match_hint(str(k), _KEYS)
+                raise ConfigError(f"{w}: unknown key '{k}'{hint} (valid: {', '.join(_KEYS)})")
         for k in ("kind", "input", "amplitude", "band"):
             if k not in t:
                 raise ConfigError(f"{w}: missing key '{k}'")
         kind = t["kind"]
         if not isinstance(kind, str) or kind not in EXCITATION_KINDS:
             raise ConfigError(
-                f"{w}: unknown kind {kind!r}{_close(str(kind), EXCITATION_KINDS)} "
+                f"{w}: unknown kind {kind!r}{close_match_hint(str(kind), EXCITATION_KINDS)} "
                 f"(valid: {', '.join(EXCITATION_KINDS)})"
             )
         i = t["input"]
         if isinstance(i, str):
             if i not in names:
-                raise ConfigError(f"{w}: unknown input '{i}'{_close(i, names)} (valid: {', '.join(names)})")
+                raise ConfigError(f"{w}: unknown input '{i}'{close_match_hint(i, names)} (valid: {', '.join(names)})")
             index = names.index(i)
         elif isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(names):
             index = i
@@ -365,9 +366,3 @@ def parse_excitation(
             raise ConfigError(f"{w}: {exc}") from None
         out.append(spec)
     return out
-
-
-def _close(word: str, valid: Sequence[str]) -> str:
-    """``"; did you mean 'x'?"`` when a valid name is close, else "" (the messages list the valid names)."""
-    hint = did_you_mean(word, valid)
-    return hint if "did you mean" in hint else ""
